@@ -1,0 +1,281 @@
+//! Schema ⇄ domain conversions, with exhaustive destructuring so that a field added to the
+//! schema cannot be silently ignored here.
+
+use nalgebra::{Matrix3, Matrix3x4, Point2, Vector3};
+
+use super::{pb, InputError};
+use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
+use crate::matching::MatchParams;
+use crate::pipeline::{MatchError, MatchOutput};
+use crate::segment::{Segment2, SegmentList};
+
+fn exactly<const N: usize>(field: String, values: &[f64]) -> Result<[f64; N], InputError> {
+    <[f64; N]>::try_from(values).map_err(|_| {
+        InputError::new(
+            field,
+            format!("needs exactly {N} numbers, got {}", values.len()),
+        )
+    })
+}
+
+fn camera_from_pb(i: usize, cam: &pb::Camera) -> Result<Camera, InputError> {
+    let pb::Camera {
+        name,
+        width,
+        height,
+        projection,
+        intrinsics,
+        rotation,
+        translation,
+        distortion,
+    } = cam;
+    let at = |field: &str| format!("calibration.cameras[{i}].{field}");
+    let name = if name.is_empty() {
+        format!("cam{}", i + 1)
+    } else {
+        name.clone()
+    };
+    let distortion = distortion.as_ref().map(|d| {
+        let pb::Distortion { k1, k2, p1, p2, k3 } = *d;
+        Distortion { k1, k2, p1, p2, k3 }
+    });
+    let pinhole_given = !(intrinsics.is_empty() && rotation.is_empty() && translation.is_empty());
+    let camera = match (projection.is_empty(), pinhole_given) {
+        (false, true) => {
+            return Err(InputError::new(
+                at("projection"),
+                "give either projection or intrinsics + rotation + translation, not both",
+            ))
+        }
+        (true, false) => {
+            return Err(InputError::new(
+                at("projection"),
+                "missing: give projection (12 numbers) or intrinsics (9) + rotation (9) + translation (3)",
+            ))
+        }
+        (false, false) => {
+            let p = exactly::<12>(at("projection"), projection)?;
+            Camera::from_projection(
+                name,
+                *width,
+                *height,
+                Matrix3x4::from_row_slice(&p),
+                distortion,
+            )
+        }
+        (true, true) => {
+            let k = exactly::<9>(at("intrinsics"), intrinsics)?;
+            let r = exactly::<9>(at("rotation"), rotation)?;
+            let t = exactly::<3>(at("translation"), translation)?;
+            Camera::from_krt(
+                name,
+                *width,
+                *height,
+                Matrix3::from_row_slice(&k),
+                Matrix3::from_row_slice(&r),
+                Vector3::from_row_slice(&t),
+                distortion,
+            )
+        }
+    };
+    camera.map_err(|e: CameraError| InputError::new(at(e.field()), e.to_string()))
+}
+
+/// The rig of a `Calibration`: exactly three valid cameras with distinct optical centres.
+pub fn rig_from_calibration(calibration: Option<&pb::Calibration>) -> Result<Rig, InputError> {
+    let calibration = calibration
+        .ok_or_else(|| InputError::new("calibration", "missing: three cameras are needed"))?;
+    let pb::Calibration { cameras } = calibration;
+    if cameras.len() != 3 {
+        return Err(InputError::new(
+            "calibration.cameras",
+            format!("needs exactly 3 cameras, got {}", cameras.len()),
+        ));
+    }
+    let built = [
+        camera_from_pb(0, &cameras[0])?,
+        camera_from_pb(1, &cameras[1])?,
+        camera_from_pb(2, &cameras[2])?,
+    ];
+    Rig::new(built).map_err(|e| match e {
+        RigError::CoincidentCentres { second, .. } => {
+            InputError::new(format!("calibration.cameras[{second}]"), e.to_string())
+        }
+    })
+}
+
+/// Matching parameters: each absent option takes its default.
+pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
+    let d = MatchParams::default();
+    let Some(o) = options else {
+        return d;
+    };
+    let pb::MatchOptions {
+        depth_min_m,
+        depth_max_m,
+        tolerance_px,
+        angle_tolerance_deg,
+        verify_angle_tolerance_deg,
+        min_length_px,
+        gradient_ratio_max,
+        validate,
+        neighbour_radius_px,
+        max_residual_px,
+        line_noise_px,
+        max_direction_sigma_deg,
+    } = *o;
+    MatchParams {
+        depth_min_m: depth_min_m.unwrap_or(d.depth_min_m),
+        depth_max_m: depth_max_m.unwrap_or(d.depth_max_m),
+        tolerance_px: tolerance_px.unwrap_or(d.tolerance_px),
+        angle_tolerance_deg: angle_tolerance_deg.unwrap_or(d.angle_tolerance_deg),
+        verify_angle_tolerance_deg: verify_angle_tolerance_deg
+            .unwrap_or(d.verify_angle_tolerance_deg),
+        min_length_px: min_length_px.unwrap_or(d.min_length_px),
+        gradient_ratio_max: gradient_ratio_max.unwrap_or(d.gradient_ratio_max),
+        validate: validate.unwrap_or(d.validate),
+        neighbour_radius_px: neighbour_radius_px.unwrap_or(d.neighbour_radius_px),
+        max_residual_px: max_residual_px.unwrap_or(d.max_residual_px),
+        line_noise_px: line_noise_px.unwrap_or(d.line_noise_px),
+        max_direction_sigma_deg: max_direction_sigma_deg.unwrap_or(d.max_direction_sigma_deg),
+    }
+}
+
+/// The three segment lists of a `SegmentTriplet`.
+pub fn segment_lists(triplet: &pb::SegmentTriplet) -> Result<[SegmentList; 3], InputError> {
+    let pb::SegmentTriplet { lists } = triplet;
+    if lists.len() != 3 {
+        return Err(InputError::new(
+            "segments.lists",
+            format!("needs exactly 3 segment lists, got {}", lists.len()),
+        ));
+    }
+    Ok(std::array::from_fn(|i| {
+        let pb::SegmentList { segments, oriented } = &lists[i];
+        SegmentList {
+            oriented: *oriented,
+            segments: segments
+                .iter()
+                .map(|s| {
+                    let pb::Segment {
+                        u1,
+                        v1,
+                        u2,
+                        v2,
+                        gradient,
+                    } = *s;
+                    Segment2 {
+                        start: Point2::new(u1, v1),
+                        end: Point2::new(u2, v2),
+                        gradient,
+                    }
+                })
+                .collect(),
+        }
+    }))
+}
+
+/// A checked `MatchRequest`, ready for the pipeline.
+#[derive(Debug, Clone)]
+pub struct MatchInput {
+    pub rig: Rig,
+    pub params: MatchParams,
+    pub lists: [SegmentList; 3],
+}
+
+/// Converts a `MatchRequest`, checking what the schema cannot express.
+pub fn match_request(request: &pb::MatchRequest) -> Result<MatchInput, InputError> {
+    let pb::MatchRequest {
+        calibration,
+        options,
+        input,
+    } = request;
+    let rig = rig_from_calibration(calibration.as_ref())?;
+    let params = match_params(options.as_ref());
+    params
+        .check()
+        .map_err(|e| InputError::new(format!("options.{}", e.field()), e.to_string()))?;
+    let lists = match input {
+        Some(pb::match_request::Input::Segments(triplet)) => segment_lists(triplet)?,
+        None => return Err(InputError::new("input", "missing: give segments")),
+    };
+    Ok(MatchInput { rig, params, lists })
+}
+
+impl From<MatchError> for InputError {
+    fn from(e: MatchError) -> InputError {
+        let message = e.to_string();
+        let field = match &e {
+            MatchError::Params(p) => format!("options.{}", p.field()),
+            MatchError::Rectify(_) => "calibration".to_string(),
+            MatchError::NonFiniteCoordinate {
+                list,
+                index,
+                coordinate,
+            }
+            | MatchError::OutOfImage {
+                list,
+                index,
+                coordinate,
+                ..
+            } => format!(
+                "segments.lists[{list}].segments[{index}].{}",
+                coordinate.name()
+            ),
+            MatchError::NegativeGradient { list, index, .. } => {
+                format!("segments.lists[{list}].segments[{index}].gradient")
+            }
+        };
+        InputError { field, message }
+    }
+}
+
+fn point3(p: &nalgebra::Point3<f64>) -> pb::Point3 {
+    pb::Point3 {
+        x: p.x,
+        y: p.y,
+        z: p.z,
+    }
+}
+
+/// The `MatchResponse` of a pipeline output.
+pub fn match_response(output: &MatchOutput) -> pb::MatchResponse {
+    let s = &output.stats;
+    pb::MatchResponse {
+        triplets: output
+            .triplets
+            .iter()
+            .map(|t| pb::Triplet {
+                s1: t.segments[0],
+                s2: t.segments[1],
+                s3: t.segments[2],
+                residual_px: t.residual_px,
+            })
+            .collect(),
+        segments_3d: output
+            .segments_3d
+            .iter()
+            .map(|r| pb::Segment3 {
+                start: Some(point3(&r.segment.start)),
+                end: Some(point3(&r.segment.end)),
+                triplet: r.triplet,
+                residual_px: r.residual_px,
+                direction_sigma_deg: r.direction_sigma_deg,
+            })
+            .collect(),
+        stats: Some(pb::MatchStats {
+            segments_in: s.segments_in.to_vec(),
+            segments_used: s.segments_used.to_vec(),
+            zero_length_dropped: s.zero_length_dropped.to_vec(),
+            hypotheses: s.hypotheses,
+            triplets: s.triplets,
+            segments_3d: s.segments_3d,
+            rectify_ms: s.rectify_ms,
+            predict_ms: s.predict_ms,
+            validate_ms: s.validate_ms,
+            reconstruct_ms: s.reconstruct_ms,
+            total_ms: s.total_ms,
+            collinear_rig: s.collinear_rig,
+        }),
+    }
+}

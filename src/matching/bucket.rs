@@ -1,0 +1,340 @@
+//! Buckets (DESIGN §2.3): a grid of square windows over one rectified view, in a frame
+//! turned so that x runs along one pair's epipolar direction; each window lists the segments
+//! crossing it sorted by orientation, so "segments near here with orientation in this range"
+//! is two binary searches per window. Built in O(n log n).
+//!
+//! Aligning the grid with the epipolar direction makes the disparity search of a segment a
+//! band of rows, and the window of each row an interval of columns.
+
+use std::f64::consts::PI;
+
+use nalgebra::{Point2, Vector2};
+
+use super::RectSegment;
+
+/// Target number of segments per window: small enough that a window's orientation range holds
+/// a handful of candidates, large enough that a search touches few windows.
+const SEGMENTS_PER_CELL: f64 = 3.0;
+/// Bounds on the window side, rectified pixels.
+const MIN_CELL_PX: f64 = 8.0;
+const MAX_CELL_PX: f64 = 64.0;
+/// Bound on the number of windows, so a few far-flung segments cannot blow up memory.
+const MAX_CELLS: usize = 1 << 16;
+
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    angle: f64,
+    segment: u32,
+}
+
+/// The angle key of a direction: `[0, 2π)` for oriented segments, `[0, π)` otherwise.
+pub fn angle_key(dir: Vector2<f64>, period: f64) -> f64 {
+    let a = dir.y.atan2(dir.x).rem_euclid(period);
+    if a >= period {
+        0.0
+    } else {
+        a
+    }
+}
+
+/// Signed difference of two angle keys, folded into `(-period/2, period/2]`.
+pub fn angle_diff(a: f64, b: f64, period: f64) -> f64 {
+    let d = (a - b).rem_euclid(period);
+    if d > period / 2.0 {
+        d - period
+    } else {
+        d
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct Buckets {
+    /// Unit x axis of the turned frame (the epipolar direction), in rectified pixels.
+    axis: Vector2<f64>,
+    x0: f64,
+    y0: f64,
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    offsets: Vec<u32>,
+    entries: Vec<Entry>,
+    period: f64,
+}
+
+impl Buckets {
+    /// Turned-frame coordinates of a rectified point.
+    #[inline]
+    pub fn frame(&self, p: Point2<f64>) -> (f64, f64) {
+        frame(self.axis, p)
+    }
+
+    pub fn cell_px(&self) -> f64 {
+        self.cell
+    }
+
+    /// Builds the buckets of `segments`, each registered in every window its path, widened by
+    /// `slack_px`, crosses.
+    pub fn build(segments: &[RectSegment], axis: Vector2<f64>, slack_px: f64, period: f64) -> Self {
+        let axis = axis.normalize();
+        let (mut xmin, mut ymin, mut xmax, mut ymax) = (
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        );
+        for s in segments {
+            for p in [s.a, s.b] {
+                let (x, y) = frame(axis, p);
+                xmin = xmin.min(x);
+                xmax = xmax.max(x);
+                ymin = ymin.min(y);
+                ymax = ymax.max(y);
+            }
+        }
+        if segments.is_empty() {
+            (xmin, ymin, xmax, ymax) = (0.0, 0.0, 1.0, 1.0);
+        }
+        let (x0, y0) = (xmin - slack_px - 1.0, ymin - slack_px - 1.0);
+        let (w, h) = (xmax + slack_px + 1.0 - x0, ymax + slack_px + 1.0 - y0);
+        let mut cell = (w * h * SEGMENTS_PER_CELL / segments.len().max(1) as f64)
+            .sqrt()
+            .clamp(MIN_CELL_PX, MAX_CELL_PX);
+        while (w / cell).ceil() * (h / cell).ceil() > MAX_CELLS as f64 {
+            cell *= 1.5;
+        }
+        let nx = ((w / cell).ceil() as usize).max(1);
+        let ny = ((h / cell).ceil() as usize).max(1);
+        let mut grid = Buckets {
+            axis,
+            x0,
+            y0,
+            cell,
+            nx,
+            ny,
+            offsets: vec![0; nx * ny + 1],
+            entries: Vec::new(),
+            period,
+        };
+
+        // Two passes (count, then fill) give one flat allocation.
+        let cells_of = |s: &RectSegment, visit: &mut dyn FnMut(usize)| {
+            grid.for_each_cell_on_path(s.a, s.b, slack_px, |cx, cy| visit(cy * nx + cx));
+        };
+        let mut counts = vec![0u32; nx * ny];
+        for s in segments {
+            cells_of(s, &mut |c| counts[c] += 1);
+        }
+        let mut offsets = vec![0u32; nx * ny + 1];
+        for c in 0..nx * ny {
+            offsets[c + 1] = offsets[c] + counts[c];
+        }
+        let mut cursor = offsets.clone();
+        let mut entries = vec![
+            Entry {
+                angle: 0.0,
+                segment: 0
+            };
+            offsets[nx * ny] as usize
+        ];
+        for (i, s) in segments.iter().enumerate() {
+            let angle = angle_key(s.dir, period);
+            cells_of(s, &mut |c| {
+                entries[cursor[c] as usize] = Entry {
+                    angle,
+                    segment: i as u32,
+                };
+                cursor[c] += 1;
+            });
+        }
+        for c in 0..nx * ny {
+            entries[offsets[c] as usize..offsets[c + 1] as usize].sort_unstable_by(|a, b| {
+                a.angle.total_cmp(&b.angle).then(a.segment.cmp(&b.segment))
+            });
+        }
+        grid.offsets = offsets;
+        grid.entries = entries;
+        grid
+    }
+
+    /// Calls `visit(cx, cy)` for every window that the segment `a`–`b`, widened by `slack`,
+    /// touches: per row band, the column interval the segment spans there.
+    pub fn for_each_cell_on_path(
+        &self,
+        a: Point2<f64>,
+        b: Point2<f64>,
+        slack: f64,
+        mut visit: impl FnMut(usize, usize),
+    ) {
+        let (ax, ay) = self.frame(a);
+        let (bx, by) = self.frame(b);
+        let (ylo, yhi) = (ay.min(by) - slack, ay.max(by) + slack);
+        let Some((r0, r1)) = self.index_range(ylo, yhi, self.y0, self.ny) else {
+            return;
+        };
+        for cy in r0..=r1 {
+            let band_lo = (self.y0 + cy as f64 * self.cell).max(ylo) - slack;
+            let band_hi = (self.y0 + (cy + 1) as f64 * self.cell).min(yhi) + slack;
+            let (xa, xb) = x_span(ax, ay, bx, by, band_lo, band_hi);
+            if let Some((c0, c1)) = self.index_range(xa - slack, xb + slack, self.x0, self.nx) {
+                for cx in c0..=c1 {
+                    visit(cx, cy);
+                }
+            }
+        }
+    }
+
+    /// The window row range covering turned-frame y in `[lo, hi]`.
+    pub fn rows(&self, lo: f64, hi: f64) -> Option<(usize, usize)> {
+        self.index_range(lo, hi, self.y0, self.ny)
+    }
+
+    /// The window column range covering turned-frame x in `[lo, hi]`.
+    pub fn columns(&self, lo: f64, hi: f64) -> Option<(usize, usize)> {
+        self.index_range(lo, hi, self.x0, self.nx)
+    }
+
+    /// Turned-frame y interval of window row `cy`.
+    pub fn row_span(&self, cy: usize) -> (f64, f64) {
+        let lo = self.y0 + cy as f64 * self.cell;
+        (lo, lo + self.cell)
+    }
+
+    fn index_range(&self, lo: f64, hi: f64, origin: f64, n: usize) -> Option<(usize, usize)> {
+        let a = ((lo - origin) / self.cell).floor();
+        let b = ((hi - origin) / self.cell).floor();
+        if a.is_nan() || b.is_nan() || b < 0.0 || a >= n as f64 || b < a {
+            return None;
+        }
+        Some((a.max(0.0) as usize, (b as usize).min(n - 1)))
+    }
+
+    /// Calls `visit(segment)` for the segments of window `(cx, cy)` whose angle key lies
+    /// within `tolerance` of `angle` (wrapping around the period).
+    #[inline]
+    pub fn for_each_in_cell(
+        &self,
+        cx: usize,
+        cy: usize,
+        angle: f64,
+        tolerance: f64,
+        mut visit: impl FnMut(u32),
+    ) {
+        let c = cy * self.nx + cx;
+        let cell = &self.entries[self.offsets[c] as usize..self.offsets[c + 1] as usize];
+        if cell.is_empty() {
+            return;
+        }
+        if tolerance * 2.0 >= self.period {
+            cell.iter().for_each(|e| visit(e.segment));
+            return;
+        }
+        let lo = angle - tolerance;
+        let hi = angle + tolerance;
+        let mut scan = |lo: f64, hi: f64| {
+            let start = cell.partition_point(|e| e.angle < lo);
+            for e in &cell[start..] {
+                if e.angle > hi {
+                    break;
+                }
+                visit(e.segment);
+            }
+        };
+        if lo < 0.0 {
+            scan(lo + self.period, self.period);
+            scan(0.0, hi);
+        } else if hi >= self.period {
+            scan(lo, self.period);
+            scan(0.0, hi - self.period);
+        } else {
+            scan(lo, hi);
+        }
+    }
+}
+
+#[inline]
+fn frame(axis: Vector2<f64>, p: Point2<f64>) -> (f64, f64) {
+    (axis.x * p.x + axis.y * p.y, -axis.y * p.x + axis.x * p.y)
+}
+
+/// The x interval of segment (ax, ay)–(bx, by) restricted to y in `[lo, hi]`.
+fn x_span(ax: f64, ay: f64, bx: f64, by: f64, lo: f64, hi: f64) -> (f64, f64) {
+    let dy = by - ay;
+    if dy.abs() < 1e-12 {
+        return (ax.min(bx), ax.max(bx));
+    }
+    let at = |y: f64| {
+        let t = ((y - ay) / dy).clamp(0.0, 1.0);
+        ax + t * (bx - ax)
+    };
+    let (p, q) = (at(lo), at(hi));
+    (p.min(q), p.max(q))
+}
+
+/// Full turn for oriented segments, half turn for unoriented ones.
+pub fn period(oriented: bool) -> f64 {
+    if oriented {
+        2.0 * PI
+    } else {
+        PI
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seg(ax: f64, ay: f64, bx: f64, by: f64) -> RectSegment {
+        RectSegment::new(Point2::new(ax, ay), Point2::new(bx, by), f64::NAN, 0)
+    }
+
+    #[test]
+    fn finds_segments_by_place_and_orientation() {
+        let segs = vec![
+            seg(0.0, 0.0, 100.0, 0.0),
+            seg(50.0, -40.0, 50.0, 40.0),
+            seg(200.0, 200.0, 260.0, 260.0),
+        ];
+        let b = Buckets::build(&segs, Vector2::new(1.0, 0.0), 1.0, period(true));
+        let mut found = Vec::new();
+        b.for_each_cell_on_path(
+            Point2::new(40.0, -5.0),
+            Point2::new(60.0, 5.0),
+            0.0,
+            |cx, cy| {
+                b.for_each_in_cell(cx, cy, PI / 2.0, 0.1, |s| found.push(s));
+            },
+        );
+        found.sort();
+        found.dedup();
+        assert_eq!(found, vec![1]);
+        let mut found = Vec::new();
+        b.for_each_cell_on_path(
+            Point2::new(230.0, 230.0),
+            Point2::new(231.0, 231.0),
+            0.0,
+            |cx, cy| {
+                b.for_each_in_cell(cx, cy, PI / 4.0, 0.1, |s| found.push(s));
+            },
+        );
+        assert!(found.contains(&2) && !found.contains(&0));
+    }
+
+    #[test]
+    fn angle_window_wraps() {
+        let segs = vec![seg(0.0, 0.0, 10.0, -0.1), seg(0.0, 0.0, 10.0, 0.1)];
+        let b = Buckets::build(&segs, Vector2::new(1.0, 0.0), 1.0, period(true));
+        let mut found = Vec::new();
+        b.for_each_cell_on_path(
+            Point2::new(0.0, 0.0),
+            Point2::new(10.0, 0.0),
+            1.0,
+            |cx, cy| {
+                b.for_each_in_cell(cx, cy, 0.0, 0.05, |s| found.push(s));
+            },
+        );
+        found.sort();
+        found.dedup();
+        assert_eq!(found, vec![0, 1]);
+        assert!((angle_diff(0.01, 2.0 * PI - 0.01, 2.0 * PI) - 0.02).abs() < 1e-12);
+    }
+}

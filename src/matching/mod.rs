@@ -1,0 +1,254 @@
+//! Trinocular matching (DESIGN §2.3–2.5): buckets, hypothesis prediction and verification,
+//! local-consistency validation.
+//!
+//! Input: the three views' segments already rectified ([`RectSegment`], see
+//! [`crate::geometry::rectify`]). Output: triplets of indices into those views. Pure and
+//! synchronous; prediction runs in parallel over the segments of view 1 on the current rayon
+//! pool, and the output is the same whatever the number of threads.
+
+pub mod bucket;
+pub mod predict;
+pub mod validate;
+
+use nalgebra::{Point2, Vector2};
+use thiserror::Error;
+
+pub use predict::{predict, Hypothesis};
+pub use validate::validate;
+
+/// Matching parameters. Units are in the names; `Default` gives the documented defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MatchParams {
+    /// Depth range searched, metres, along the rig's viewing direction.
+    pub depth_min_m: f64,
+    pub depth_max_m: f64,
+    /// Distance allowed between a segment and its prediction in the verifying view, pixels.
+    pub tolerance_px: f64,
+    /// Orientation difference allowed between the two segments of the searched pair, degrees.
+    pub angle_tolerance_deg: f64,
+    /// Orientation difference allowed in the verifying view, degrees, on top of what
+    /// `tolerance_px` allows over the predicted segment's length.
+    pub verify_angle_tolerance_deg: f64,
+    /// Shortest segment used, pixels.
+    pub min_length_px: f64,
+    /// Largest ratio of the gradient magnitudes of two matched segments (when both known).
+    pub gradient_ratio_max: f64,
+    /// Run local-consistency validation.
+    pub validate: bool,
+    /// Endpoints closer than this share a vertex (neighbour support), pixels.
+    pub neighbour_radius_px: f64,
+    /// Largest RMS reprojection residual of a reconstructed 3D segment, pixels.
+    pub max_residual_px: f64,
+    /// Nominal noise of the input image lines, pixels: scales the predicted direction
+    /// uncertainty of each 3D segment.
+    pub line_noise_px: f64,
+    /// 3D segments whose predicted direction uncertainty exceeds this are dropped, degrees.
+    pub max_direction_sigma_deg: f64,
+}
+
+impl Default for MatchParams {
+    fn default() -> Self {
+        MatchParams {
+            depth_min_m: 0.3,
+            depth_max_m: 15.0,
+            tolerance_px: 2.0,
+            angle_tolerance_deg: 30.0,
+            verify_angle_tolerance_deg: 3.0,
+            min_length_px: 8.0,
+            gradient_ratio_max: 3.0,
+            validate: true,
+            neighbour_radius_px: 4.0,
+            max_residual_px: 1.5,
+            line_noise_px: 0.1,
+            max_direction_sigma_deg: 180.0,
+        }
+    }
+}
+
+/// A parameter out of its domain; `field` is the schema's `MatchOptions` field name.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ParamError {
+    #[error("{field} must be a finite number, got {value}")]
+    NonFinite { field: &'static str, value: f64 },
+    #[error("{field} must be {requirement}, got {value}")]
+    OutOfRange {
+        field: &'static str,
+        value: f64,
+        requirement: &'static str,
+    },
+}
+
+impl ParamError {
+    pub fn field(&self) -> &'static str {
+        match self {
+            ParamError::NonFinite { field, .. } | ParamError::OutOfRange { field, .. } => field,
+        }
+    }
+}
+
+impl MatchParams {
+    /// Checks every field; reports the first problem.
+    pub fn check(&self) -> Result<(), ParamError> {
+        let fields: [(&'static str, f64); 11] = [
+            ("depth_min_m", self.depth_min_m),
+            ("depth_max_m", self.depth_max_m),
+            ("tolerance_px", self.tolerance_px),
+            ("angle_tolerance_deg", self.angle_tolerance_deg),
+            (
+                "verify_angle_tolerance_deg",
+                self.verify_angle_tolerance_deg,
+            ),
+            ("min_length_px", self.min_length_px),
+            ("gradient_ratio_max", self.gradient_ratio_max),
+            ("neighbour_radius_px", self.neighbour_radius_px),
+            ("max_residual_px", self.max_residual_px),
+            ("line_noise_px", self.line_noise_px),
+            ("max_direction_sigma_deg", self.max_direction_sigma_deg),
+        ];
+        for (field, value) in fields {
+            if !value.is_finite() {
+                return Err(ParamError::NonFinite { field, value });
+            }
+        }
+        let positive = "greater than 0";
+        let check = |ok: bool, field: &'static str, value: f64, requirement: &'static str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(ParamError::OutOfRange {
+                    field,
+                    value,
+                    requirement,
+                })
+            }
+        };
+        check(
+            self.depth_min_m > 0.0,
+            "depth_min_m",
+            self.depth_min_m,
+            positive,
+        )?;
+        check(
+            self.depth_max_m > self.depth_min_m,
+            "depth_max_m",
+            self.depth_max_m,
+            "greater than depth_min_m",
+        )?;
+        check(
+            self.tolerance_px > 0.0 && self.tolerance_px <= 50.0,
+            "tolerance_px",
+            self.tolerance_px,
+            "in (0, 50]",
+        )?;
+        check(
+            self.angle_tolerance_deg > 0.0 && self.angle_tolerance_deg <= 90.0,
+            "angle_tolerance_deg",
+            self.angle_tolerance_deg,
+            "in (0, 90]",
+        )?;
+        check(
+            self.verify_angle_tolerance_deg >= 0.0 && self.verify_angle_tolerance_deg <= 45.0,
+            "verify_angle_tolerance_deg",
+            self.verify_angle_tolerance_deg,
+            "in [0, 45]",
+        )?;
+        check(
+            self.min_length_px >= 0.0,
+            "min_length_px",
+            self.min_length_px,
+            "at least 0",
+        )?;
+        check(
+            self.gradient_ratio_max >= 1.0,
+            "gradient_ratio_max",
+            self.gradient_ratio_max,
+            "at least 1",
+        )?;
+        check(
+            self.neighbour_radius_px >= 0.0 && self.neighbour_radius_px <= 100.0,
+            "neighbour_radius_px",
+            self.neighbour_radius_px,
+            "in [0, 100]",
+        )?;
+        check(
+            self.max_residual_px > 0.0,
+            "max_residual_px",
+            self.max_residual_px,
+            positive,
+        )?;
+        check(
+            self.line_noise_px > 0.0,
+            "line_noise_px",
+            self.line_noise_px,
+            positive,
+        )?;
+        check(
+            self.max_direction_sigma_deg > 0.0,
+            "max_direction_sigma_deg",
+            self.max_direction_sigma_deg,
+            positive,
+        )
+    }
+}
+
+/// A segment in rectified pixels, with what the matcher asks of it precomputed.
+#[derive(Debug, Clone, Copy)]
+pub struct RectSegment {
+    pub a: Point2<f64>,
+    pub b: Point2<f64>,
+    /// Unit direction a→b.
+    pub dir: Vector2<f64>,
+    pub len: f64,
+    /// Mean gradient magnitude, NaN when unknown.
+    pub gradient: f64,
+    /// Index in the caller's list.
+    pub index: u32,
+}
+
+impl RectSegment {
+    pub fn new(a: Point2<f64>, b: Point2<f64>, gradient: f64, index: u32) -> RectSegment {
+        let d = b - a;
+        let len = d.norm();
+        let dir = if len > 0.0 { d / len } else { Vector2::x() };
+        RectSegment {
+            a,
+            b,
+            dir,
+            len,
+            gradient,
+            index,
+        }
+    }
+
+    /// Signed distance of `p` from the segment's line (positive on the left of a→b in a
+    /// y-down image, i.e. along (dir.y, −dir.x)).
+    #[inline]
+    pub fn line_distance(&self, p: Point2<f64>) -> f64 {
+        let w = p - self.a;
+        w.x * self.dir.y - w.y * self.dir.x
+    }
+
+    /// Position of `p`'s foot along the segment, pixels from `a`.
+    #[inline]
+    pub fn along(&self, p: Point2<f64>) -> f64 {
+        (p - self.a).dot(&self.dir)
+    }
+}
+
+/// True when the gradient magnitudes (if both known) are within `ratio_max` of each other.
+#[inline]
+pub fn gradients_compatible(g1: f64, g2: f64, ratio_max: f64) -> bool {
+    if !(g1 > 0.0 && g2 > 0.0) {
+        return true;
+    }
+    let r = if g1 > g2 { g1 / g2 } else { g2 / g1 };
+    r <= ratio_max
+}
+
+/// The three rectified views as the matcher sees them.
+#[derive(Debug, Clone)]
+pub struct Views<'a> {
+    pub segments: [&'a [RectSegment]; 3],
+    /// True when all three lists are oriented by contrast.
+    pub oriented: bool,
+}

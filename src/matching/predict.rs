@@ -1,0 +1,320 @@
+//! Hypothesis prediction and verification (DESIGN §2.4, the paper's "prediction").
+//!
+//! For each segment S1 of view 1:
+//! 1. choose the pair (1, j), j ∈ {2, 3}, whose epipolar direction makes the largest angle
+//!    with S1 — a segment nearly parallel to the 1-2 epipolar lines is searched in view 3 and
+//!    verified in view 2 (the trinocular advantage);
+//! 2. candidates Sj share epipolar lines with S1 (their extents across the epipolar direction
+//!    overlap — a generalisation of "cross the epipolar line through S1's midpoint" that also
+//!    finds fragments) within the disparity interval of the depth range, with compatible
+//!    orientation, contrast sign and gradient magnitude;
+//! 3. the disparities at the two ends of the common part give, by transfer, the predicted
+//!    segment in the third view k — its position, orientation and extent;
+//! 4. a segment Sk of compatible orientation must lie within `tolerance_px` of that prediction
+//!    over their common part. Every surviving (S1, S2, S3) is a hypothesis, with the largest
+//!    of those two distances as its residual.
+
+use nalgebra::{Point2, Vector2};
+use rayon::prelude::*;
+
+use super::bucket::{angle_diff, angle_key, period, Buckets};
+use super::{gradients_compatible, MatchParams, RectSegment, Views};
+use crate::geometry::Rectification;
+
+/// Shortest common part of two segments along the epipolar lines, and of a predicted segment
+/// with the verifying one, pixels: below it the overlap is an accident of noise.
+pub const MIN_OVERLAP_PX: f64 = 3.0;
+/// S1 per rayon task: enough to amortise the scratch buffers.
+const SEGMENTS_PER_TASK: usize = 32;
+
+/// One predicted and verified triplet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hypothesis {
+    /// Indices into the three rectified views.
+    pub segments: [u32; 3],
+    /// Largest distance between prediction and verifying segment over their common part, px.
+    pub residual_px: f64,
+    /// The part of S1 the triplet covers, as positions along S1 (pixels from its start).
+    pub s1_span: (f64, f64),
+    /// Disparity at those two positions (δ is affine along an image line).
+    pub disparity: (f64, f64),
+}
+
+impl Hypothesis {
+    /// Disparity at position `t` along S1 (pixels from its start), extrapolated linearly.
+    pub fn disparity_at(&self, t: f64) -> f64 {
+        let (t0, t1) = self.s1_span;
+        let (d0, d1) = self.disparity;
+        if (t1 - t0).abs() < 1e-9 {
+            0.5 * (d0 + d1)
+        } else {
+            d0 + (d1 - d0) * (t - t0) / (t1 - t0)
+        }
+    }
+}
+
+/// The fixed geometry of one search: pair (1, j), verified in k.
+struct Pair<'a> {
+    j: usize,
+    k: usize,
+    /// Epipolar vector c1 − cj (metres) and its unit direction.
+    e_j: Vector2<f64>,
+    e_j_len: f64,
+    /// c1 − ck.
+    e_k: Vector2<f64>,
+    grid_j: &'a Buckets,
+    grid_k: &'a Buckets,
+}
+
+/// Per-task scratch: "already seen" stamps per view, so a segment registered in several
+/// windows is examined once per query.
+struct Scratch {
+    stamp: [Vec<u32>; 3],
+    generation: u32,
+}
+
+impl Scratch {
+    fn new(views: &Views) -> Scratch {
+        Scratch {
+            stamp: std::array::from_fn(|v| vec![0; views.segments[v].len()]),
+            generation: 0,
+        }
+    }
+    fn next(&mut self) -> u32 {
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.stamp.iter_mut().for_each(|s| s.fill(0));
+            self.generation = 1;
+        }
+        self.generation
+    }
+    #[inline]
+    fn first_visit(&mut self, view: usize, segment: u32, generation: u32) -> bool {
+        let s = &mut self.stamp[view][segment as usize];
+        if *s == generation {
+            false
+        } else {
+            *s = generation;
+            true
+        }
+    }
+}
+
+/// Predicts and verifies the hypotheses of every S1, in S1 order (deterministic).
+pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec<Hypothesis> {
+    let period = period(views.oriented);
+    let tol = params.tolerance_px;
+    let grid2 = Buckets::build(views.segments[1], rect.epipolar(0, 1), tol, period);
+    let grid3 = Buckets::build(views.segments[2], rect.epipolar(0, 2), tol, period);
+    let pair = |j: usize| {
+        let (k, grid_j, grid_k) = if j == 1 {
+            (2, &grid2, &grid3)
+        } else {
+            (1, &grid3, &grid2)
+        };
+        let e_j = rect.epipolar(0, j);
+        Pair {
+            j,
+            k,
+            e_j,
+            e_j_len: e_j.norm(),
+            e_k: rect.epipolar(0, k),
+            grid_j,
+            grid_k,
+        }
+    };
+    let pairs = [pair(1), pair(2)];
+    let (d_min, d_max) = rect.disparity_range(params.depth_min_m, params.depth_max_m);
+    let search = Search {
+        views,
+        params,
+        period,
+        d_min,
+        d_max,
+        pairs: &pairs,
+    };
+    let s1 = views.segments[0];
+    let per_s1: Vec<Vec<Hypothesis>> = (0..s1.len())
+        .into_par_iter()
+        .with_min_len(SEGMENTS_PER_TASK)
+        .map_init(
+            || Scratch::new(views),
+            |scratch, i| {
+                let mut out = Vec::new();
+                search.one(i as u32, scratch, &mut out);
+                out
+            },
+        )
+        .collect();
+    per_s1.into_iter().flatten().collect()
+}
+
+struct Search<'a> {
+    views: &'a Views<'a>,
+    params: &'a MatchParams,
+    period: f64,
+    d_min: f64,
+    d_max: f64,
+    pairs: &'a [Pair<'a>; 2],
+}
+
+impl Search<'_> {
+    fn one(&self, i1: u32, scratch: &mut Scratch, out: &mut Vec<Hypothesis>) {
+        let s1 = &self.views.segments[0][i1 as usize];
+        // 1. The pair whose epipolar direction is farthest from S1's.
+        let sin_to = |p: &Pair| (s1.dir.perp(&p.e_j) / p.e_j_len).abs();
+        let pair = if sin_to(&self.pairs[0]) >= sin_to(&self.pairs[1]) {
+            &self.pairs[0]
+        } else {
+            &self.pairs[1]
+        };
+        let tol = self.params.tolerance_px;
+        let grid = pair.grid_j;
+        let (ax, ay) = grid.frame(s1.a);
+        let (bx, by) = grid.frame(s1.b);
+        if (by - ay).abs() < MIN_OVERLAP_PX {
+            return; // parallel to both epipolar directions: only a collinear rig gets here
+        }
+        let key1 = angle_key(s1.dir, self.period);
+        let angle_tol = self.params.angle_tolerance_deg.to_radians();
+        let (shift_min, shift_max) = (
+            self.d_min * pair.e_j_len - tol,
+            self.d_max * pair.e_j_len + tol,
+        );
+        let generation = scratch.next();
+        let (ylo, yhi) = (ay.min(by), ay.max(by));
+        let Some((r0, r1)) = grid.rows(ylo, yhi) else {
+            return;
+        };
+        // 2. Candidates in the band of rows S1 spans, shifted along the epipolar direction by
+        //    the disparity interval.
+        let mut candidates: Vec<u32> = Vec::new();
+        for cy in r0..=r1 {
+            let (band_lo, band_hi) = grid.row_span(cy);
+            let (lo, hi) = (band_lo.max(ylo), band_hi.min(yhi));
+            let x_at = |y: f64| ax + (bx - ax) * ((y - ay) / (by - ay));
+            let (xa, xb) = (x_at(lo), x_at(hi));
+            let Some((c0, c1)) = grid.columns(xa.min(xb) + shift_min, xa.max(xb) + shift_max)
+            else {
+                continue;
+            };
+            for cx in c0..=c1 {
+                grid.for_each_in_cell(cx, cy, key1, angle_tol, |s| {
+                    if scratch.first_visit(pair.j, s, generation) {
+                        candidates.push(s);
+                    }
+                });
+            }
+        }
+        candidates.sort_unstable();
+        for &ij in &candidates {
+            self.verify_pair(i1, s1, (ax, ay, bx, by), pair, ij, scratch, out);
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn verify_pair(
+        &self,
+        i1: u32,
+        s1: &RectSegment,
+        (ax, ay, bx, by): (f64, f64, f64, f64),
+        pair: &Pair,
+        ij: u32,
+        scratch: &mut Scratch,
+        out: &mut Vec<Hypothesis>,
+    ) {
+        let params = self.params;
+        let tol = params.tolerance_px;
+        let sj = &self.views.segments[pair.j][ij as usize];
+        if !gradients_compatible(s1.gradient, sj.gradient, params.gradient_ratio_max) {
+            return;
+        }
+        let grid = pair.grid_j;
+        let (cx_, cy_) = grid.frame(sj.a);
+        let (dx_, dy_) = grid.frame(sj.b);
+        if (dy_ - cy_).abs() < 1e-9 {
+            return;
+        }
+        // Common part along the epipolar lines (turned-frame y).
+        let lo = ay.min(by).max(cy_.min(dy_));
+        let hi = ay.max(by).min(cy_.max(dy_));
+        if hi - lo < MIN_OVERLAP_PX {
+            return;
+        }
+        let x1 = |y: f64| ax + (bx - ax) * ((y - ay) / (by - ay));
+        let xj = |y: f64| cx_ + (dx_ - cx_) * ((y - cy_) / (dy_ - cy_));
+        let slack = tol / pair.e_j_len;
+        let (d_lo, d_hi) = (
+            (xj(lo) - x1(lo)) / pair.e_j_len,
+            (xj(hi) - x1(hi)) / pair.e_j_len,
+        );
+        let in_range = |d: f64| d >= self.d_min - slack && d <= self.d_max + slack;
+        if !in_range(d_lo) || !in_range(d_hi) {
+            return;
+        }
+        // Positions along S1 of the common part's ends, in S1's own order.
+        let t_at = |y: f64| s1.len * (y - ay) / (by - ay);
+        let (mut t0, mut t1, mut d0, mut d1) = (t_at(lo), t_at(hi), d_lo, d_hi);
+        if t0 > t1 {
+            (t0, t1, d0, d1) = (t1, t0, d1, d0);
+        }
+        // 3. Transfer into the verifying view.
+        let p0 = s1.a + s1.dir * t0;
+        let p1 = s1.a + s1.dir * t1;
+        let q0: Point2<f64> = p0 + pair.e_k * d0;
+        let q1: Point2<f64> = p1 + pair.e_k * d1;
+        let q = q1 - q0;
+        let q_len = q.norm();
+        if q_len < MIN_OVERLAP_PX {
+            return;
+        }
+        let q_dir = q / q_len;
+        let key_q = angle_key(q_dir, self.period);
+        let verify_tol =
+            params.verify_angle_tolerance_deg.to_radians() + (2.0 * tol / q_len).atan();
+        // 4. Verify along the predicted segment.
+        let generation = scratch.next();
+        let grid_k = pair.grid_k;
+        let k = pair.k;
+        let mut found: Vec<(u32, f64)> = Vec::new();
+        grid_k.for_each_cell_on_path(q0, q1, tol, |cx, cy| {
+            grid_k.for_each_in_cell(cx, cy, key_q, verify_tol, |ik| {
+                if scratch.first_visit(k, ik, generation) {
+                    found.push((ik, 0.0));
+                }
+            });
+        });
+        for (ik, _) in found {
+            let sk = &self.views.segments[k][ik as usize];
+            if angle_diff(angle_key(sk.dir, self.period), key_q, self.period).abs() > verify_tol
+                || !gradients_compatible(s1.gradient, sk.gradient, params.gradient_ratio_max)
+                || !gradients_compatible(sj.gradient, sk.gradient, params.gradient_ratio_max)
+            {
+                continue;
+            }
+            let (ta, tb) = (sk.along(q0), sk.along(q1));
+            let (lo_t, hi_t) = (ta.min(tb).max(0.0), ta.max(tb).min(sk.len));
+            if hi_t - lo_t < MIN_OVERLAP_PX {
+                continue;
+            }
+            // Distance from Sk's line along the prediction, linear between q0 and q1.
+            let (da, db) = (sk.line_distance(q0), sk.line_distance(q1));
+            let at = |t: f64| da + (db - da) * (t - ta) / (tb - ta);
+            let residual = at(lo_t).abs().max(at(hi_t).abs());
+            if residual > tol {
+                continue;
+            }
+            let segments = if pair.j == 1 {
+                [i1, ij, ik]
+            } else {
+                [i1, ik, ij]
+            };
+            out.push(Hypothesis {
+                segments,
+                residual_px: residual,
+                s1_span: (t0, t1),
+                disparity: (d0, d1),
+            });
+        }
+    }
+}

@@ -1,0 +1,305 @@
+//! The whole matching pipeline in one call: segment lists in, triplets and 3D segments out.
+//!
+//! ```text
+//! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ validate ─▶ reconstruct
+//! ```
+//!
+//! Input problems are errors that name the list, the segment and the coordinate; zero-length
+//! segments are dropped and counted; empty lists give an empty result.
+
+use std::time::Instant;
+
+use nalgebra::Point2;
+use thiserror::Error;
+
+use crate::geometry::{Rectification, RectifyError, Rig};
+use crate::matching::{self, MatchParams, ParamError, RectSegment, Views};
+use crate::reconstruct::reconstruct;
+use crate::segment::{Segment3, SegmentList};
+
+/// How far outside the image a segment endpoint may lie, in image sizes: farther is not a
+/// detector's imprecision but a unit or index mix-up.
+const OUT_OF_IMAGE_MARGIN: f64 = 1.0;
+/// Segments shorter than this are zero-length: dropped and counted.
+const ZERO_LENGTH_PX: f64 = 1e-9;
+
+/// One matched triplet: indices into the three input lists.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Triplet {
+    pub segments: [u32; 3],
+    /// Verification residual in the third view, pixels.
+    pub residual_px: f64,
+}
+
+/// One 3D segment, rig frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reconstructed {
+    pub segment: Segment3,
+    /// Index into [`MatchOutput::triplets`].
+    pub triplet: u32,
+    /// RMS reprojection residual, pixels.
+    pub residual_px: f64,
+    /// Predicted 1σ uncertainty of the segment's direction, degrees.
+    pub direction_sigma_deg: f64,
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MatchStats {
+    pub segments_in: [u32; 3],
+    pub segments_used: [u32; 3],
+    pub zero_length_dropped: [u32; 3],
+    pub hypotheses: u32,
+    pub triplets: u32,
+    pub segments_3d: u32,
+    pub rectify_ms: f64,
+    pub predict_ms: f64,
+    pub validate_ms: f64,
+    pub reconstruct_ms: f64,
+    pub total_ms: f64,
+    pub collinear_rig: bool,
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MatchOutput {
+    pub triplets: Vec<Triplet>,
+    pub segments_3d: Vec<Reconstructed>,
+    pub stats: MatchStats,
+}
+
+/// Which coordinate of a segment is at fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Coordinate {
+    U1,
+    V1,
+    U2,
+    V2,
+    Gradient,
+}
+
+impl Coordinate {
+    pub fn name(self) -> &'static str {
+        match self {
+            Coordinate::U1 => "u1",
+            Coordinate::V1 => "v1",
+            Coordinate::U2 => "u2",
+            Coordinate::V2 => "v2",
+            Coordinate::Gradient => "gradient",
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum MatchError {
+    #[error(transparent)]
+    Params(#[from] ParamError),
+    #[error(transparent)]
+    Rectify(#[from] RectifyError),
+    #[error("list {list}, segment {index}: {} is not a finite number", coordinate.name())]
+    NonFiniteCoordinate {
+        list: usize,
+        index: usize,
+        coordinate: Coordinate,
+    },
+    #[error(
+        "list {list}, segment {index}: {} = {value} is far outside the {width}x{height} image",
+        coordinate.name()
+    )]
+    OutOfImage {
+        list: usize,
+        index: usize,
+        coordinate: Coordinate,
+        value: f64,
+        width: u32,
+        height: u32,
+    },
+    #[error("list {list}, segment {index}: gradient = {value} must be at least 0")]
+    NegativeGradient {
+        list: usize,
+        index: usize,
+        value: f64,
+    },
+}
+
+/// Segments of one view after checking: kept for matching, with their undistorted endpoints.
+struct Prepared {
+    rect: Vec<RectSegment>,
+    /// Undistorted image endpoints, parallel to `rect`.
+    undistorted: Vec<(Point2<f64>, Point2<f64>)>,
+    zero_length: u32,
+}
+
+fn check_list(rig: &Rig, list_index: usize, list: &SegmentList) -> Result<u32, MatchError> {
+    let cam = rig.camera(list_index);
+    let (w, h) = (cam.width() as f64, cam.height() as f64);
+    let mut zero = 0;
+    for (index, s) in list.segments.iter().enumerate() {
+        let coords = [
+            (Coordinate::U1, s.start.x, w),
+            (Coordinate::V1, s.start.y, h),
+            (Coordinate::U2, s.end.x, w),
+            (Coordinate::V2, s.end.y, h),
+        ];
+        for (coordinate, value, size) in coords {
+            if !value.is_finite() {
+                return Err(MatchError::NonFiniteCoordinate {
+                    list: list_index,
+                    index,
+                    coordinate,
+                });
+            }
+            if value < -OUT_OF_IMAGE_MARGIN * size || value > (1.0 + OUT_OF_IMAGE_MARGIN) * size {
+                return Err(MatchError::OutOfImage {
+                    list: list_index,
+                    index,
+                    coordinate,
+                    value,
+                    width: cam.width(),
+                    height: cam.height(),
+                });
+            }
+        }
+        if let Some(g) = s.gradient {
+            if !g.is_finite() {
+                return Err(MatchError::NonFiniteCoordinate {
+                    list: list_index,
+                    index,
+                    coordinate: Coordinate::Gradient,
+                });
+            }
+            if g < 0.0 {
+                return Err(MatchError::NegativeGradient {
+                    list: list_index,
+                    index,
+                    value: g,
+                });
+            }
+        }
+        if s.length() < ZERO_LENGTH_PX {
+            zero += 1;
+        }
+    }
+    Ok(zero)
+}
+
+fn prepare(
+    rig: &Rig,
+    rect: &Rectification,
+    view: usize,
+    list: &SegmentList,
+    zero_length: u32,
+    params: &MatchParams,
+) -> Prepared {
+    let cam = rig.camera(view);
+    let mut out = Prepared {
+        rect: Vec::with_capacity(list.segments.len()),
+        undistorted: Vec::with_capacity(list.segments.len()),
+        zero_length,
+    };
+    for (index, s) in list.segments.iter().enumerate() {
+        let len = s.length();
+        if len < ZERO_LENGTH_PX || len < params.min_length_px {
+            continue;
+        }
+        let (p, q) = (cam.undistort(s.start), cam.undistort(s.end));
+        let (Some(a), Some(b)) = (rect.to_rect(view, p), rect.to_rect(view, q)) else {
+            continue;
+        };
+        let gradient = s.gradient.unwrap_or(f64::NAN);
+        out.rect
+            .push(RectSegment::new(a, b, gradient, index as u32));
+        out.undistorted.push((p, q));
+    }
+    out
+}
+
+fn ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+/// Matches three segment lists seen by `rig` and reconstructs the 3D segments.
+pub fn match_segments(
+    rig: &Rig,
+    lists: &[SegmentList; 3],
+    params: &MatchParams,
+) -> Result<MatchOutput, MatchError> {
+    let start = Instant::now();
+    params.check()?;
+    let mut zero = [0u32; 3];
+    for (i, list) in lists.iter().enumerate() {
+        zero[i] = check_list(rig, i, list)?;
+    }
+    let rect = Rectification::new(rig)?;
+    let prepared: Vec<Prepared> = (0..3)
+        .map(|v| prepare(rig, &rect, v, &lists[v], zero[v], params))
+        .collect();
+    let mut stats = MatchStats {
+        segments_in: std::array::from_fn(|v| lists[v].segments.len() as u32),
+        segments_used: std::array::from_fn(|v| prepared[v].rect.len() as u32),
+        zero_length_dropped: std::array::from_fn(|v| prepared[v].zero_length),
+        collinear_rig: rect.collinear(),
+        rectify_ms: ms(start),
+        ..MatchStats::default()
+    };
+    let views = Views {
+        segments: [&prepared[0].rect, &prepared[1].rect, &prepared[2].rect],
+        oriented: lists.iter().all(|l| l.oriented),
+    };
+
+    let t = Instant::now();
+    let hypotheses = matching::predict(&rect, &views, params);
+    stats.predict_ms = ms(t);
+    stats.hypotheses = hypotheses.len() as u32;
+
+    let t = Instant::now();
+    let kept: Vec<usize> = if params.validate {
+        matching::validate(&rect, &views, &hypotheses, params)
+    } else {
+        (0..hypotheses.len()).collect()
+    };
+    stats.validate_ms = ms(t);
+
+    let t = Instant::now();
+    let local: Vec<[u32; 3]> = kept.iter().map(|&h| hypotheses[h].segments).collect();
+    let fits = reconstruct(
+        rig,
+        [
+            &prepared[0].undistorted,
+            &prepared[1].undistorted,
+            &prepared[2].undistorted,
+        ],
+        &local,
+    );
+    let mut output = MatchOutput::default();
+    for (&h, fit) in kept.iter().zip(fits) {
+        let Some(fit) = fit.filter(|f| f.residual_px <= params.max_residual_px) else {
+            continue;
+        };
+        let direction_sigma_deg = rect
+            .direction_sigma(&fit.start, &fit.end, params.line_noise_px)
+            .to_degrees();
+        if direction_sigma_deg > params.max_direction_sigma_deg {
+            continue;
+        }
+        let hyp = &hypotheses[h];
+        let segments = std::array::from_fn(|v| views.segments[v][hyp.segments[v] as usize].index);
+        output.segments_3d.push(Reconstructed {
+            segment: Segment3 {
+                start: fit.start,
+                end: fit.end,
+            },
+            triplet: output.triplets.len() as u32,
+            residual_px: fit.residual_px,
+            direction_sigma_deg,
+        });
+        output.triplets.push(Triplet {
+            segments,
+            residual_px: hyp.residual_px,
+        });
+    }
+    stats.reconstruct_ms = ms(t);
+    stats.triplets = output.triplets.len() as u32;
+    stats.segments_3d = output.segments_3d.len() as u32;
+    stats.total_ms = ms(start);
+    output.stats = stats;
+    Ok(output)
+}

@@ -1,1 +1,68 @@
-fn main() {}
+//! Matching benchmarks (criterion, release):
+//! - `match/600` and `match/10000`: one triplet with that many segments per image (20%
+//!   clutter, 0.3 px endpoint noise) matched, validated and reconstructed end to end, on one
+//!   thread; throughput in segments per image, so time per segment compares across sizes;
+//! - `threads/N`: the 10,000-segment triplet on a rayon pool of N threads;
+//! - `room`: the standard synthetic room (realistic defects) on one thread;
+//! - per stage on the 600-segment triplet: `stage/rectify+prepare`, `stage/predict`.
+//!
+//!     cargo bench --bench matching
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use trinocular::matching::MatchParams;
+use trinocular::pipeline::match_segments;
+use trinocular::synth::{scattered_capture, standard_capture, Defects};
+
+fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool")
+}
+
+fn bench_sizes(c: &mut Criterion) {
+    let params = MatchParams::default();
+    let one = pool(1);
+    let mut group = c.benchmark_group("match");
+    for n in [600usize, 10_000] {
+        let (rig, lists) = scattered_capture(n, 0.3, 0.2, 1);
+        group.throughput(Throughput::Elements(n as u64));
+        if n > 1000 {
+            group.sample_size(20);
+        }
+        group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+            one.install(|| b.iter(|| match_segments(&rig, &lists, &params).expect("valid")))
+        });
+    }
+    group.finish();
+}
+
+fn bench_threads(c: &mut Criterion) {
+    let params = MatchParams::default();
+    let (rig, lists) = scattered_capture(10_000, 0.3, 0.2, 1);
+    let mut group = c.benchmark_group("threads");
+    group.sample_size(20);
+    for threads in [1usize, 2] {
+        let p = pool(threads);
+        group.bench_with_input(BenchmarkId::from_parameter(threads), &threads, |b, _| {
+            p.install(|| b.iter(|| match_segments(&rig, &lists, &params).expect("valid")))
+        });
+    }
+    group.finish();
+}
+
+fn bench_room(c: &mut Criterion) {
+    let params = MatchParams::default();
+    let (_, rig, obs) = standard_capture(1, Defects::realistic(), false);
+    let one = pool(1);
+    let n = obs.lists[0].segments.len() as u64;
+    let mut group = c.benchmark_group("room");
+    group.throughput(Throughput::Elements(n));
+    group.bench_function("realistic", |b| {
+        one.install(|| b.iter(|| match_segments(&rig, &obs.lists, &params).expect("valid")))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_sizes, bench_threads, bench_room);
+criterion_main!(benches);

@@ -4,3 +4,4 @@ pub mod matching;
 pub mod pipeline;
 pub mod reconstruct;
 pub mod segment;
+pub mod synth;

@@ -1,7 +1,7 @@
 //! The whole matching pipeline in one call: segment lists in, triplets and 3D segments out.
 //!
 //! ```text
-//! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ validate ─▶ reconstruct
+//! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ reconstruct ─▶ validate
 //! ```
 //!
 //! Input problems are errors that name the list, the segment and the coordinate; zero-length
@@ -12,14 +12,19 @@ use std::time::Instant;
 use nalgebra::Point2;
 use thiserror::Error;
 
-use crate::geometry::{Rectification, RectifyError, Rig};
-use crate::matching::{self, MatchParams, ParamError, RectSegment, Views};
-use crate::reconstruct::reconstruct;
+use crate::geometry::{Line3Fit, Rectification, RectifyError, Rig};
+use crate::matching::{self, Hypothesis, MatchParams, ParamError, RectSegment, Views};
+use crate::reconstruct::{reconstruct, reconstruct_pieces};
 use crate::segment::{Segment3, SegmentList};
 
 /// How far outside the image a segment endpoint may lie, in image sizes: farther is not a
 /// detector's imprecision but a unit or index mix-up.
 const OUT_OF_IMAGE_MARGIN: f64 = 1.0;
+/// Validation rounds at most (each after reconstruction rejected some winners); one or two
+/// suffice in practice.
+const MAX_VALIDATION_ROUNDS: usize = 4;
+/// A reconstructed 3D segment with its predicted direction uncertainty, degrees.
+type Fit = Option<(Line3Fit, f64)>;
 /// Segments shorter than this are zero-length: dropped and counted.
 const ZERO_LENGTH_PX: f64 = 1e-9;
 
@@ -32,11 +37,13 @@ pub struct Triplet {
 }
 
 /// One 3D segment, rig frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Reconstructed {
     pub segment: Segment3,
-    /// Index into [`MatchOutput::triplets`].
+    /// Index into [`MatchOutput::triplets`] of the (first) triplet it comes from.
     pub triplet: u32,
+    /// Every triplet it comes from: several when collinear fragments were merged.
+    pub triplets: Vec<u32>,
     /// RMS reprojection residual, pixels.
     pub residual_px: f64,
     /// Predicted 1σ uncertainty of the segment's direction, degrees.
@@ -250,56 +257,172 @@ pub fn match_segments(
     stats.predict_ms = ms(t);
     stats.hypotheses = hypotheses.len() as u32;
 
+    // Validation ranks hypotheses and resolves rivalries; only its winners are reconstructed.
+    // A winner that reconstruction rejects (no overlap, residual or direction uncertainty too
+    // large) leaves the pool and validation runs again, so a rival it displaced gets its turn.
+    let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
+    let mut alive: Vec<bool> = vec![true; hypotheses.len()];
+    let undistorted = [
+        &prepared[0].undistorted[..],
+        &prepared[1].undistorted[..],
+        &prepared[2].undistorted[..],
+    ];
     let t = Instant::now();
-    let kept: Vec<usize> = if params.validate {
-        matching::validate(&rect, &views, &hypotheses, params)
-    } else {
-        (0..hypotheses.len()).collect()
-    };
-    stats.validate_ms = ms(t);
-
-    let t = Instant::now();
-    let local: Vec<[u32; 3]> = kept.iter().map(|&h| hypotheses[h].segments).collect();
-    let fits = reconstruct(
-        rig,
-        [
-            &prepared[0].undistorted,
-            &prepared[1].undistorted,
-            &prepared[2].undistorted,
-        ],
-        &local,
-    );
-    let mut output = MatchOutput::default();
-    for (&h, fit) in kept.iter().zip(fits) {
-        let Some(fit) = fit.filter(|f| f.residual_px <= params.max_residual_px) else {
-            continue;
+    let adjacency = matching::adjacency(views.segments[0], params.neighbour_radius_px);
+    stats.validate_ms += ms(t);
+    let mut kept: Vec<usize> = Vec::new();
+    for round in 0..MAX_VALIDATION_ROUNDS {
+        let t = Instant::now();
+        let pool: Vec<usize> = (0..hypotheses.len()).filter(|&h| alive[h]).collect();
+        kept = if params.validate {
+            let subset: Vec<Hypothesis> = pool.iter().map(|&h| hypotheses[h]).collect();
+            matching::validate(&rect, &views, &adjacency, &subset, params)
+                .into_iter()
+                .map(|i| pool[i])
+                .collect()
+        } else {
+            pool
         };
-        let direction_sigma_deg = rect
-            .direction_sigma(&fit.start, &fit.end, params.line_noise_px)
-            .to_degrees();
-        if direction_sigma_deg > params.max_direction_sigma_deg {
-            continue;
+        stats.validate_ms += ms(t);
+
+        let t = Instant::now();
+        let todo: Vec<usize> = kept
+            .iter()
+            .copied()
+            .filter(|&h| fits[h].is_none())
+            .collect();
+        let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
+        for (&h, fit) in todo.iter().zip(reconstruct(rig, undistorted, &triplets)) {
+            fits[h] = Some(
+                fit.filter(|f| f.residual_px <= params.max_residual_px)
+                    .map(|f| {
+                        let sigma = rect
+                            .direction_sigma(&f.start, &f.end, params.line_noise_px)
+                            .to_degrees();
+                        (f, sigma)
+                    })
+                    .filter(|&(_, sigma)| sigma <= params.max_direction_sigma_deg),
+            );
         }
-        let hyp = &hypotheses[h];
-        let segments = std::array::from_fn(|v| views.segments[v][hyp.segments[v] as usize].index);
+        stats.reconstruct_ms += ms(t);
+        let mut rejected = false;
+        for &h in &kept {
+            if matches!(fits[h], Some(None)) {
+                alive[h] = false;
+                rejected = true;
+            }
+        }
+        if !rejected || !params.validate || round + 1 == MAX_VALIDATION_ROUNDS {
+            break;
+        }
+    }
+    kept.retain(|&h| matches!(fits[h], Some(Some(_))));
+    let fitted = |h: usize| fits[h].flatten();
+
+    // Collinear fragments accepted together (they share a segment) make one 3D segment,
+    // fitted to all their pieces: longer, so better determined, than each piece alone.
+    let t = Instant::now();
+    let groups = fragment_groups(&hypotheses, &kept);
+    let mut output = MatchOutput::default();
+    for group in groups {
+        let first_triplet = output.triplets.len() as u32;
+        let merged = (group.len() > 1)
+            .then(|| {
+                let pieces: [Vec<(Point2<f64>, Point2<f64>)>; 3] = std::array::from_fn(|v| {
+                    let mut ids: Vec<u32> =
+                        group.iter().map(|&h| hypotheses[h].segments[v]).collect();
+                    ids.sort_unstable();
+                    ids.dedup();
+                    ids.iter()
+                        .map(|&i| prepared[v].undistorted[i as usize])
+                        .collect()
+                });
+                reconstruct_pieces(rig, [&pieces[0], &pieces[1], &pieces[2]])
+            })
+            .flatten()
+            .filter(|f| f.residual_px <= params.max_residual_px);
+        let (fit, direction_sigma_deg) = match merged {
+            Some(fit) => {
+                let sigma = rect
+                    .direction_sigma(&fit.start, &fit.end, params.line_noise_px)
+                    .to_degrees();
+                (fit, sigma)
+            }
+            None => {
+                // Keep the best-determined piece.
+                let best = group
+                    .iter()
+                    .filter_map(|&h| fitted(h))
+                    .min_by(|a, b| a.1.total_cmp(&b.1));
+                match best {
+                    Some(fit) => fit,
+                    None => continue,
+                }
+            }
+        };
+        for &h in &group {
+            let hyp = &hypotheses[h];
+            output.triplets.push(Triplet {
+                segments: std::array::from_fn(|v| {
+                    views.segments[v][hyp.segments[v] as usize].index
+                }),
+                residual_px: hypotheses[h].residual_px,
+            });
+        }
         output.segments_3d.push(Reconstructed {
             segment: Segment3 {
                 start: fit.start,
                 end: fit.end,
             },
-            triplet: output.triplets.len() as u32,
+            triplet: first_triplet,
+            triplets: (first_triplet..output.triplets.len() as u32).collect(),
             residual_px: fit.residual_px,
             direction_sigma_deg,
         });
-        output.triplets.push(Triplet {
-            segments,
-            residual_px: hyp.residual_px,
-        });
     }
-    stats.reconstruct_ms = ms(t);
+    stats.reconstruct_ms += ms(t);
     stats.triplets = output.triplets.len() as u32;
     stats.segments_3d = output.segments_3d.len() as u32;
     stats.total_ms = ms(start);
     output.stats = stats;
     Ok(output)
+}
+
+/// Groups accepted hypotheses that share a segment in some view (validation accepted them
+/// together only as collinear fragments of one line). Groups come in order of their first
+/// member; members in input order.
+fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>> {
+    use std::collections::HashMap;
+    let mut parent: Vec<usize> = (0..kept.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let mut owner: HashMap<(usize, u32), usize> = HashMap::new();
+    for (k, &h) in kept.iter().enumerate() {
+        for v in 0..3 {
+            let key = (v, hypotheses[h].segments[v]);
+            if let Some(&other) = owner.get(&key) {
+                let (a, b) = (root(&mut parent, k), root(&mut parent, other));
+                let (lo, hi) = (a.min(b), a.max(b));
+                parent[hi] = lo;
+            } else {
+                owner.insert(key, k);
+            }
+        }
+    }
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut slot: HashMap<usize, usize> = HashMap::new();
+    for (k, &h) in kept.iter().enumerate() {
+        let r = root(&mut parent, k);
+        let g = *slot.entry(r).or_insert_with(|| {
+            groups.push(Vec::new());
+            groups.len() - 1
+        });
+        groups[g].push(h);
+    }
+    groups
 }

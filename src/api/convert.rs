@@ -259,6 +259,7 @@ pub fn match_response(output: &MatchOutput) -> pb::MatchResponse {
                 start: Some(point3(&r.segment.start)),
                 end: Some(point3(&r.segment.end)),
                 triplet: r.triplet,
+                triplets: r.triplets.clone(),
                 residual_px: r.residual_px,
                 direction_sigma_deg: r.direction_sigma_deg,
             })

@@ -18,6 +18,9 @@ const SEGMENTS_PER_CELL: f64 = 3.0;
 /// Bounds on the window side, rectified pixels.
 const MIN_CELL_PX: f64 = 8.0;
 const MAX_CELL_PX: f64 = 64.0;
+/// Windows are this many times longer along the epipolar direction than across it: a
+/// disparity search is a long band along it, which then crosses few windows.
+const CELL_ASPECT: f64 = 4.0;
 /// Bound on the number of windows, so a few far-flung segments cannot blow up memory.
 const MAX_CELLS: usize = 1 << 16;
 
@@ -53,7 +56,9 @@ pub struct Buckets {
     axis: Vector2<f64>,
     x0: f64,
     y0: f64,
+    /// Window size across the epipolar direction (y) and along it (x).
     cell: f64,
+    cell_x: f64,
     nx: usize,
     ny: usize,
     offsets: Vec<u32>,
@@ -99,16 +104,19 @@ impl Buckets {
         let mut cell = (w * h * SEGMENTS_PER_CELL / segments.len().max(1) as f64)
             .sqrt()
             .clamp(MIN_CELL_PX, MAX_CELL_PX);
-        while (w / cell).ceil() * (h / cell).ceil() > MAX_CELLS as f64 {
+        let mut cell_x = cell * CELL_ASPECT;
+        while (w / cell_x).ceil() * (h / cell).ceil() > MAX_CELLS as f64 {
             cell *= 1.5;
+            cell_x *= 1.5;
         }
-        let nx = ((w / cell).ceil() as usize).max(1);
+        let nx = ((w / cell_x).ceil() as usize).max(1);
         let ny = ((h / cell).ceil() as usize).max(1);
         let mut grid = Buckets {
             axis,
             x0,
             y0,
             cell,
+            cell_x,
             nx,
             ny,
             offsets: vec![0; nx * ny + 1],
@@ -168,14 +176,16 @@ impl Buckets {
         let (ax, ay) = self.frame(a);
         let (bx, by) = self.frame(b);
         let (ylo, yhi) = (ay.min(by) - slack, ay.max(by) + slack);
-        let Some((r0, r1)) = self.index_range(ylo, yhi, self.y0, self.ny) else {
+        let Some((r0, r1)) = self.index_range(ylo, yhi, self.y0, self.cell, self.ny) else {
             return;
         };
         for cy in r0..=r1 {
             let band_lo = (self.y0 + cy as f64 * self.cell).max(ylo) - slack;
             let band_hi = (self.y0 + (cy + 1) as f64 * self.cell).min(yhi) + slack;
             let (xa, xb) = x_span(ax, ay, bx, by, band_lo, band_hi);
-            if let Some((c0, c1)) = self.index_range(xa - slack, xb + slack, self.x0, self.nx) {
+            if let Some((c0, c1)) =
+                self.index_range(xa - slack, xb + slack, self.x0, self.cell_x, self.nx)
+            {
                 for cx in c0..=c1 {
                     visit(cx, cy);
                 }
@@ -185,12 +195,12 @@ impl Buckets {
 
     /// The window row range covering turned-frame y in `[lo, hi]`.
     pub fn rows(&self, lo: f64, hi: f64) -> Option<(usize, usize)> {
-        self.index_range(lo, hi, self.y0, self.ny)
+        self.index_range(lo, hi, self.y0, self.cell, self.ny)
     }
 
     /// The window column range covering turned-frame x in `[lo, hi]`.
     pub fn columns(&self, lo: f64, hi: f64) -> Option<(usize, usize)> {
-        self.index_range(lo, hi, self.x0, self.nx)
+        self.index_range(lo, hi, self.x0, self.cell_x, self.nx)
     }
 
     /// Turned-frame y interval of window row `cy`.
@@ -199,9 +209,16 @@ impl Buckets {
         (lo, lo + self.cell)
     }
 
-    fn index_range(&self, lo: f64, hi: f64, origin: f64, n: usize) -> Option<(usize, usize)> {
-        let a = ((lo - origin) / self.cell).floor();
-        let b = ((hi - origin) / self.cell).floor();
+    fn index_range(
+        &self,
+        lo: f64,
+        hi: f64,
+        origin: f64,
+        cell: f64,
+        n: usize,
+    ) -> Option<(usize, usize)> {
+        let a = ((lo - origin) / cell).floor();
+        let b = ((hi - origin) / cell).floor();
         if a.is_nan() || b.is_nan() || b < 0.0 || a >= n as f64 || b < a {
             return None;
         }

@@ -14,7 +14,7 @@ use nalgebra::{Point2, Vector2};
 use thiserror::Error;
 
 pub use predict::{predict, Hypothesis};
-pub use validate::validate;
+pub use validate::{adjacency, validate};
 
 /// Matching parameters. Units are in the names; `Default` gives the documented defaults.
 #[derive(Debug, Clone, PartialEq)]
@@ -57,7 +57,7 @@ impl Default for MatchParams {
             min_length_px: 8.0,
             gradient_ratio_max: 3.0,
             validate: true,
-            neighbour_radius_px: 4.0,
+            neighbour_radius_px: 8.0,
             max_residual_px: 1.5,
             line_noise_px: 0.1,
             max_direction_sigma_deg: 180.0,

@@ -17,7 +17,7 @@
 use nalgebra::{Point2, Vector2};
 use rayon::prelude::*;
 
-use super::bucket::{angle_diff, angle_key, period, Buckets};
+use super::bucket::{angle_key, period, Buckets};
 use super::{gradients_compatible, MatchParams, RectSegment, Views};
 use crate::geometry::Rectification;
 
@@ -71,6 +71,8 @@ struct Pair<'a> {
 struct Scratch {
     stamp: [Vec<u32>; 3],
     generation: u32,
+    candidates: Vec<u32>,
+    found: Vec<u32>,
 }
 
 impl Scratch {
@@ -78,6 +80,8 @@ impl Scratch {
         Scratch {
             stamp: std::array::from_fn(|v| vec![0; views.segments[v].len()]),
             generation: 0,
+            candidates: Vec::new(),
+            found: Vec::new(),
         }
     }
     fn next(&mut self) -> u32 {
@@ -88,15 +92,16 @@ impl Scratch {
         }
         self.generation
     }
-    #[inline]
-    fn first_visit(&mut self, view: usize, segment: u32, generation: u32) -> bool {
-        let s = &mut self.stamp[view][segment as usize];
-        if *s == generation {
-            false
-        } else {
-            *s = generation;
-            true
-        }
+}
+
+#[inline]
+fn first_visit(stamp: &mut [u32], segment: u32, generation: u32) -> bool {
+    let s = &mut stamp[segment as usize];
+    if *s == generation {
+        false
+    } else {
+        *s = generation;
+        true
     }
 }
 
@@ -129,6 +134,7 @@ pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec
         views,
         params,
         period,
+        oriented: views.oriented,
         d_min,
         d_max,
         pairs: &pairs,
@@ -153,6 +159,7 @@ struct Search<'a> {
     views: &'a Views<'a>,
     params: &'a MatchParams,
     period: f64,
+    oriented: bool,
     d_min: f64,
     d_max: f64,
     pairs: &'a [Pair<'a>; 2],
@@ -188,7 +195,9 @@ impl Search<'_> {
         };
         // 2. Candidates in the band of rows S1 spans, shifted along the epipolar direction by
         //    the disparity interval.
-        let mut candidates: Vec<u32> = Vec::new();
+        let mut candidates = std::mem::take(&mut scratch.candidates);
+        candidates.clear();
+        let stamp = &mut scratch.stamp[pair.j];
         for cy in r0..=r1 {
             let (band_lo, band_hi) = grid.row_span(cy);
             let (lo, hi) = (band_lo.max(ylo), band_hi.min(yhi));
@@ -200,7 +209,7 @@ impl Search<'_> {
             };
             for cx in c0..=c1 {
                 grid.for_each_in_cell(cx, cy, key1, angle_tol, |s| {
-                    if scratch.first_visit(pair.j, s, generation) {
+                    if first_visit(stamp, s, generation) {
                         candidates.push(s);
                     }
                 });
@@ -210,6 +219,7 @@ impl Search<'_> {
         for &ij in &candidates {
             self.verify_pair(i1, s1, (ax, ay, bx, by), pair, ij, scratch, out);
         }
+        scratch.candidates = candidates;
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -276,23 +286,33 @@ impl Search<'_> {
         let generation = scratch.next();
         let grid_k = pair.grid_k;
         let k = pair.k;
-        let mut found: Vec<(u32, f64)> = Vec::new();
+        let Scratch { stamp, found, .. } = scratch;
+        found.clear();
+        let stamp = &mut stamp[k];
         grid_k.for_each_cell_on_path(q0, q1, tol, |cx, cy| {
             grid_k.for_each_in_cell(cx, cy, key_q, verify_tol, |ik| {
-                if scratch.first_visit(k, ik, generation) {
-                    found.push((ik, 0.0));
+                if first_visit(stamp, ik, generation) {
+                    found.push(ik);
                 }
             });
         });
-        for (ik, _) in found {
+        // Candidates come out in window order: sort so the output does not depend on the grid.
+        found.sort_unstable();
+        let cos_tol = verify_tol.cos();
+        for &ik in found.iter() {
             let sk = &self.views.segments[k][ik as usize];
-            if angle_diff(angle_key(sk.dir, self.period), key_q, self.period).abs() > verify_tol
+            let cos = sk.dir.dot(&q_dir);
+            let aligned = if self.oriented { cos } else { cos.abs() };
+            if aligned < cos_tol
                 || !gradients_compatible(s1.gradient, sk.gradient, params.gradient_ratio_max)
                 || !gradients_compatible(sj.gradient, sk.gradient, params.gradient_ratio_max)
             {
                 continue;
             }
             let (ta, tb) = (sk.along(q0), sk.along(q1));
+            if (tb - ta).abs() < 1e-9 {
+                continue;
+            }
             let (lo_t, hi_t) = (ta.min(tb).max(0.0), ta.max(tb).min(sk.len));
             if hi_t - lo_t < MIN_OVERLAP_PX {
                 continue;

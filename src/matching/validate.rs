@@ -11,8 +11,6 @@
 //!    collinear and do not overlap. So an unsupported hypothesis that has a better-supported
 //!    rival is dropped, and one with no rival is kept.
 
-use std::collections::HashMap;
-
 use nalgebra::Point2;
 
 use super::{predict::Hypothesis, MatchParams, RectSegment, Views};
@@ -30,24 +28,32 @@ const NONE: u32 = u32::MAX;
 pub fn validate(
     rect: &Rectification,
     views: &Views,
+    adjacency: &[(u32, u32, Point2<f64>)],
     hypotheses: &[Hypothesis],
     params: &MatchParams,
 ) -> Vec<usize> {
-    let support = support(rect, views, hypotheses, params);
-    let mut order: Vec<usize> = (0..hypotheses.len()).collect();
-    order.sort_by(|&a, &b| {
-        let (ha, hb) = (&hypotheses[a], &hypotheses[b]);
-        support[b]
-            .cmp(&support[a])
-            .then(ha.residual_px.total_cmp(&hb.residual_px))
-            .then(ha.segments.cmp(&hb.segments))
+    let support = support(rect, views, adjacency, hypotheses, params);
+    // Rank: most support, then the larger share of S1 covered (in quarters: a full-length
+    // match beats a fragment's accidental alignment), then the smallest residual.
+    let key = |h: usize| {
+        let hyp = &hypotheses[h];
+        let s1 = &views.segments[0][hyp.segments[0] as usize];
+        let cover = ((hyp.s1_span.1 - hyp.s1_span.0) / s1.len.max(1e-9) * 4.0).round() as i64;
+        (u32::MAX - support[h], -cover, hyp.residual_px, hyp.segments)
+    };
+    let mut order: Vec<_> = (0..hypotheses.len()).map(|h| (key(h), h)).collect();
+    order.sort_unstable_by(|(a, _), (b, _)| {
+        a.0.cmp(&b.0)
+            .then(a.1.cmp(&b.1))
+            .then(a.2.total_cmp(&b.2))
+            .then(a.3.cmp(&b.3))
     });
 
     // Accepted hypotheses per segment, as linked lists (head per segment, next per accepted).
     let mut head: [Vec<u32>; 3] = std::array::from_fn(|v| vec![NONE; views.segments[v].len()]);
     let mut next: [Vec<u32>; 3] = std::array::from_fn(|_| vec![NONE; hypotheses.len()]);
     let mut accepted = Vec::new();
-    for h in order {
+    for (_, h) in order {
         let hyp = &hypotheses[h];
         let mut ok = true;
         'views: for v in 0..3 {
@@ -107,13 +113,13 @@ fn fragments(views: &Views, a: &Hypothesis, b: &Hypothesis, params: &MatchParams
 fn support(
     rect: &Rectification,
     views: &Views,
+    adjacency: &[(u32, u32, Point2<f64>)],
     hypotheses: &[Hypothesis],
     params: &MatchParams,
 ) -> Vec<u32> {
     let s1 = views.segments[0];
-    let radius = params.neighbour_radius_px;
     let mut support = vec![0u32; hypotheses.len()];
-    if s1.is_empty() || hypotheses.is_empty() || radius <= 0.0 {
+    if s1.is_empty() || hypotheses.is_empty() {
         return support;
     }
     // Hypotheses come in S1 order: the range of each S1.
@@ -131,7 +137,7 @@ fn support(
     let baseline_px = rect.epipolar(0, 1).norm().max(rect.epipolar(0, 2).norm());
     let max_diff = VERTEX_AGREEMENT * params.tolerance_px / baseline_px;
 
-    for (a, b, vertex) in vertex_pairs(s1, radius) {
+    for &(a, b, vertex) in adjacency {
         let (ra, rb) = (range[a as usize], range[b as usize]);
         if ra.0 == ra.1 || rb.0 == rb.1 {
             continue;
@@ -158,46 +164,40 @@ fn support(
     support
 }
 
-/// Pairs of distinct segments with endpoints within `radius`, each pair once, with the
-/// shared vertex (the midpoint of the two closest endpoints). A grid of `radius`-sized cells
-/// keeps this linear in the number of segments.
-fn vertex_pairs(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2<f64>)> {
-    let key = |p: Point2<f64>| ((p.x / radius).floor() as i64, (p.y / radius).floor() as i64);
-    type Cell = Vec<(u32, Point2<f64>)>;
-    let mut cells: HashMap<(i64, i64), Cell> = HashMap::new();
-    for (i, s) in segments.iter().enumerate() {
-        for p in [s.a, s.b] {
-            cells.entry(key(p)).or_default().push((i as u32, p));
-        }
+/// The adjacency graph of view 1: pairs of distinct segments with endpoints within
+/// `radius` (a shared vertex), each pair once, with the vertex (the midpoint of the two
+/// closest endpoints). Endpoints sorted into a grid of `radius`-sized cells keep this linear
+/// in the number of segments.
+pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2<f64>)> {
+    if radius <= 0.0 || segments.is_empty() {
+        return Vec::new();
     }
-    let mut best: HashMap<(u32, u32), (f64, Point2<f64>)> = HashMap::new();
-    for (i, s) in segments.iter().enumerate() {
-        for p in [s.a, s.b] {
-            let (cx, cy) = key(p);
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    let Some(list) = cells.get(&(cx + dx, cy + dy)) else {
-                        continue;
-                    };
-                    for &(j, q) in list {
-                        if j <= i as u32 {
-                            continue;
-                        }
-                        let d = (q - p).norm();
-                        if d <= radius {
-                            let mid = nalgebra::center(&p, &q);
-                            let e = best.entry((i as u32, j)).or_insert((f64::INFINITY, mid));
-                            if d < e.0 {
-                                *e = (d, mid);
-                            }
-                        }
-                    }
+    let cell = |p: Point2<f64>| ((p.x / radius).floor() as i64, (p.y / radius).floor() as i64);
+    let mut ends: Vec<((i64, i64), u32, Point2<f64>)> = segments
+        .iter()
+        .enumerate()
+        .flat_map(|(i, s)| [(cell(s.a), i as u32, s.a), (cell(s.b), i as u32, s.b)])
+        .collect();
+    ends.sort_unstable_by_key(|e| (e.0, e.1));
+    let mut found: Vec<(u32, u32, f64, Point2<f64>)> = Vec::new();
+    for &((cx, cy), i, p) in &ends {
+        for dx in -1..=1 {
+            // Endpoints of one column of three cells are contiguous in (x, y) order.
+            let lo = ends.partition_point(|e| e.0 < (cx + dx, cy - 1));
+            let hi = ends.partition_point(|e| e.0 <= (cx + dx, cy + 1));
+            for &(_, j, q) in &ends[lo..hi] {
+                if j <= i {
+                    continue;
+                }
+                let d = (q - p).norm();
+                if d <= radius {
+                    found.push((i, j, d, nalgebra::center(&p, &q)));
                 }
             }
         }
     }
-    let mut pairs: Vec<(u32, u32, Point2<f64>)> =
-        best.into_iter().map(|((a, b), (_, v))| (a, b, v)).collect();
-    pairs.sort_unstable_by_key(|&(a, b, _)| (a, b));
-    pairs
+    // Keep the closest pair of endpoints of each pair of segments.
+    found.sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
+    found.dedup_by_key(|e| (e.0, e.1));
+    found.into_iter().map(|(a, b, _, v)| (a, b, v)).collect()
 }

@@ -1,0 +1,112 @@
+//! Accuracy of the matcher on synthetic rooms, over seeds, rigs and defect levels: the
+//! figures quoted in the README.
+//!
+//!     cargo run --release --example accuracy [-- SEEDS [param=value ...]]
+//!
+//! Two views of the same output, pooled over the seeds:
+//! - *match*: the paper's criterion — a 3D segment is wrong when its image segments are not
+//!   images of one ground-truth edge; completeness is the eligible length its right segments
+//!   cover;
+//! - *3D*: the strict geometric criterion of `shared/eval` — both endpoints and the midpoint
+//!   within max(2 cm, 1% of range) of one edge and the direction within 5°, which input
+//!   noise alone can fail for short segments.
+//!
+//! Eligible length: the part of each edge visible in all three cameras that projects to at
+//! least 20 px in each, and (`c10`) that also has at least 10 grey levels of contrast in each.
+
+use trinocular::matching::MatchParams;
+use trinocular::pipeline::match_segments;
+use trinocular::segment::Segment3;
+use trinocular::synth::{
+    eligible_intervals, eligible_intervals_with, match_labels, rig_centre, score, score_labelled,
+    standard_capture, Defects,
+};
+
+#[derive(Default)]
+struct Pool {
+    n: usize,
+    wrong: usize,
+    eligible_m: f64,
+    covered_m: f64,
+}
+
+impl Pool {
+    fn add(&mut self, s: &trinocular::synth::Score) {
+        self.n += s.n_segments;
+        self.wrong += s.n_segments - s.n_correct;
+        self.eligible_m += s.eligible_length_m;
+        self.covered_m += s.covered_length_m;
+    }
+    fn show(&self) -> String {
+        format!(
+            "error {:.4} compl {:.4}",
+            self.wrong as f64 / self.n.max(1) as f64,
+            self.covered_m / self.eligible_m.max(1e-12)
+        )
+    }
+}
+
+fn main() {
+    let seeds: u64 = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(5);
+    let mut params = MatchParams::default();
+    for (key, value) in std::env::args().skip(2).filter_map(|a| {
+        let (k, v) = a.split_once('=')?;
+        Some((k.to_string(), v.parse::<f64>().ok()?))
+    }) {
+        match key.as_str() {
+            "tolerance_px" => params.tolerance_px = value,
+            "line_noise_px" => params.line_noise_px = value,
+            "max_direction_sigma_deg" => params.max_direction_sigma_deg = value,
+            "max_residual_px" => params.max_residual_px = value,
+            "angle_tolerance_deg" => params.angle_tolerance_deg = value,
+            "min_length_px" => params.min_length_px = value,
+            "neighbour_radius_px" => params.neighbour_radius_px = value,
+            other => panic!("unknown parameter {other}"),
+        }
+    }
+    let configs = [
+        ("clean", Defects::clean(), false),
+        ("realistic", Defects::realistic(), false),
+        ("clean, collinear", Defects::clean(), true),
+        ("realistic, collinear", Defects::realistic(), true),
+    ];
+    println!("{seeds} seeds; {params:?}");
+    for (name, defects, collinear) in configs {
+        let (mut matched, mut matched_c10, mut strict, mut strict_c10) = (
+            Pool::default(),
+            Pool::default(),
+            Pool::default(),
+            Pool::default(),
+        );
+        let mut ms = Vec::new();
+        for seed in 1..=seeds {
+            let (_, rig, obs) = standard_capture(seed, defects, collinear);
+            let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
+            let segs: Vec<Segment3> = out.segments_3d.iter().map(|r| r.segment).collect();
+            let labels = match_labels(&out, &obs);
+            let (elig, elig_c10) = (
+                eligible_intervals(&obs),
+                eligible_intervals_with(&obs, 20.0, Some(10.0)),
+            );
+            let truth = &obs.ground_truth;
+            matched.add(&score_labelled(&segs, &labels, truth, &elig));
+            matched_c10.add(&score_labelled(&segs, &labels, truth, &elig_c10));
+            strict.add(&score(&segs, truth, &elig, rig_centre(&rig)));
+            strict_c10.add(&score(&segs, truth, &elig_c10, rig_centre(&rig)));
+            ms.push(out.stats.total_ms);
+        }
+        ms.sort_by(f64::total_cmp);
+        println!(
+            "{name:21} n {:5} | match: {} (c10 {:.4}) | 3D: {} (c10 {:.4}) | median {:.2} ms",
+            matched.n,
+            matched.show(),
+            matched_c10.covered_m / matched_c10.eligible_m.max(1e-12),
+            strict.show(),
+            strict_c10.covered_m / strict_c10.eligible_m.max(1e-12),
+            ms[ms.len() / 2],
+        );
+    }
+}

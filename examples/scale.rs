@@ -1,0 +1,16 @@
+use trinocular::matching::MatchParams;
+use trinocular::pipeline::match_segments;
+use trinocular::synth::scattered_capture;
+
+fn main() {
+    let params = MatchParams::default();
+    for n in [600usize, 2500, 10000] {
+        let (rig, lists) = scattered_capture(n, 0.3, 0.2, 1);
+        let out = match_segments(&rig, &lists, &params).unwrap();
+        let s = &out.stats;
+        println!(
+            "n={n} hyp={} trip={} predict {:.2} reconstruct {:.2} validate {:.2} total {:.2} ms",
+            s.hypotheses, s.triplets, s.predict_ms, s.reconstruct_ms, s.validate_ms, s.total_ms
+        );
+    }
+}

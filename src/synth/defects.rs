@@ -1,0 +1,663 @@
+//! Segment lists as an edge extractor would report them, with exact ground truth.
+//!
+//! [`observe`] turns a scene seen by a rig into three oriented [`SegmentList`]s plus, for
+//! every segment, the ground-truth edge it came from. The steps, per image:
+//!
+//! 1. Visibility of every ground-truth edge ([`rig_visibility`]).
+//! 2. Exactly collinear edges that overlap (the seat's front edge and the backrest's bottom
+//!    edge of a chair, say) are one image edge, so their visible parts are united. Collinear
+//!    edges that only touch end to end stay separate segments: united, they would give a
+//!    segment that no single ground-truth edge contains, which the scorer counts as wrong.
+//!    Endpoints of a segment are thus always within its ground-truth edge.
+//! 3. Each visible piece is probed for contrast every [`RUN_SAMPLE_PX`] pixels and cut where
+//!    the contrast changes sign or falls below [`MIN_CONTRAST`] (the background behind an
+//!    occluding edge changes along it; an extractor sees one segment per consistent run).
+//!    Cuts are refined by bisection. Each run is oriented by its contrast sign (DESIGN §1).
+//! 4. Near-coincident segments (the front and back edges of a 2 mm thin board, under a
+//!    pixel apart) are reported once, as an extractor would.
+//! 5. [`Defects`]: misses, fragmentation, endpoint noise, then clutter segments with no 3D
+//!    edge behind them. The lists are shuffled so indices carry no information.
+//!
+//! Endpoints are projections of points of the ground-truth edge through `Camera::project`
+//! (distortion included) before noise, so a clean observation reprojects exactly.
+
+use std::collections::HashMap;
+
+use nalgebra::{Point2, Point3, Vector2};
+
+use super::bvh::SceneIndex;
+use super::rng::Rng;
+use super::scene::{Scene, Tracer};
+use super::visibility::{rig_visibility, EdgeVisibility, FlatCamera, Interval, MIN_CONTRAST};
+use crate::geometry::{Camera, Rig};
+use crate::segment::{Segment2, Segment3, SegmentList};
+
+/// Spacing of contrast probes along a visible piece, pixels.
+pub const RUN_SAMPLE_PX: f64 = 4.0;
+/// Contrast is measured across 2 × 1.5 px: gradient ≈ contrast / 3 grey levels per pixel.
+const CONTRAST_SPAN_PX: f64 = 3.0;
+/// Two segments closer than this (both endpoints of the shorter to the longer's line),
+/// parallel within [`DUPLICATE_ANGLE_DEG`] and overlapping, are one image edge.
+pub const DUPLICATE_DISTANCE_PX: f64 = 1.0;
+pub const DUPLICATE_ANGLE_DEG: f64 = 2.0;
+/// Bisection steps refining a contrast cut (4 px / 2⁷ ≈ 0.03 px).
+const CUT_REFINE_STEPS: usize = 7;
+/// Length range of clutter segments, pixels.
+pub const CLUTTER_LENGTH_PX: (f64, f64) = (10.0, 80.0);
+/// Collinear edges whose visible parts overlap by less than this touch end to end, metres.
+pub const CHAIN_TOUCH_M: f64 = 1e-6;
+/// Upper bound on [`Defects::clutter_fraction`], so a wild value cannot exhaust memory.
+pub const MAX_CLUTTER_FRACTION: f64 = 10.0;
+/// Gap between fragments of one edge, pixels.
+pub const FRAGMENT_GAP_PX: (f64, f64) = (2.0, 10.0);
+
+/// What goes wrong between the ideal projection and an extractor's output.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Defects {
+    /// Standard deviation of endpoint noise, pixels, applied independently along and across
+    /// the segment at each endpoint.
+    pub endpoint_noise_px: f64,
+    /// Probability that a segment is split into 2–3 pieces with gaps of 2–10 px.
+    pub fragment_prob: f64,
+    /// Probability that a segment is not reported at all.
+    pub miss_prob: f64,
+    /// Clutter segments added, as a fraction of the true segments of the image (at most
+    /// [`MAX_CLUTTER_FRACTION`]).
+    pub clutter_fraction: f64,
+    /// Shorter segments (and fragments) are not reported, pixels.
+    pub min_length_px: f64,
+}
+
+impl Defects {
+    /// Exact projections of the visible parts: no noise, nothing missed, no clutter.
+    pub fn clean() -> Defects {
+        Defects {
+            endpoint_noise_px: 0.0,
+            fragment_prob: 0.0,
+            miss_prob: 0.0,
+            clutter_fraction: 0.0,
+            min_length_px: 4.0,
+        }
+    }
+
+    /// Roughly what a good extractor does on a real image of the scene.
+    pub fn realistic() -> Defects {
+        Defects {
+            endpoint_noise_px: 0.5,
+            fragment_prob: 0.2,
+            miss_prob: 0.05,
+            clutter_fraction: 0.2,
+            min_length_px: 8.0,
+        }
+    }
+}
+
+/// Three segment lists with their ground truth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Observation {
+    /// One oriented list per camera.
+    pub lists: [SegmentList; 3],
+    /// Per list, per segment: the index into `ground_truth` of the edge it came from, or
+    /// `None` for clutter.
+    pub truth: [Vec<Option<usize>>; 3],
+    /// [`Scene::ground_truth_edges`].
+    pub ground_truth: Vec<Segment3>,
+    /// Per ground-truth edge: the intervals visible in all three cameras.
+    pub visible_all3: Vec<Vec<Interval>>,
+    /// Per ground-truth edge: visibility and contrast in each camera.
+    pub visibility: Vec<EdgeVisibility>,
+}
+
+/// Groups of exactly collinear edges (index lists, each sorted, in order of first member).
+fn collinear_classes(edges: &[Segment3]) -> Vec<Vec<usize>> {
+    // Exact key: box coordinates are exact, so collinear edges give bit-identical unit
+    // directions and feet up to rounding; quantising at 0.1 µm absorbs that rounding.
+    let quantise = |v: f64| (v * 1e7).round() as i64;
+    let mut index: HashMap<[i64; 6], usize> = HashMap::new();
+    let mut classes: Vec<Vec<usize>> = Vec::new();
+    for (i, e) in edges.iter().enumerate() {
+        let Some(mut u) = (e.end - e.start).try_normalize(1e-12) else {
+            classes.push(vec![i]);
+            continue;
+        };
+        if let Some(first) = u.iter().find(|v| v.abs() > 1e-9) {
+            if *first < 0.0 {
+                u = -u;
+            }
+        }
+        let foot = e.start.coords - u * e.start.coords.dot(&u);
+        let key = [
+            quantise(u.x),
+            quantise(u.y),
+            quantise(u.z),
+            quantise(foot.x),
+            quantise(foot.y),
+            quantise(foot.z),
+        ];
+        match index.get(&key) {
+            Some(&c) => classes[c].push(i),
+            None => {
+                index.insert(key, classes.len());
+                classes.push(vec![i]);
+            }
+        }
+    }
+    classes
+}
+
+/// Union of intervals that overlap by more than `touch`; intervals that merely touch (the
+/// visible parts of collinear edges meeting end to end) stay apart.
+fn union_overlapping(mut intervals: Vec<Interval>, touch: f64) -> Vec<Interval> {
+    intervals.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let mut out: Vec<Interval> = Vec::with_capacity(intervals.len());
+    for (a, b) in intervals {
+        match out.last_mut() {
+            Some(last) if a < last.1 - touch => last.1 = last.1.max(b),
+            _ => out.push((a, b)),
+        }
+    }
+    out
+}
+
+/// A segment before defects: the ideal projection of `[a, b]` of the reference edge.
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    /// 3D endpoints on the ground-truth line, in the reference edge's direction.
+    from: Point3<f64>,
+    to: Point3<f64>,
+    p_from: Point2<f64>,
+    p_to: Point2<f64>,
+    /// Median |contrast|, grey levels.
+    contrast: f64,
+    /// Brighter side is on the left of `from → to` as seen on screen.
+    left_brighter: bool,
+    edge: usize,
+}
+
+impl Candidate {
+    fn length_px(&self) -> f64 {
+        (self.p_to - self.p_from).norm()
+    }
+}
+
+fn point_on(edge: &Segment3, s: f64) -> Point3<f64> {
+    edge.start + (edge.end - edge.start) * s
+}
+
+/// The parameter on `reference` of the point of `member` at parameter `s`.
+fn reparam(reference: &Segment3, member: &Segment3, s: f64) -> f64 {
+    let d = reference.end - reference.start;
+    (point_on(member, s) - reference.start).dot(&d) / d.norm_squared()
+}
+
+fn contrast_class(c: Option<f64>) -> i8 {
+    match c {
+        Some(c) if c >= MIN_CONTRAST => 1,
+        Some(c) if c <= -MIN_CONTRAST => -1,
+        _ => 0,
+    }
+}
+
+/// Runs of consistent contrast along `[a, b]` of `edge`: `(a, b, class, median |contrast|)`.
+fn contrast_runs<T: Tracer>(
+    tracer: &T,
+    flat: &FlatCamera,
+    edge: &Segment3,
+    a: f64,
+    b: f64,
+    length_px: f64,
+) -> Vec<(f64, f64, i8, f64)> {
+    let n = ((length_px / RUN_SAMPLE_PX).ceil() as usize).clamp(3, 4096);
+    let probe = |s: f64| flat.contrast(tracer, edge, s);
+    let samples: Vec<(f64, Option<f64>)> = (0..n)
+        .map(|k| {
+            let s = a + (b - a) * (k as f64 + 0.5) / n as f64;
+            (s, probe(s))
+        })
+        .collect();
+    let mut runs = Vec::new();
+    let mut start = a;
+    let mut values: Vec<f64> = Vec::new();
+    for k in 0..n {
+        let class = contrast_class(samples[k].1);
+        values.push(samples[k].1.map_or(0.0, f64::abs));
+        let next_class = samples.get(k + 1).map(|s| contrast_class(s.1));
+        let end = match next_class {
+            None => b,
+            Some(next) if next != class => {
+                let (mut lo, mut hi) = (samples[k].0, samples[k + 1].0);
+                for _ in 0..CUT_REFINE_STEPS {
+                    let mid = 0.5 * (lo + hi);
+                    if contrast_class(probe(mid)) == class {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                0.5 * (lo + hi)
+            }
+            Some(_) => continue,
+        };
+        if class != 0 {
+            let contrast = super::visibility::median(&mut values).unwrap_or(0.0);
+            runs.push((start, end, class, contrast));
+        }
+        values.clear();
+        start = end;
+    }
+    runs
+}
+
+/// Ideal segments of one camera, before defects.
+fn candidates<T: Tracer>(
+    tracer: &T,
+    camera: &Camera,
+    cam_index: usize,
+    edges: &[Segment3],
+    classes: &[Vec<usize>],
+    visibility: &[EdgeVisibility],
+    min_length_px: f64,
+) -> Vec<Candidate> {
+    let flat = FlatCamera::new(camera);
+    let mut out = Vec::new();
+    for class in classes {
+        let Some(&reference) = class.first() else {
+            continue;
+        };
+        let ref_edge = &edges[reference];
+        // Visible intervals of every member, on the reference edge's parameter.
+        let mapped: Vec<(usize, Vec<Interval>)> = class
+            .iter()
+            .map(|&m| {
+                let ivs = visibility[m].cameras[cam_index]
+                    .iter()
+                    .map(|&(s0, s1)| {
+                        let (r0, r1) = (
+                            reparam(ref_edge, &edges[m], s0),
+                            reparam(ref_edge, &edges[m], s1),
+                        );
+                        (r0.min(r1), r0.max(r1))
+                    })
+                    .collect();
+                (m, ivs)
+            })
+            .collect();
+        let all: Vec<Interval> = mapped.iter().flat_map(|(_, v)| v.iter().copied()).collect();
+        let touch = CHAIN_TOUCH_M / ref_edge.length();
+        for (a, b) in union_overlapping(all, touch) {
+            let (xa, xb) = (point_on(ref_edge, a), point_on(ref_edge, b));
+            let (Some(pa), Some(pb)) = (camera.project(&xa), camera.project(&xb)) else {
+                continue;
+            };
+            let length_px = (pb - pa).norm();
+            if length_px < min_length_px {
+                continue;
+            }
+            for (ra, rb, class_sign, contrast) in
+                contrast_runs(tracer, &flat, ref_edge, a, b, length_px)
+            {
+                let (from, to) = (point_on(ref_edge, ra), point_on(ref_edge, rb));
+                let (Some(p_from), Some(p_to)) = (camera.project(&from), camera.project(&to))
+                else {
+                    continue;
+                };
+                if (p_to - p_from).norm() < min_length_px {
+                    continue;
+                }
+                let overlap = |ivs: &Vec<Interval>| -> f64 {
+                    ivs.iter()
+                        .map(|&(s0, s1)| (s1.min(rb) - s0.max(ra)).max(0.0))
+                        .sum()
+                };
+                let edge = mapped
+                    .iter()
+                    .map(|(m, ivs)| (*m, overlap(ivs)))
+                    .fold(
+                        (reference, -1.0),
+                        |best, (m, o)| if o > best.1 { (m, o) } else { best },
+                    )
+                    .0;
+                out.push(Candidate {
+                    from,
+                    to,
+                    p_from,
+                    p_to,
+                    contrast,
+                    left_brighter: class_sign > 0,
+                    edge,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Whether `short` lies on `long` in the image: parallel, within a pixel, overlapping.
+fn duplicates(long: &Candidate, short: &Candidate) -> bool {
+    let d = long.p_to - long.p_from;
+    let len = d.norm();
+    let e = short.p_to - short.p_from;
+    let len_s = e.norm();
+    if len <= 0.0 || len_s <= 0.0 {
+        return false;
+    }
+    let u = d / len;
+    if (u.perp(&e) / len_s).abs() > DUPLICATE_ANGLE_DEG.to_radians().sin() {
+        return false;
+    }
+    let across = |p: Point2<f64>| u.perp(&(p - long.p_from)).abs();
+    if across(short.p_from) > DUPLICATE_DISTANCE_PX || across(short.p_to) > DUPLICATE_DISTANCE_PX {
+        return false;
+    }
+    let along = |p: Point2<f64>| u.dot(&(p - long.p_from));
+    let (s0, s1) = (along(short.p_from), along(short.p_to));
+    let overlap = (s0.max(s1).min(len) - s0.min(s1).max(0.0)).max(0.0);
+    overlap >= 0.5 * len_s
+}
+
+/// Keeps the longest of each group of near-coincident candidates.
+fn remove_duplicates(mut cands: Vec<Candidate>) -> Vec<Candidate> {
+    cands.sort_by(|x, y| y.length_px().total_cmp(&x.length_px()));
+    let mut kept: Vec<Candidate> = Vec::with_capacity(cands.len());
+    for c in cands {
+        if !kept.iter().any(|k| duplicates(k, &c)) {
+            kept.push(c);
+        }
+    }
+    kept
+}
+
+/// 3D sub-segments of a candidate after fragmentation: cuts placed in image length, mapped
+/// back to the 3D line through the perspective division so the pieces stay on the edge.
+fn fragments(
+    cand: &Candidate,
+    camera: &Camera,
+    defects: &Defects,
+    rng: &mut Rng,
+) -> Vec<(Point3<f64>, Point3<f64>)> {
+    let whole = vec![(cand.from, cand.to)];
+    if !rng.chance(defects.fragment_prob) {
+        return whole;
+    }
+    let length = cand.length_px();
+    let pieces = 2 + rng.index(2);
+    let gaps: Vec<f64> = (1..pieces)
+        .map(|_| rng.range(FRAGMENT_GAP_PX.0, FRAGMENT_GAP_PX.1))
+        .collect();
+    let remaining = length - gaps.iter().sum::<f64>();
+    let min_piece = defects.min_length_px.max(1.0);
+    if remaining < pieces as f64 * min_piece {
+        return whole;
+    }
+    let weights: Vec<f64> = (0..pieces).map(|_| rng.range(0.5, 1.5)).collect();
+    let total_w: f64 = weights.iter().sum();
+    let mut sizes: Vec<f64> = weights.iter().map(|w| remaining * w / total_w).collect();
+    if sizes.iter().any(|&s| s < min_piece) {
+        sizes = vec![remaining / pieces as f64; pieces];
+    }
+    // Image fraction λ → 3D fraction μ on the segment (pinhole perspective division).
+    let (wa, wb) = (camera.depth(&cand.from), camera.depth(&cand.to));
+    let to_3d = |lambda: f64| {
+        let mu = lambda * wa / (lambda * wa + (1.0 - lambda) * wb);
+        cand.from + (cand.to - cand.from) * mu
+    };
+    let mut out = Vec::with_capacity(pieces);
+    let mut at = 0.0;
+    for (k, size) in sizes.iter().enumerate() {
+        out.push((to_3d(at / length), to_3d((at + size) / length)));
+        at += size + gaps.get(k).copied().unwrap_or(0.0);
+    }
+    out
+}
+
+fn clamp_to_image(p: Point2<f64>, camera: &Camera) -> Point2<f64> {
+    let (w, h) = (camera.width() as f64, camera.height() as f64);
+    Point2::new(p.x.clamp(-0.5, w - 0.5), p.y.clamp(-0.5, h - 0.5))
+}
+
+/// Final 2D segments of one camera, with truth, before shuffling.
+fn apply_defects(
+    cands: &[Candidate],
+    camera: &Camera,
+    defects: &Defects,
+    rng: &mut Rng,
+) -> Vec<(Segment2, Option<usize>)> {
+    let mut out = Vec::new();
+    for cand in cands {
+        if rng.chance(defects.miss_prob) {
+            continue;
+        }
+        for (from, to) in fragments(cand, camera, defects, rng) {
+            let (Some(mut p), Some(mut q)) = (camera.project(&from), camera.project(&to)) else {
+                continue;
+            };
+            if defects.endpoint_noise_px > 0.0 {
+                let t = (q - p).try_normalize(1e-12).unwrap_or_else(Vector2::x);
+                let n = Vector2::new(-t.y, t.x);
+                for e in [&mut p, &mut q] {
+                    let (along, across) = (rng.normal(), rng.normal());
+                    *e += (t * along + n * across) * defects.endpoint_noise_px;
+                }
+            }
+            let (p, q) = (clamp_to_image(p, camera), clamp_to_image(q, camera));
+            if (q - p).norm() < defects.min_length_px {
+                continue;
+            }
+            let (start, end) = if cand.left_brighter { (p, q) } else { (q, p) };
+            out.push((
+                Segment2 {
+                    start,
+                    end,
+                    gradient: Some(cand.contrast / CONTRAST_SPAN_PX),
+                },
+                Some(cand.edge),
+            ));
+        }
+    }
+    // NaN clamps to NaN, which casts to 0.
+    let fraction = defects.clutter_fraction.clamp(0.0, MAX_CLUTTER_FRACTION);
+    let n_clutter = (fraction * out.len() as f64).round() as usize;
+    let (w, h) = (camera.width() as f64, camera.height() as f64);
+    for _ in 0..n_clutter {
+        let length = rng.range(CLUTTER_LENGTH_PX.0, CLUTTER_LENGTH_PX.1);
+        let angle = rng.range(0.0, std::f64::consts::TAU);
+        let dir = Vector2::new(angle.cos(), angle.sin()) * length;
+        let start = Point2::new(rng.range(-0.5, w - 0.5), rng.range(-0.5, h - 0.5));
+        // Pointing the segment back into the image keeps its length and random orientation
+        // statistics (a reflected direction is as random as the original).
+        let mut end = start + dir;
+        if !(-0.5..=w - 0.5).contains(&end.x) {
+            end.x = start.x - dir.x;
+        }
+        if !(-0.5..=h - 0.5).contains(&end.y) {
+            end.y = start.y - dir.y;
+        }
+        let end = clamp_to_image(end, camera);
+        let contrast = rng.range(2.0 * MIN_CONTRAST, 60.0);
+        out.push((
+            Segment2 {
+                start,
+                end,
+                gradient: Some(contrast / CONTRAST_SPAN_PX),
+            },
+            None,
+        ));
+    }
+    out
+}
+
+/// Three oriented segment lists of `scene` as seen by `rig` (cameras mapping scene points),
+/// with `defects`; reproducible from `seed`. See the module doc.
+pub fn observe(scene: &Scene, rig: &Rig, defects: &Defects, seed: u64) -> Observation {
+    let edges = scene.ground_truth_edges();
+    let visibility = rig_visibility(scene, rig, &edges);
+    let classes = collinear_classes(&edges);
+    let index = SceneIndex::new(scene);
+    let root = Rng::new(seed).fork(0xDEFEC7);
+    let per_camera: [(SegmentList, Vec<Option<usize>>); 3] = std::array::from_fn(|c| {
+        let camera = &rig.cameras()[c];
+        let cands = candidates(
+            &index,
+            camera,
+            c,
+            &edges,
+            &classes,
+            &visibility,
+            defects.min_length_px,
+        );
+        let cands = remove_duplicates(cands);
+        let mut rng = root.fork(c as u64);
+        let mut items = apply_defects(&cands, camera, defects, &mut rng);
+        rng.shuffle(&mut items);
+        let (segments, truth): (Vec<Segment2>, Vec<Option<usize>>) = items.into_iter().unzip();
+        (
+            SegmentList {
+                segments,
+                oriented: true,
+            },
+            truth,
+        )
+    });
+    let [(l0, t0), (l1, t1), (l2, t2)] = per_camera;
+    Observation {
+        lists: [l0, l1, l2],
+        truth: [t0, t1, t2],
+        visible_all3: visibility.iter().map(|v| v.all3.clone()).collect(),
+        ground_truth: edges,
+        visibility,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::rig::{Pose, RigSpec};
+    use crate::synth::scene::Box3;
+    use crate::synth::visibility::pixel_radiance;
+
+    /// A dark block and a lighter block in front of a bright wall, seen from 2–4 m.
+    fn small_scene() -> Scene {
+        Scene {
+            boxes: vec![
+                Box3::new(
+                    Point3::new(-4.0, 4.0, -3.0),
+                    Point3::new(4.0, 4.2, 3.0),
+                    [0.8; 6],
+                ),
+                Box3::new(
+                    Point3::new(-0.1, 2.5, -0.4),
+                    Point3::new(0.3, 2.8, 0.0),
+                    [0.1, 0.15, 0.1, 0.2, 0.1, 0.3],
+                ),
+                Box3::new(
+                    Point3::new(-0.6, 3.0, -0.2),
+                    Point3::new(-0.3, 3.3, 0.3),
+                    [0.5, 0.4, 0.45, 0.5, 0.6, 0.35],
+                ),
+            ],
+            light: Point3::new(0.5, 1.0, 1.0),
+        }
+    }
+
+    fn small_rig() -> Rig {
+        RigSpec::non_collinear(3).build(&Pose::identity()).unwrap()
+    }
+
+    fn distance_to_line(p: Point2<f64>, a: Point2<f64>, b: Point2<f64>) -> f64 {
+        let d = (b - a).normalize();
+        d.perp(&(p - a)).abs()
+    }
+
+    #[test]
+    fn clean_observation_reprojects_exactly_and_is_oriented() {
+        let scene = small_scene();
+        let rig = small_rig();
+        let obs = observe(&scene, &rig, &Defects::clean(), 1);
+        for c in 0..3 {
+            let cam = &rig.cameras()[c];
+            let list = &obs.lists[c];
+            assert!(list.oriented);
+            assert!(
+                list.segments.len() >= 8,
+                "camera {c}: {} segments",
+                list.segments.len()
+            );
+            assert_eq!(list.segments.len(), obs.truth[c].len());
+            for (seg, truth) in list.segments.iter().zip(&obs.truth[c]) {
+                let edge = obs.ground_truth[truth.unwrap()];
+                let (Some(a), Some(b)) = (cam.project(&edge.start), cam.project(&edge.end)) else {
+                    panic!("edge behind camera");
+                };
+                for p in [seg.start, seg.end] {
+                    assert!(distance_to_line(p, a, b) < 1e-6);
+                    // Within the projected edge, not just on its line.
+                    let along = (p - a).dot(&(b - a)) / (b - a).norm_squared();
+                    assert!((-1e-9..=1.0 + 1e-9).contains(&along), "{along}");
+                }
+                // Brighter on the walker's left, along (v2 - v1, -(u2 - u1)).
+                let d = seg.end - seg.start;
+                let left = Vector2::new(d.y, -d.x).normalize() * 1.5;
+                let mid = seg.start + d * 0.5;
+                let bright = pixel_radiance(&scene, cam, mid + left);
+                let dark = pixel_radiance(&scene, cam, mid - left);
+                assert!(bright - dark >= MIN_CONTRAST, "contrast {}", bright - dark);
+                let g = seg.gradient.unwrap();
+                assert!(g * 3.0 >= MIN_CONTRAST - 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn observation_is_reproducible_and_seeded() {
+        let scene = small_scene();
+        let rig = small_rig();
+        let a = observe(&scene, &rig, &Defects::realistic(), 9);
+        assert_eq!(a, observe(&scene, &rig, &Defects::realistic(), 9));
+        assert_ne!(
+            a.lists,
+            observe(&scene, &rig, &Defects::realistic(), 10).lists
+        );
+        for c in 0..3 {
+            let clutter = a.truth[c].iter().filter(|t| t.is_none()).count();
+            let real = a.truth[c].len() - clutter;
+            assert!(
+                clutter > 0 && clutter <= real,
+                "{clutter} clutter, {real} real"
+            );
+            let (w, h) = (
+                rig.cameras()[c].width() as f64,
+                rig.cameras()[c].height() as f64,
+            );
+            for s in &a.lists[c].segments {
+                for p in [s.start, s.end] {
+                    assert!(p.x >= -0.5 && p.x <= w - 0.5 && p.y >= -0.5 && p.y <= h - 0.5);
+                }
+                assert!(s.length() >= Defects::realistic().min_length_px - 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn touching_collinear_pieces_stay_apart() {
+        let merged = union_overlapping(vec![(0.5, 1.0), (0.0, 0.5), (0.9, 1.4), (2.0, 3.0)], 1e-9);
+        assert_eq!(merged, vec![(0.0, 0.5), (0.5, 1.4), (2.0, 3.0)]);
+    }
+
+    #[test]
+    fn collinear_edges_are_grouped() {
+        let s = |a: [f64; 3], b: [f64; 3]| Segment3 {
+            start: Point3::from(a),
+            end: Point3::from(b),
+        };
+        let edges = [
+            s([0.0, 1.0, 2.0], [1.0, 1.0, 2.0]),
+            s([0.0, 1.0, 3.0], [1.0, 1.0, 3.0]),
+            s([3.0, 1.0, 2.0], [1.5, 1.0, 2.0]),
+            s([0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+        ];
+        assert_eq!(
+            collinear_classes(&edges),
+            vec![vec![0, 2], vec![1], vec![3]]
+        );
+    }
+}

@@ -1,0 +1,442 @@
+//! Accuracy metrics of reconstructed 3D segments against exact ground truth.
+//!
+//! A re-implementation of `shared/eval/score.py` (single capture), so tests and benches can
+//! score without Python and get the same numbers:
+//!
+//! - tolerance at a point P: `max(0.02 m, 0.01·|P − c|)`, `c` the rig centre (centroid of
+//!   the optical centres);
+//! - a segment is **correct** when both endpoints and its midpoint are within tolerance
+//!   (point-to-segment distance) of the same ground-truth edge and its direction is within 5°
+//!   of that edge's; among qualifying edges the one with the smallest summed distance is the
+//!   match;
+//! - **completeness**: correct segments are projected onto their matched edge (and onto every
+//!   edge exactly collinear with it, i.e. duplicate ground truth), and the covered share of
+//!   the eligible length is reported. Eligible: the part visible in all three cameras, for
+//!   edges whose part projects to at least 20 px in every image ([`eligible_intervals`]);
+//! - **accuracy**: distance of the endpoints of correct segments to the infinite line of their
+//!   matched edge, median and 90th percentile (linear interpolation, as numpy), millimetres.
+
+use nalgebra::{Point3, Vector3};
+
+use super::defects::Observation;
+use super::visibility::{intersect_intervals, total_length, union_intervals, Interval};
+use crate::segment::Segment3;
+
+pub const TOL_ABS_M: f64 = 0.02;
+pub const TOL_REL: f64 = 0.01;
+pub const MAX_ANGLE_DEG: f64 = 5.0;
+/// Eligible edges project to at least this in every image, pixels.
+pub const MIN_ELIGIBLE_PX: f64 = 20.0;
+
+/// The metrics of one set of 3D segments. Ratios are `None` when undefined (no segments,
+/// nothing eligible, nothing correct).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Score {
+    pub n_segments: usize,
+    pub n_correct: usize,
+    pub error_rate: Option<f64>,
+    pub completeness: Option<f64>,
+    pub acc_median_mm: Option<f64>,
+    pub acc_p90_mm: Option<f64>,
+    /// Per segment: the matched ground-truth edge, `None` when wrong.
+    pub matches: Vec<Option<usize>>,
+    pub n_eligible_edges: usize,
+    pub eligible_length_m: f64,
+    pub covered_length_m: f64,
+}
+
+/// Eligible sub-intervals per ground-truth edge: the part visible in all three cameras when
+/// it projects to at least [`MIN_ELIGIBLE_PX`] in each image, else none.
+pub fn eligible_intervals(obs: &Observation) -> Vec<Vec<Interval>> {
+    eligible_intervals_with(obs, MIN_ELIGIBLE_PX, None)
+}
+
+/// [`eligible_intervals`] with another pixel threshold, optionally also requiring a contrast
+/// of at least `min_contrast` grey levels in all three images (the evaluation's
+/// `completeness_contrast10` uses 10).
+pub fn eligible_intervals_with(
+    obs: &Observation,
+    min_px: f64,
+    min_contrast: Option<f64>,
+) -> Vec<Vec<Interval>> {
+    obs.visibility
+        .iter()
+        .map(|v| {
+            let long_enough = !v.all3.is_empty() && v.all3_px.iter().all(|&px| px >= min_px);
+            let contrasted =
+                min_contrast.is_none_or(|m| v.contrast.iter().all(|c| c.is_some_and(|c| c >= m)));
+            if long_enough && contrasted {
+                v.all3.clone()
+            } else {
+                Vec::new()
+            }
+        })
+        .collect()
+}
+
+fn point_line_distance(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
+    let Some(u) = (b - a).try_normalize(0.0) else {
+        return (p - a).norm();
+    };
+    let w = p - a;
+    (w - u * w.dot(&u)).norm()
+}
+
+/// numpy's default (linear) percentile of sorted values.
+fn percentile(sorted: &[f64], q: f64) -> Option<f64> {
+    if sorted.is_empty() {
+        return None;
+    }
+    let pos = q / 100.0 * (sorted.len() - 1) as f64;
+    let lo = pos.floor() as usize;
+    let hi = (lo + 1).min(sorted.len() - 1);
+    Some(sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64))
+}
+
+/// A ground-truth edge as plain arrays: matching tests every segment against every edge.
+#[derive(Debug, Clone, Copy)]
+struct FlatEdge {
+    a: [f64; 3],
+    d: [f64; 3],
+    /// |d|², and the unit direction (zero for a degenerate edge).
+    dd: f64,
+    u: [f64; 3],
+    mid: [f64; 3],
+    half_length: f64,
+}
+
+fn dot(x: &[f64; 3], y: &[f64; 3]) -> f64 {
+    x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
+}
+
+fn sub(x: &[f64; 3], y: &[f64; 3]) -> [f64; 3] {
+    [x[0] - y[0], x[1] - y[1], x[2] - y[2]]
+}
+
+impl FlatEdge {
+    fn new(e: &Segment3) -> FlatEdge {
+        let a: [f64; 3] = e.start.coords.into();
+        let d = sub(&e.end.coords.into(), &a);
+        let dd = dot(&d, &d);
+        let len = dd.sqrt();
+        let u = if len > 0.0 {
+            d.map(|v| v / len)
+        } else {
+            [0.0; 3]
+        };
+        FlatEdge {
+            a,
+            d,
+            dd,
+            u,
+            mid: std::array::from_fn(|k| a[k] + 0.5 * d[k]),
+            half_length: 0.5 * len,
+        }
+    }
+
+    fn distance(&self, p: &[f64; 3]) -> f64 {
+        let w = sub(p, &self.a);
+        let t = if self.dd > 0.0 {
+            (dot(&w, &self.d) / self.dd).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let r: [f64; 3] = std::array::from_fn(|k| w[k] - t * self.d[k]);
+        dot(&r, &r).sqrt()
+    }
+}
+
+/// The matched edge of a segment, if it is correct.
+fn match_segment(seg: &Segment3, truth: &[FlatEdge], centre: &Point3<f64>) -> Option<usize> {
+    let d = seg.end - seg.start;
+    let length = d.norm();
+    if !(length > 0.0 && length.is_finite()) {
+        return None;
+    }
+    let su: [f64; 3] = (d / length).into();
+    let cos_min = MAX_ANGLE_DEG.to_radians().cos();
+    let mid = seg.start + d * 0.5;
+    let points: [[f64; 3]; 3] = [
+        seg.start.coords.into(),
+        seg.end.coords.into(),
+        mid.coords.into(),
+    ];
+    let c: [f64; 3] = centre.coords.into();
+    let tols = points.map(|p| {
+        let r = sub(&p, &c);
+        TOL_ABS_M.max(TOL_REL * dot(&r, &r).sqrt())
+    });
+    let mut best: Option<(usize, f64)> = None;
+    for (j, e) in truth.iter().enumerate() {
+        if dot(&su, &e.u).abs() < cos_min {
+            continue;
+        }
+        // Cheap rejection: the midpoint must be near the edge's bounding sphere.
+        let r = sub(&points[2], &e.mid);
+        let reach = e.half_length + tols[2];
+        if dot(&r, &r) > reach * reach {
+            continue;
+        }
+        let mut total = 0.0;
+        let mut ok = true;
+        for (p, tol) in points.iter().zip(tols) {
+            let dist = e.distance(p);
+            if dist > tol {
+                ok = false;
+                break;
+            }
+            total += dist;
+        }
+        if ok && best.is_none_or(|(_, t)| total < t) {
+            best = Some((j, total));
+        }
+    }
+    best.map(|(j, _)| j)
+}
+
+/// Ground-truth edges exactly collinear with edge `j` (including `j`).
+fn collinear_with(truth: &[Segment3], j: usize) -> Vec<usize> {
+    let e = &truth[j];
+    let Some(u) = (e.end - e.start).try_normalize(0.0) else {
+        return vec![j];
+    };
+    truth
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| {
+            let Some(fu) = (f.end - f.start).try_normalize(0.0) else {
+                return false;
+            };
+            let w: Vector3<f64> = f.start - e.start;
+            (fu.dot(&u).abs() - 1.0).abs() < 1e-9 && (w - u * w.dot(&u)).norm() < 1e-6
+        })
+        .map(|(i, _)| i)
+        .collect()
+}
+
+/// Scores `segments` against `truth` (same frame), given the eligible intervals per truth
+/// edge (missing entries count as not eligible) and the rig centre in that frame.
+pub fn score(
+    segments: &[Segment3],
+    truth: &[Segment3],
+    eligible: &[Vec<Interval>],
+    rig_centre: Point3<f64>,
+) -> Score {
+    let flat: Vec<FlatEdge> = truth.iter().map(FlatEdge::new).collect();
+    let matches: Vec<Option<usize>> = segments
+        .iter()
+        .map(|s| match_segment(s, &flat, &rig_centre))
+        .collect();
+    summarise(segments, matches, truth, eligible)
+}
+
+/// The paper's criterion: a segment is right when the image segments it was reconstructed
+/// from are images of one ground-truth edge, whatever the precision of its 3D position.
+/// `labels[i]` is that edge (`None`: a wrong match). Completeness then counts the eligible
+/// length covered by right segments projected onto their edge.
+pub fn score_labelled(
+    segments: &[Segment3],
+    labels: &[Option<usize>],
+    truth: &[Segment3],
+    eligible: &[Vec<Interval>],
+) -> Score {
+    summarise(segments, labels.to_vec(), truth, eligible)
+}
+
+fn summarise(
+    segments: &[Segment3],
+    matches: Vec<Option<usize>>,
+    truth: &[Segment3],
+    eligible: &[Vec<Interval>],
+) -> Score {
+    let n_segments = segments.len();
+    let n_correct = matches.iter().flatten().count();
+
+    let mut cover: Vec<Vec<Interval>> = vec![Vec::new(); truth.len()];
+    let mut dup_cache: Vec<Option<Vec<usize>>> = vec![None; truth.len()];
+    for (seg, m) in segments.iter().zip(&matches) {
+        let Some(j) = *m else { continue };
+        let dups = dup_cache[j].get_or_insert_with(|| collinear_with(truth, j));
+        for &k in dups.iter() {
+            let e = &truth[k];
+            let d = e.end - e.start;
+            let dd = d.norm_squared();
+            let s1 = (seg.start - e.start).dot(&d) / dd;
+            let s2 = (seg.end - e.start).dot(&d) / dd;
+            let (lo, hi) = (s1.min(s2).max(0.0), s1.max(s2).min(1.0));
+            if hi > lo {
+                cover[k].push((lo, hi));
+            }
+        }
+    }
+
+    let (mut eligible_length_m, mut covered_length_m, mut n_eligible_edges) = (0.0, 0.0, 0);
+    for (j, e) in truth.iter().enumerate() {
+        let Some(ivs) = eligible.get(j) else { continue };
+        let ivs = union_intervals(ivs);
+        if ivs.is_empty() {
+            continue;
+        }
+        n_eligible_edges += 1;
+        let length = e.length();
+        eligible_length_m += total_length(&ivs) * length;
+        covered_length_m +=
+            total_length(&intersect_intervals(&ivs, &union_intervals(&cover[j]))) * length;
+    }
+
+    let mut dists: Vec<f64> = segments
+        .iter()
+        .zip(&matches)
+        .filter_map(|(s, m)| m.map(|j| (s, j)))
+        .flat_map(|(s, j)| {
+            let e = &truth[j];
+            [s.start, s.end].map(|p| point_line_distance(&p, &e.start, &e.end))
+        })
+        .collect();
+    dists.sort_by(f64::total_cmp);
+
+    Score {
+        n_segments,
+        n_correct,
+        error_rate: (n_segments > 0).then(|| 1.0 - n_correct as f64 / n_segments as f64),
+        completeness: (eligible_length_m > 0.0).then(|| covered_length_m / eligible_length_m),
+        acc_median_mm: percentile(&dists, 50.0).map(|v| v * 1000.0),
+        acc_p90_mm: percentile(&dists, 90.0).map(|v| v * 1000.0),
+        matches,
+        n_eligible_edges,
+        eligible_length_m,
+        covered_length_m,
+    }
+}
+
+/// Two edges no camera can tell apart: parallel within 1° and within 1 cm of each other's
+/// line, like the front and back edges of a 2 mm poster, or collinear pieces of one line.
+fn indistinguishable(a: &Segment3, b: &Segment3) -> bool {
+    let (Some(ua), Some(ub)) = (
+        (a.end - a.start).try_normalize(0.0),
+        (b.end - b.start).try_normalize(0.0),
+    ) else {
+        return false;
+    };
+    if ua.dot(&ub).abs() < 1f64.to_radians().cos() {
+        return false;
+    }
+    let off = |p: Point3<f64>| {
+        let w: Vector3<f64> = p - a.start;
+        (w - ua * w.dot(&ua)).norm()
+    };
+    off(b.start) < 0.01 && off(b.end) < 0.01
+}
+
+/// The ground-truth edge each output segment was matched on, by the labels of its image
+/// segments: `Some(edge)` when every segment of every triplet behind it is an image of that
+/// edge (or of one indistinguishable from it), `None` for a wrong match.
+pub fn match_labels(
+    output: &crate::pipeline::MatchOutput,
+    obs: &super::Observation,
+) -> Vec<Option<usize>> {
+    let truth = &obs.ground_truth;
+    output
+        .segments_3d
+        .iter()
+        .map(|r| {
+            let mut label: Option<usize> = None;
+            for &t in &r.triplets {
+                let triplet = output.triplets.get(t as usize)?;
+                for (v, &s) in triplet.segments.iter().enumerate() {
+                    let l = (*obs.truth[v].get(s as usize)?)?;
+                    match label {
+                        None => label = Some(l),
+                        Some(first) if first == l => {}
+                        Some(first) => {
+                            if !indistinguishable(&truth[first], &truth[l]) {
+                                return None;
+                            }
+                        }
+                    }
+                }
+            }
+            label
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seg(a: [f64; 3], b: [f64; 3]) -> Segment3 {
+        Segment3 {
+            start: Point3::from(a),
+            end: Point3::from(b),
+        }
+    }
+
+    fn truth() -> Vec<Segment3> {
+        vec![
+            seg([-1.0, 3.0, 0.0], [1.0, 3.0, 0.0]),
+            seg([-1.0, 3.0, 0.0], [-1.0, 3.0, 1.0]),
+            seg([0.5, 2.0, -0.5], [0.5, 4.0, -0.5]),
+        ]
+    }
+
+    #[test]
+    fn ground_truth_against_itself_is_perfect() {
+        let t = truth();
+        let eligible = vec![
+            vec![(0.0, 1.0)],
+            vec![(0.2, 0.7)],
+            vec![(0.0, 0.5), (0.6, 1.0)],
+        ];
+        let s = score(&t, &t, &eligible, Point3::origin());
+        assert_eq!(s.n_correct, 3);
+        assert_eq!(s.error_rate, Some(0.0));
+        assert!((s.completeness.unwrap() - 1.0).abs() < 1e-12);
+        assert_eq!(s.acc_median_mm, Some(0.0));
+        assert_eq!(s.matches, vec![Some(0), Some(1), Some(2)]);
+    }
+
+    #[test]
+    fn shifted_segment_is_wrong_and_partial_cover_counts() {
+        let t = truth();
+        let eligible = vec![vec![(0.0, 1.0)], vec![], vec![]];
+        // 10 cm off: beyond max(2 cm, 1% of ~3 m).
+        let shifted = seg([-1.0, 3.0, 0.1], [1.0, 3.0, 0.1]);
+        let s = score(&[shifted], &t, &eligible, Point3::origin());
+        assert_eq!(s.n_correct, 0);
+        assert_eq!(s.error_rate, Some(1.0));
+        assert_eq!(s.completeness, Some(0.0));
+        assert_eq!(s.acc_median_mm, None);
+        // Half of edge 0, 1 cm off and slightly tilted: correct, covers half.
+        let half = seg([-1.0, 3.0, 0.01], [0.0, 3.0, 0.012]);
+        let s = score(&[half, shifted], &t, &eligible, Point3::origin());
+        assert_eq!(s.matches, vec![Some(0), None]);
+        assert_eq!(s.error_rate, Some(0.5));
+        assert!((s.completeness.unwrap() - 0.5).abs() < 1e-9);
+        assert!((s.acc_median_mm.unwrap() - 11.0).abs() < 1e-6);
+        // Turned by 10°: wrong even though its midpoint is on the edge.
+        let turned = seg([-0.05, 3.0, -0.0088], [0.05, 3.0, 0.0088]);
+        assert_eq!(
+            score(&[turned], &t, &eligible, Point3::origin()).n_correct,
+            0
+        );
+    }
+
+    #[test]
+    fn duplicate_ground_truth_edges_are_covered_together() {
+        let mut t = truth();
+        t.push(seg([0.0, 3.0, 0.0], [2.0, 3.0, 0.0]));
+        let eligible = vec![vec![(0.0, 1.0)], vec![], vec![], vec![(0.0, 1.0)]];
+        let s = score(&[t[0]], &t, &eligible, Point3::origin());
+        // Edge 0 fully, edge 3 on its first half: 3 m of 4 m.
+        assert!((s.completeness.unwrap() - 0.75).abs() < 1e-12);
+    }
+
+    #[test]
+    fn percentiles_match_numpy() {
+        let v = [1.0, 2.0, 3.0, 4.0];
+        assert_eq!(percentile(&v, 50.0), Some(2.5));
+        assert!((percentile(&v, 90.0).unwrap() - 3.7).abs() < 1e-12);
+        assert_eq!(percentile(&[], 50.0), None);
+    }
+}

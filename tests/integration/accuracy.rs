@@ -1,0 +1,128 @@
+//! Accuracy on synthetic rooms (`trinocular::synth`): the figures of the README are
+//! regression-guarded here, slightly below what was measured so noise in unrelated changes
+//! does not flap them. `cargo run --release --example accuracy` prints the full table.
+
+use trinocular::matching::MatchParams;
+use trinocular::pipeline::{match_segments, MatchOutput};
+use trinocular::segment::Segment3;
+use trinocular::synth::{
+    eligible_intervals_with, match_labels, rig_centre, score, score_labelled, standard_capture,
+    Defects, Observation, Score,
+};
+
+const SEEDS: [u64; 2] = [1, 2];
+
+struct Pooled {
+    strict: Score,
+    matched: Score,
+}
+
+/// Sums scores over seeds (error rate over all segments, completeness over all length).
+fn pool(scores: &[Score]) -> Score {
+    let mut total = scores[0].clone();
+    for s in &scores[1..] {
+        total.n_segments += s.n_segments;
+        total.n_correct += s.n_correct;
+        total.eligible_length_m += s.eligible_length_m;
+        total.covered_length_m += s.covered_length_m;
+    }
+    total.error_rate = Some(1.0 - total.n_correct as f64 / total.n_segments.max(1) as f64);
+    total.completeness = Some(total.covered_length_m / total.eligible_length_m.max(1e-12));
+    total
+}
+
+fn run(defects: &Defects, collinear: bool) -> (Pooled, Vec<(Observation, MatchOutput)>) {
+    let params = MatchParams::default();
+    let (mut strict, mut matched, mut runs) = (Vec::new(), Vec::new(), Vec::new());
+    for seed in SEEDS {
+        let (_, rig, obs) = standard_capture(seed, *defects, collinear);
+        let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
+        let segs: Vec<Segment3> = out.segments_3d.iter().map(|r| r.segment).collect();
+        // Eligible: visible in all three views, >= 20 px and >= 10 grey levels in each.
+        let eligible = eligible_intervals_with(&obs, 20.0, Some(10.0));
+        strict.push(score(&segs, &obs.ground_truth, &eligible, rig_centre(&rig)));
+        let labels = match_labels(&out, &obs);
+        matched.push(score_labelled(&segs, &labels, &obs.ground_truth, &eligible));
+        runs.push((obs, out));
+    }
+    let pooled = Pooled {
+        strict: pool(&strict),
+        matched: pool(&matched),
+    };
+    (pooled, runs)
+}
+
+fn report(name: &str, p: &Pooled) {
+    println!(
+        "{name}: {} segments; 3D error {:.4} completeness {:.4}; match error {:.4} completeness {:.4}",
+        p.strict.n_segments,
+        p.strict.error_rate.unwrap_or(f64::NAN),
+        p.strict.completeness.unwrap_or(f64::NAN),
+        p.matched.error_rate.unwrap_or(f64::NAN),
+        p.matched.completeness.unwrap_or(f64::NAN),
+    );
+}
+
+#[test]
+fn clean_input_is_matched_almost_perfectly() {
+    let (p, _) = run(&Defects::clean(), false);
+    report("clean", &p);
+    assert!(p.strict.n_segments > 300);
+    assert!(p.strict.error_rate.unwrap() <= 0.015, "3D error rate");
+    assert!(p.strict.completeness.unwrap() >= 0.80, "completeness");
+    assert!(
+        p.strict.acc_median_mm.unwrap() < 1.0,
+        "exact input, exact 3D"
+    );
+}
+
+#[test]
+fn realistic_input_keeps_wrong_matches_rare() {
+    let (p, _) = run(&Defects::realistic(), false);
+    report("realistic", &p);
+    assert!(p.matched.error_rate.unwrap() <= 0.10, "match error rate");
+    assert!(
+        p.matched.completeness.unwrap() >= 0.55,
+        "match completeness"
+    );
+}
+
+#[test]
+fn collinear_rig_matches_all_but_segments_parallel_to_its_baseline() {
+    let (p, runs) = run(&Defects::clean(), true);
+    report("clean, collinear rig", &p);
+    assert!(p.strict.error_rate.unwrap() <= 0.08);
+    assert!(p.strict.completeness.unwrap() >= 0.30);
+    for (obs, out) in &runs {
+        assert!(out.stats.collinear_rig);
+        // Image 1 of the preset rig has a horizontal baseline: no matched segment may be
+        // (nearly) horizontal there.
+        for t in &out.triplets {
+            let s = obs.lists[0].segments[t.segments[0] as usize];
+            let d = (s.end - s.start).normalize();
+            assert!(
+                d.y.abs() > 0.05,
+                "segment parallel to the baseline was matched"
+            );
+        }
+    }
+}
+
+#[test]
+fn output_does_not_depend_on_the_number_of_threads() {
+    let (_, rig, obs) = standard_capture(3, Defects::realistic(), false);
+    let params = MatchParams::default();
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        pool.install(|| match_segments(&rig, &obs.lists, &params).expect("valid"))
+    };
+    let (one, two, four) = (on(1), on(2), on(4));
+    assert!(!one.triplets.is_empty());
+    assert_eq!(one.triplets, two.triplets);
+    assert_eq!(one.segments_3d, two.segments_3d);
+    assert_eq!(one.triplets, four.triplets);
+    assert_eq!(one.segments_3d, four.segments_3d);
+}

@@ -1,0 +1,6 @@
+//! One integration test binary (link once): the CLI and the library's public API as a user
+//! drives them.
+
+mod accuracy;
+mod bad_input;
+mod common;

@@ -1,7 +1,7 @@
 //! The whole matching pipeline in one call: segment lists in, triplets and 3D segments out.
 //!
 //! ```text
-//! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ reconstruct ─▶ validate
+//! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ validate ⇄ reconstruct ─▶ merge fragments
 //! ```
 //!
 //! Input problems are errors that name the list, the segment and the coordinate; zero-length

@@ -1,3 +1,8 @@
+//! How each stage's time grows with the number of segments per image, on one call each
+//! (`stats` of the pipeline; the criterion bench gives the medians):
+//!
+//!     RAYON_NUM_THREADS=1 cargo run --release --example scale
+
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::match_segments;
 use trinocular::synth::scattered_capture;

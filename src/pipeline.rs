@@ -257,9 +257,48 @@ pub fn match_segments(
     stats.predict_ms = ms(t);
     stats.hypotheses = hypotheses.len() as u32;
 
-    // Validation ranks hypotheses and resolves rivalries; only its winners are reconstructed.
-    // A winner that reconstruction rejects (no overlap, residual or direction uncertainty too
-    // large) leaves the pool and validation runs again, so a rival it displaced gets its turn.
+    let kept = validate_and_reconstruct(
+        rig,
+        &rect,
+        &views,
+        &prepared,
+        &hypotheses,
+        params,
+        &mut stats,
+    );
+
+    let t = Instant::now();
+    let output = assemble(rig, &rect, &views, &prepared, &hypotheses, &kept, params);
+    stats.reconstruct_ms += ms(t);
+    stats.triplets = output.triplets.len() as u32;
+    stats.segments_3d = output.segments_3d.len() as u32;
+    stats.total_ms = ms(start);
+    Ok(MatchOutput { stats, ..output })
+}
+
+/// A reconstruction kept when its residual and predicted direction uncertainty are within
+/// bounds, with that uncertainty in degrees.
+fn accept(fit: Option<Line3Fit>, rect: &Rectification, params: &MatchParams) -> Fit {
+    let fit = fit.filter(|f| f.residual_px <= params.max_residual_px)?;
+    let sigma = rect
+        .direction_sigma(&fit.start, &fit.end, params.line_noise_px)
+        .to_degrees();
+    (sigma <= params.max_direction_sigma_deg).then_some((fit, sigma))
+}
+
+/// Validation ranks hypotheses and resolves rivalries; only its winners are reconstructed.
+/// A winner that reconstruction rejects (no overlap, residual or direction uncertainty too
+/// large) leaves the pool and validation runs again, so a rival it displaced gets its turn.
+/// Returns the accepted hypotheses with their reconstructions.
+fn validate_and_reconstruct(
+    rig: &Rig,
+    rect: &Rectification,
+    views: &Views,
+    prepared: &[Prepared],
+    hypotheses: &[Hypothesis],
+    params: &MatchParams,
+    stats: &mut MatchStats,
+) -> Vec<(usize, Line3Fit, f64)> {
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
     let undistorted = [
@@ -276,7 +315,7 @@ pub fn match_segments(
         let pool: Vec<usize> = (0..hypotheses.len()).filter(|&h| alive[h]).collect();
         kept = if params.validate {
             let subset: Vec<Hypothesis> = pool.iter().map(|&h| hypotheses[h]).collect();
-            matching::validate(&rect, &views, &adjacency, &subset, params)
+            matching::validate(rect, views, &adjacency, &subset, params)
                 .into_iter()
                 .map(|i| pool[i])
                 .collect()
@@ -293,16 +332,7 @@ pub fn match_segments(
             .collect();
         let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
         for (&h, fit) in todo.iter().zip(reconstruct(rig, undistorted, &triplets)) {
-            fits[h] = Some(
-                fit.filter(|f| f.residual_px <= params.max_residual_px)
-                    .map(|f| {
-                        let sigma = rect
-                            .direction_sigma(&f.start, &f.end, params.line_noise_px)
-                            .to_degrees();
-                        (f, sigma)
-                    })
-                    .filter(|&(_, sigma)| sigma <= params.max_direction_sigma_deg),
-            );
+            fits[h] = Some(accept(fit, rect, params));
         }
         stats.reconstruct_ms += ms(t);
         let mut rejected = false;
@@ -316,57 +346,61 @@ pub fn match_segments(
             break;
         }
     }
-    kept.retain(|&h| matches!(fits[h], Some(Some(_))));
-    let fitted = |h: usize| fits[h].flatten();
+    kept.into_iter()
+        .filter_map(|h| fits[h].flatten().map(|(fit, sigma)| (h, fit, sigma)))
+        .collect()
+}
 
-    // Collinear fragments accepted together (they share a segment) make one 3D segment,
-    // fitted to all their pieces: longer, so better determined, than each piece alone.
-    let t = Instant::now();
-    let groups = fragment_groups(&hypotheses, &kept);
+/// The output: collinear fragments accepted together (they share a segment) make one 3D
+/// segment, fitted to all their pieces — longer, so better determined, than each piece
+/// alone; if that joint fit is rejected, the best-determined piece stands for the group.
+fn assemble(
+    rig: &Rig,
+    rect: &Rectification,
+    views: &Views,
+    prepared: &[Prepared],
+    hypotheses: &[Hypothesis],
+    kept: &[(usize, Line3Fit, f64)],
+    params: &MatchParams,
+) -> MatchOutput {
+    let indices: Vec<usize> = kept.iter().map(|k| k.0).collect();
     let mut output = MatchOutput::default();
-    for group in groups {
-        let first_triplet = output.triplets.len() as u32;
-        let merged = (group.len() > 1)
-            .then(|| {
-                let pieces: [Vec<(Point2<f64>, Point2<f64>)>; 3] = std::array::from_fn(|v| {
-                    let mut ids: Vec<u32> =
-                        group.iter().map(|&h| hypotheses[h].segments[v]).collect();
-                    ids.sort_unstable();
-                    ids.dedup();
-                    ids.iter()
-                        .map(|&i| prepared[v].undistorted[i as usize])
-                        .collect()
-                });
-                reconstruct_pieces(rig, [&pieces[0], &pieces[1], &pieces[2]])
-            })
-            .flatten()
-            .filter(|f| f.residual_px <= params.max_residual_px);
-        let (fit, direction_sigma_deg) = match merged {
-            Some(fit) => {
-                let sigma = rect
-                    .direction_sigma(&fit.start, &fit.end, params.line_noise_px)
-                    .to_degrees();
-                (fit, sigma)
-            }
-            None => {
-                // Keep the best-determined piece.
-                let best = group
+    for group in fragment_groups(hypotheses, &indices) {
+        let merged = (group.len() > 1).then(|| {
+            let pieces: [Vec<(Point2<f64>, Point2<f64>)>; 3] = std::array::from_fn(|v| {
+                let mut ids: Vec<u32> = group
                     .iter()
-                    .filter_map(|&h| fitted(h))
-                    .min_by(|a, b| a.1.total_cmp(&b.1));
-                match best {
-                    Some(fit) => fit,
-                    None => continue,
-                }
-            }
+                    .map(|&k| hypotheses[indices[k]].segments[v])
+                    .collect();
+                ids.sort_unstable();
+                ids.dedup();
+                ids.iter()
+                    .map(|&i| prepared[v].undistorted[i as usize])
+                    .collect()
+            });
+            accept(
+                reconstruct_pieces(rig, [&pieces[0], &pieces[1], &pieces[2]]),
+                rect,
+                params,
+            )
+        });
+        let best_piece = || {
+            group
+                .iter()
+                .map(|&k| (kept[k].1, kept[k].2))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
         };
-        for &h in &group {
-            let hyp = &hypotheses[h];
+        let Some((fit, direction_sigma_deg)) = merged.flatten().or_else(best_piece) else {
+            continue;
+        };
+        let first_triplet = output.triplets.len() as u32;
+        for &k in &group {
+            let hyp = &hypotheses[indices[k]];
             output.triplets.push(Triplet {
                 segments: std::array::from_fn(|v| {
                     views.segments[v][hyp.segments[v] as usize].index
                 }),
-                residual_px: hypotheses[h].residual_px,
+                residual_px: hyp.residual_px,
             });
         }
         output.segments_3d.push(Reconstructed {
@@ -380,17 +414,12 @@ pub fn match_segments(
             direction_sigma_deg,
         });
     }
-    stats.reconstruct_ms += ms(t);
-    stats.triplets = output.triplets.len() as u32;
-    stats.segments_3d = output.segments_3d.len() as u32;
-    stats.total_ms = ms(start);
-    output.stats = stats;
-    Ok(output)
+    output
 }
 
 /// Groups accepted hypotheses that share a segment in some view (validation accepted them
-/// together only as collinear fragments of one line). Groups come in order of their first
-/// member; members in input order.
+/// together only as collinear fragments of one line). Groups hold positions in `kept`, come
+/// in order of their first member, members in input order.
 fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>> {
     use std::collections::HashMap;
     let mut parent: Vec<usize> = (0..kept.len()).collect();
@@ -416,13 +445,13 @@ fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>>
     }
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut slot: HashMap<usize, usize> = HashMap::new();
-    for (k, &h) in kept.iter().enumerate() {
+    for k in 0..kept.len() {
         let r = root(&mut parent, k);
         let g = *slot.entry(r).or_insert_with(|| {
             groups.push(Vec::new());
             groups.len() - 1
         });
-        groups[g].push(h);
+        groups[g].push(k);
     }
     groups
 }

@@ -94,6 +94,8 @@ proptest! {
             let a = rect.to_rect(i, cam.undistort(pixel)).unwrap();
             let (expected, _) = rect.project(i, &x).unwrap();
             prop_assert!((a - expected).norm() < 1e-6, "view {i}: {a} vs {expected}");
+            let back = rect.from_rect(i, a).unwrap();
+            prop_assert!((back - cam.undistort(pixel)).norm() < 1e-6);
             rects.push(a);
         }
         let delta = rect.disparity(0, rects[0], 1, rects[1]);

@@ -73,10 +73,6 @@ impl Buckets {
         frame(self.axis, p)
     }
 
-    pub fn cell_px(&self) -> f64 {
-        self.cell
-    }
-
     /// Builds the buckets of `segments`, each registered in every window its path, widened by
     /// `slack_px`, crosses.
     pub fn build(segments: &[RectSegment], axis: Vector2<f64>, slack_px: f64, period: f64) -> Self {

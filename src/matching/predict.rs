@@ -134,7 +134,6 @@ pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec
         views,
         params,
         period,
-        oriented: views.oriented,
         d_min,
         d_max,
         pairs: &pairs,
@@ -159,7 +158,6 @@ struct Search<'a> {
     views: &'a Views<'a>,
     params: &'a MatchParams,
     period: f64,
-    oriented: bool,
     d_min: f64,
     d_max: f64,
     pairs: &'a [Pair<'a>; 2],
@@ -302,7 +300,7 @@ impl Search<'_> {
         for &ik in found.iter() {
             let sk = &self.views.segments[k][ik as usize];
             let cos = sk.dir.dot(&q_dir);
-            let aligned = if self.oriented { cos } else { cos.abs() };
+            let aligned = if self.views.oriented { cos } else { cos.abs() };
             if aligned < cos_tol
                 || !gradients_compatible(s1.gradient, sk.gradient, params.gradient_ratio_max)
                 || !gradients_compatible(sj.gradient, sk.gradient, params.gradient_ratio_max)

@@ -34,20 +34,25 @@ pub fn validate(
 ) -> Vec<usize> {
     let support = support(rect, views, adjacency, hypotheses, params);
     // Rank: most support, then the larger share of S1 covered (in quarters: a full-length
-    // match beats a fragment's accidental alignment), then the smallest residual.
-    let key = |h: usize| {
-        let hyp = &hypotheses[h];
-        let s1 = &views.segments[0][hyp.segments[0] as usize];
-        let cover = ((hyp.s1_span.1 - hyp.s1_span.0) / s1.len.max(1e-9) * 4.0).round() as i64;
-        (u32::MAX - support[h], -cover, hyp.residual_px, hyp.segments)
-    };
-    let mut order: Vec<_> = (0..hypotheses.len()).map(|h| (key(h), h)).collect();
-    order.sort_unstable_by(|(a, _), (b, _)| {
-        a.0.cmp(&b.0)
-            .then(a.1.cmp(&b.1))
-            .then(a.2.total_cmp(&b.2))
-            .then(a.3.cmp(&b.3))
-    });
+    // match beats a fragment's accidental alignment), then the smallest residual, then input
+    // order — packed into one integer so the sort compares integers.
+    let mut order: Vec<(u128, usize)> = (0..hypotheses.len())
+        .map(|h| {
+            let hyp = &hypotheses[h];
+            let s1 = &views.segments[0][hyp.segments[0] as usize];
+            let quarters = ((hyp.s1_span.1 - hyp.s1_span.0) / s1.len.max(1e-9) * 4.0)
+                .round()
+                .clamp(0.0, 4.0) as u128;
+            // Residuals are finite and non-negative: their f32 bits sort like their values.
+            let residual = (hyp.residual_px.max(0.0) as f32).to_bits() as u128;
+            let key = (u128::from(u32::MAX - support[h]) << 96)
+                | ((4 - quarters) << 64)
+                | (residual << 32)
+                | h as u128;
+            (key, h)
+        })
+        .collect();
+    order.sort_unstable_by_key(|&(key, _)| key);
 
     // Accepted hypotheses per segment, as linked lists (head per segment, next per accepted).
     let mut head: [Vec<u32>; 3] = std::array::from_fn(|v| vec![NONE; views.segments[v].len()]);
@@ -137,28 +142,31 @@ fn support(
     let baseline_px = rect.epipolar(0, 1).norm().max(rect.epipolar(0, 2).norm());
     let max_diff = VERTEX_AGREEMENT * params.tolerance_px / baseline_px;
 
+    // Per shared vertex: each side's disparities there, sorted, so "has an agreeing
+    // hypothesis across the vertex" is one binary search instead of a scan of the other side.
+    let (mut da, mut db): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
+    let agrees = |sorted: &[f64], d: f64| {
+        let i = sorted.partition_point(|&x| x < d - max_diff);
+        i < sorted.len() && sorted[i] <= d + max_diff
+    };
     for &(a, b, vertex) in adjacency {
         let (ra, rb) = (range[a as usize], range[b as usize]);
         if ra.0 == ra.1 || rb.0 == rb.1 {
             continue;
         }
-        let (sa, sb) = (&s1[a as usize], &s1[b as usize]);
-        let (ta, tb) = (sa.along(vertex), sb.along(vertex));
-        for ha in ra.0..ra.1 {
-            let da = hypotheses[ha].disparity_at(ta);
-            let agrees =
-                (rb.0..rb.1).any(|hb| (hypotheses[hb].disparity_at(tb) - da).abs() <= max_diff);
-            if agrees {
-                support[ha] += 1;
-            }
+        let (ta, tb) = (s1[a as usize].along(vertex), s1[b as usize].along(vertex));
+        da.clear();
+        da.extend((ra.0..ra.1).map(|h| hypotheses[h].disparity_at(ta)));
+        db.clear();
+        db.extend((rb.0..rb.1).map(|h| hypotheses[h].disparity_at(tb)));
+        let (mut sa, mut sb) = (da.clone(), db.clone());
+        sa.sort_unstable_by(f64::total_cmp);
+        sb.sort_unstable_by(f64::total_cmp);
+        for (h, &d) in (ra.0..ra.1).zip(&da) {
+            support[h] += u32::from(agrees(&sb, d));
         }
-        for hb in rb.0..rb.1 {
-            let db = hypotheses[hb].disparity_at(tb);
-            let agrees =
-                (ra.0..ra.1).any(|ha| (hypotheses[ha].disparity_at(ta) - db).abs() <= max_diff);
-            if agrees {
-                support[hb] += 1;
-            }
+        for (h, &d) in (rb.0..rb.1).zip(&db) {
+            support[h] += u32::from(agrees(&sa, d));
         }
     }
     support

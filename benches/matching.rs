@@ -2,6 +2,10 @@
 //! - `match/600` and `match/10000`: one triplet with that many segments per image (20%
 //!   clutter, 0.3 px endpoint noise) matched, validated and reconstructed end to end, on one
 //!   thread; throughput in segments per image, so time per segment compares across sizes;
+//! - `window/600` and `window/10000`: the same with a depth range of 1.4–15 m, whose
+//!   disparity window (≈ 130 px) fits the 512-px image: at the default 0.3 m the window
+//!   (≈ 600 px) is wider than the 600-segment image and clipped by it, so part of the growth of
+//!   `match/10000` over `match/600` is the larger window searched, not the number of segments;
 //! - `threads/N`: the 10,000-segment triplet on a rayon pool of N threads;
 //! - `room`: the standard synthetic room (realistic defects) on one thread;
 //! - per stage on the 600-segment triplet: `stage/rectify+prepare`, `stage/predict`.
@@ -24,6 +28,26 @@ fn bench_sizes(c: &mut Criterion) {
     let params = MatchParams::default();
     let one = pool(1);
     let mut group = c.benchmark_group("match");
+    for n in [600usize, 10_000] {
+        let (rig, lists) = scattered_capture(n, 0.3, 0.2, 1);
+        group.throughput(Throughput::Elements(n as u64));
+        if n > 1000 {
+            group.sample_size(20);
+        }
+        group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+            one.install(|| b.iter(|| match_segments(&rig, &lists, &params).expect("valid")))
+        });
+    }
+    group.finish();
+}
+
+fn bench_window(c: &mut Criterion) {
+    let params = MatchParams {
+        depth_min_m: 1.4,
+        ..MatchParams::default()
+    };
+    let one = pool(1);
+    let mut group = c.benchmark_group("window");
     for n in [600usize, 10_000] {
         let (rig, lists) = scattered_capture(n, 0.3, 0.2, 1);
         group.throughput(Throughput::Elements(n as u64));
@@ -64,5 +88,11 @@ fn bench_room(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_sizes, bench_threads, bench_room);
+criterion_group!(
+    benches,
+    bench_sizes,
+    bench_window,
+    bench_threads,
+    bench_room
+);
 criterion_main!(benches);

@@ -307,20 +307,20 @@ fn validate_and_reconstruct(
         &prepared[2].undistorted[..],
     ];
     let t = Instant::now();
-    let adjacency = matching::adjacency(views.segments[0], params.neighbour_radius_px);
+    let ranking = if params.validate {
+        let adjacency = matching::adjacency(views.segments[0], params.neighbour_radius_px);
+        matching::rank(rect, views, &adjacency, hypotheses, params)
+    } else {
+        Vec::new()
+    };
     stats.validate_ms += ms(t);
     let mut kept: Vec<usize> = Vec::new();
     for round in 0..MAX_VALIDATION_ROUNDS {
         let t = Instant::now();
-        let pool: Vec<usize> = (0..hypotheses.len()).filter(|&h| alive[h]).collect();
         kept = if params.validate {
-            let subset: Vec<Hypothesis> = pool.iter().map(|&h| hypotheses[h]).collect();
-            matching::validate(rect, views, &adjacency, &subset, params)
-                .into_iter()
-                .map(|i| pool[i])
-                .collect()
+            matching::select(views, hypotheses, &ranking, &alive, params)
         } else {
-            pool
+            (0..hypotheses.len()).filter(|&h| alive[h]).collect()
         };
         stats.validate_ms += ms(t);
 

@@ -14,7 +14,7 @@ use nalgebra::{Point2, Vector2};
 use thiserror::Error;
 
 pub use predict::{predict, Hypothesis};
-pub use validate::{adjacency, validate};
+pub use validate::{adjacency, rank, select, validate};
 
 /// Matching parameters. Units are in the names; `Default` gives the documented defaults.
 #[derive(Debug, Clone, PartialEq)]

@@ -24,7 +24,8 @@ const VERTEX_AGREEMENT: f64 = 1.0;
 const FRAGMENT_OVERLAP: f64 = 1.0;
 const NONE: u32 = u32::MAX;
 
-/// Returns the indices (into `hypotheses`) of the accepted ones, in input order.
+/// Validation in one go: [`rank`], then [`select`] among all hypotheses. Returns the indices
+/// (into `hypotheses`) of the accepted ones, in input order.
 pub fn validate(
     rect: &Rectification,
     views: &Views,
@@ -32,10 +33,29 @@ pub fn validate(
     hypotheses: &[Hypothesis],
     params: &MatchParams,
 ) -> Vec<usize> {
+    let ranking = rank(rect, views, adjacency, hypotheses, params);
+    select(
+        views,
+        hypotheses,
+        &ranking,
+        &vec![true; hypotheses.len()],
+        params,
+    )
+}
+
+/// The order in which hypotheses claim their segments: most support, then the larger share of
+/// S1 covered (in quarters: a full-length match beats a fragment's accidental alignment), then
+/// the smallest residual, then input order. Computed once: later rounds of [`select`] only
+/// drop hypotheses, which does not change the order of the others.
+pub fn rank(
+    rect: &Rectification,
+    views: &Views,
+    adjacency: &[(u32, u32, Point2<f64>)],
+    hypotheses: &[Hypothesis],
+    params: &MatchParams,
+) -> Vec<usize> {
     let support = support(rect, views, adjacency, hypotheses, params);
-    // Rank: most support, then the larger share of S1 covered (in quarters: a full-length
-    // match beats a fragment's accidental alignment), then the smallest residual, then input
-    // order — packed into one integer so the sort compares integers.
+    // Packed into one integer so the sort compares integers.
     let mut order: Vec<(u128, usize)> = (0..hypotheses.len())
         .map(|h| {
             let hyp = &hypotheses[h];
@@ -53,12 +73,27 @@ pub fn validate(
         })
         .collect();
     order.sort_unstable_by_key(|&(key, _)| key);
+    order.into_iter().map(|(_, h)| h).collect()
+}
 
+/// Uniqueness: hypotheses claim their segments in `ranking` order, those not `alive` skipped;
+/// one is dropped when it reuses a segment of an already accepted one, except as a fragment
+/// of the same line. Returns the indices of the accepted ones, in input order.
+pub fn select(
+    views: &Views,
+    hypotheses: &[Hypothesis],
+    ranking: &[usize],
+    alive: &[bool],
+    params: &MatchParams,
+) -> Vec<usize> {
     // Accepted hypotheses per segment, as linked lists (head per segment, next per accepted).
     let mut head: [Vec<u32>; 3] = std::array::from_fn(|v| vec![NONE; views.segments[v].len()]);
     let mut next: [Vec<u32>; 3] = std::array::from_fn(|_| vec![NONE; hypotheses.len()]);
     let mut accepted = Vec::new();
-    for (_, h) in order {
+    for &h in ranking {
+        if !alive[h] {
+            continue;
+        }
         let hyp = &hypotheses[h];
         let mut ok = true;
         'views: for v in 0..3 {
@@ -208,4 +243,110 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
     found.sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
     found.dedup_by_key(|e| (e.0, e.1));
     found.into_iter().map(|(a, b, _, v)| (a, b, v)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{Pose, RigSpec};
+
+    fn seg(ax: f64, ay: f64, bx: f64, by: f64, index: u32) -> RectSegment {
+        RectSegment::new(Point2::new(ax, ay), Point2::new(bx, by), f64::NAN, index)
+    }
+
+    fn hyp(segments: [u32; 3], residual_px: f64, len: f64, disparity: f64) -> Hypothesis {
+        Hypothesis {
+            segments,
+            residual_px,
+            s1_span: (0.0, len),
+            disparity: (disparity, disparity),
+        }
+    }
+
+    fn rect() -> Rectification {
+        let rig = RigSpec::non_collinear(1)
+            .build(&Pose::identity())
+            .expect("preset rig");
+        Rectification::new(&rig).expect("rectifiable")
+    }
+
+    #[test]
+    fn a_segment_goes_to_its_best_hypothesis_and_to_a_rival_once_that_one_is_dropped() {
+        // Two parallel segments 10 px apart: rivals, not fragments of one line.
+        let view: Vec<RectSegment> = (0..2)
+            .map(|i| seg(10.0 * i as f64, 0.0, 10.0 * i as f64, 40.0, i))
+            .collect();
+        let views = Views {
+            segments: [&view[..1], &view, &view],
+            oriented: true,
+        };
+        let hyps = [
+            hyp([0, 0, 0], 0.5, 40.0, 100.0),
+            hyp([0, 1, 1], 0.1, 40.0, 150.0),
+        ];
+        let params = MatchParams::default();
+        let rect = rect();
+        assert_eq!(validate(&rect, &views, &[], &hyps, &params), vec![1]);
+        let ranking = rank(&rect, &views, &[], &hyps, &params);
+        assert_eq!(
+            select(&views, &hyps, &ranking, &[true, false], &params),
+            vec![0]
+        );
+        assert!(select(&views, &hyps, &ranking, &[false, false], &params).is_empty());
+    }
+
+    #[test]
+    fn support_at_a_shared_vertex_outranks_a_smaller_residual() {
+        // S1 segments 0 and 1 meet at (0, 40); hypothesis 0 of segment 0 and hypothesis 2 of
+        // segment 1 agree on the disparity there, hypothesis 1 does not.
+        let s1 = [seg(0.0, 0.0, 0.0, 40.0, 0), seg(0.0, 40.0, 40.0, 40.0, 1)];
+        let other: Vec<RectSegment> = (0..3)
+            .map(|i| seg(9.0 * i as f64, 0.0, 9.0 * i as f64, 40.0, i))
+            .collect();
+        let views = Views {
+            segments: [&s1, &other, &other],
+            oriented: true,
+        };
+        let hyps = [
+            hyp([0, 0, 0], 0.9, 40.0, 100.0),
+            hyp([0, 1, 1], 0.1, 40.0, 200.0),
+            hyp([1, 2, 2], 0.5, 40.0, 100.0),
+        ];
+        let adjacency = adjacency(&s1, 8.0);
+        assert_eq!(adjacency.len(), 1);
+        let accepted = validate(&rect(), &views, &adjacency, &hyps, &MatchParams::default());
+        assert_eq!(accepted, vec![0, 2]);
+    }
+
+    #[test]
+    fn collinear_disjoint_fragments_share_a_segment_but_overlapping_ones_do_not() {
+        let s1 = [seg(0.0, 0.0, 0.0, 100.0, 0)];
+        let pieces = [
+            seg(5.0, 0.0, 5.0, 45.0, 0),
+            seg(5.0, 50.0, 5.0, 100.0, 1),
+            seg(5.0, 30.0, 5.0, 80.0, 2),
+        ];
+        let whole = [seg(7.0, 0.0, 7.0, 100.0, 0)];
+        let views = Views {
+            segments: [&s1, &pieces, &whole],
+            oriented: true,
+        };
+        let params = MatchParams::default();
+        let fragments = [
+            hyp([0, 0, 0], 0.2, 100.0, 100.0),
+            hyp([0, 1, 0], 0.3, 100.0, 100.0),
+        ];
+        assert_eq!(
+            validate(&rect(), &views, &[], &fragments, &params),
+            vec![0, 1]
+        );
+        let overlapping = [
+            hyp([0, 0, 0], 0.2, 100.0, 100.0),
+            hyp([0, 2, 0], 0.3, 100.0, 100.0),
+        ];
+        assert_eq!(
+            validate(&rect(), &views, &[], &overlapping, &params),
+            vec![0]
+        );
+    }
 }

@@ -5,7 +5,9 @@
 //! field of view), so the *density* of segments and the pixel extent of the disparity search
 //! — the ambiguity a matcher faces per segment — stay those of a 512x512 image with 600
 //! segments: how time grows with `n` then measures the algorithm, not the quadratic growth of
-//! accidental alignments in an ever more crowded image.
+//! accidental alignments in an ever more crowded image. For the same reason segment lengths
+//! are drawn in pixels, not metres: a wide sensor's off-axis segments would otherwise project
+//! longer and crowd the image.
 
 use nalgebra::{Point3, Vector3};
 
@@ -55,7 +57,17 @@ pub fn scattered_capture(
             1 => Vector3::y(),
             _ => Vector3::z(),
         };
-        let b: Point3<f64> = a + axis * rng.range(0.05, 0.6);
+        // Length drawn in pixels of camera 1 (10–90 px, mean 50 as the 512x512 image had):
+        // drawn in metres, segments off-axis in a wide sensor would project ever longer,
+        // and the growing density of ink would measure the scene, not the matcher.
+        let px_per_m = match cam.project(&(a + axis * 0.01)) {
+            Some(p) => (p - cam.project(&a).unwrap_or(p)).norm() / 0.01,
+            None => continue,
+        };
+        if px_per_m < 1.0 {
+            continue;
+        }
+        let b: Point3<f64> = a + axis * (rng.range(10.0, 90.0) / px_per_m);
         let contrast_left = rng.chance(0.5);
         let mut images = Vec::with_capacity(3);
         for c in rig.cameras() {

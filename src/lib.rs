@@ -22,6 +22,7 @@
 //! transports; `api` depends on it, never the reverse.
 
 pub mod api;
+pub mod extract;
 pub mod geometry;
 pub mod matching;
 pub mod pipeline;

@@ -22,9 +22,11 @@
 //! transports; `api` depends on it, never the reverse.
 
 pub mod api;
+pub mod demo;
 pub mod extract;
 pub mod geometry;
 pub mod matching;
+pub mod overlay;
 pub mod pipeline;
 pub mod reconstruct;
 pub mod segment;

@@ -1,12 +1,14 @@
 //! `trinocular`: the command line. Parses arguments, reads files, calls the library, writes
-//! proto3 JSON. Errors go to stderr, name the offending field, and exit non-zero.
+//! proto3 JSON (and pictures). Errors go to stderr, name the offending field, and exit
+//! non-zero: 2 for bad input, 1 for anything else.
 
-use std::{fs, path::PathBuf, process::ExitCode};
+use std::{fs, path::Path, path::PathBuf, process::ExitCode};
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use trinocular::api::{self, pb, InputError};
-use trinocular::pipeline::match_segments;
+use trinocular::api::{self, pb, Executed, InputError, MatchInput, MatchSource};
+use trinocular::extract::decode::{self, DecodeLimits};
+use trinocular::overlay;
 
 #[derive(Parser)]
 #[command(
@@ -21,31 +23,73 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Match three segment lists and reconstruct 3D segments; prints a MatchResponse (JSON).
+    /// Render a synthetic room from three cameras, match it end to end and write pictures.
+    Demo(DemoArgs),
+    /// Extract the oriented segments of one image; prints a SegmentList (JSON).
+    Extract(ExtractArgs),
+    /// Match three images or segment lists and reconstruct 3D segments; prints a
+    /// MatchResponse (JSON).
     Match(MatchArgs),
 }
 
 #[derive(Args)]
 struct MatchArgs {
-    /// A MatchRequest in proto3 JSON (instead of --calibration and --segments).
-    #[arg(conflicts_with_all = ["calibration", "segments", "options"])]
+    /// A MatchRequest in proto3 JSON (instead of --calibration and --segments/--images).
+    #[arg(conflicts_with_all = ["calibration", "segments", "images", "options"])]
     request: Option<PathBuf>,
     /// A Calibration in proto3 JSON.
-    #[arg(long, requires = "segments")]
+    #[arg(long)]
     calibration: Option<PathBuf>,
     /// A SegmentTriplet in proto3 JSON.
-    #[arg(long, requires = "calibration")]
+    #[arg(long, requires = "calibration", conflicts_with = "images")]
     segments: Option<PathBuf>,
+    /// Three image files (PNG, JPEG, PGM/PPM, TIFF, BMP), in camera order.
+    #[arg(long, num_args = 3, value_names = ["IMG1", "IMG2", "IMG3"], requires = "calibration")]
+    images: Option<Vec<PathBuf>>,
     /// MatchOptions in proto3 JSON.
     #[arg(long)]
     options: Option<PathBuf>,
     /// Write the MatchResponse here instead of stdout.
     #[arg(short, long)]
     output: Option<PathBuf>,
+    /// Image input: draw the three images side by side with their segments, matched ones
+    /// coloured by 3D segment, unmatched ones grey (PNG).
+    #[arg(long)]
+    overlay: Option<PathBuf>,
 }
 
-fn read(path: &PathBuf) -> anyhow::Result<String> {
+#[derive(Args)]
+struct ExtractArgs {
+    /// The image file.
+    image: PathBuf,
+    /// ExtractOptions in proto3 JSON.
+    #[arg(long)]
+    options: Option<PathBuf>,
+    /// Write the SegmentList here instead of stdout.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct DemoArgs {
+    /// Varies the room's furniture and albedos.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Directory for the images, overlay.png, top.png and response.json.
+    #[arg(long, default_value = "demo")]
+    out: PathBuf,
+}
+
+fn read(path: &Path) -> anyhow::Result<String> {
     fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+fn read_bytes(path: &Path) -> anyhow::Result<Vec<u8>> {
+    fs::read(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+fn write(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    fs::write(path, bytes).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Either an input problem (exit 2, names the field) or anything else (exit 1).
@@ -69,10 +113,30 @@ fn build_request(args: &MatchArgs) -> Result<pb::MatchRequest, Failure> {
     if let Some(path) = &args.request {
         return Ok(api::from_json("request", &read(path)?)?);
     }
-    let (Some(calibration), Some(segments)) = (&args.calibration, &args.segments) else {
+    let Some(calibration) = &args.calibration else {
         return Err(Failure::Other(anyhow::anyhow!(
-            "give a REQUEST file, or --calibration and --segments"
+            "give a REQUEST file, or --calibration with --segments or --images"
         )));
+    };
+    let input = match (&args.segments, &args.images) {
+        (Some(segments), None) => {
+            pb::match_request::Input::Segments(api::from_json("segments", &read(segments)?)?)
+        }
+        (None, Some(paths)) => pb::match_request::Input::Images(pb::ImageTriplet {
+            images: paths
+                .iter()
+                .map(|p| {
+                    Ok(pb::Image {
+                        source: Some(pb::image::Source::Encoded(read_bytes(p)?)),
+                    })
+                })
+                .collect::<anyhow::Result<_>>()?,
+        }),
+        _ => {
+            return Err(Failure::Other(anyhow::anyhow!(
+                "give --segments or --images with --calibration"
+            )))
+        }
     };
     let options = match &args.options {
         Some(path) => Some(api::from_json("options", &read(path)?)?),
@@ -81,30 +145,94 @@ fn build_request(args: &MatchArgs) -> Result<pb::MatchRequest, Failure> {
     Ok(pb::MatchRequest {
         calibration: Some(api::from_json("calibration", &read(calibration)?)?),
         options,
-        input: Some(pb::match_request::Input::Segments(api::from_json(
-            "segments",
-            &read(segments)?,
-        )?)),
+        input: Some(input),
     })
+}
+
+fn draw_overlay(input: &MatchInput, executed: &Executed, path: &Path) -> Result<(), Failure> {
+    let (MatchSource::Images(images), Some(extracted)) = (&input.source, &executed.extracted)
+    else {
+        return Err(Failure::Other(anyhow::anyhow!(
+            "--overlay needs image input (--images, or images in the request)"
+        )));
+    };
+    let lists = [
+        &extracted[0].segments,
+        &extracted[1].segments,
+        &extracted[2].segments,
+    ];
+    let labels = overlay::segment3_labels(&executed.output, lists.map(|l| l.segments.len()));
+    let picture = overlay::triplet_overlay(
+        [&images[0], &images[1], &images[2]],
+        lists,
+        [&labels[0], &labels[1], &labels[2]],
+    );
+    write(path, &picture.to_png().context("cannot encode the overlay")?)?;
+    Ok(())
 }
 
 fn run_match(args: &MatchArgs) -> Result<(), Failure> {
     let request = build_request(args)?;
-    let input = api::match_request(&request)?;
-    let output =
-        match_segments(&input.rig, &input.lists, &input.params).map_err(InputError::from)?;
-    let json = api::to_json(&api::match_response(&output));
+    let input = api::match_request(&request, &DecodeLimits::default())?;
+    let executed = input.execute()?;
+    if let Some(path) = &args.overlay {
+        draw_overlay(&input, &executed, path)?;
+    }
+    let json = api::to_json(&input.response(&executed));
     match &args.output {
-        Some(path) => fs::write(path, json + "\n")
-            .with_context(|| format!("cannot write {}", path.display()))?,
+        Some(path) => write(path, (json + "\n").as_bytes())?,
         None => println!("{json}"),
     }
+    Ok(())
+}
+
+fn run_extract(args: &ExtractArgs) -> Result<(), Failure> {
+    let bytes = read_bytes(&args.image)?;
+    let image = decode::decode(&bytes, &DecodeLimits::default())
+        .map_err(|e| InputError::new("image", e.to_string()))?;
+    let options: Option<pb::ExtractOptions> = match &args.options {
+        Some(path) => Some(api::from_json("options", &read(path)?)?),
+        None => None,
+    };
+    let params = api::extract_params(options.as_ref());
+    params
+        .check()
+        .map_err(|e| InputError::new(format!("options.{}", e.field), e.to_string()))?;
+    let extraction = trinocular::extract::extract(&image, None, &params);
+    let json = api::to_json(&api::segment_list_to_pb(&extraction.segments));
+    match &args.output {
+        Some(path) => write(path, (json + "\n").as_bytes())?,
+        None => println!("{json}"),
+    }
+    Ok(())
+}
+
+fn run_demo(args: &DemoArgs) -> Result<(), Failure> {
+    let demo = trinocular::demo::run(args.seed).map_err(|e| Failure::Other(anyhow::anyhow!(e)))?;
+    fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    for (v, png) in demo.images_png.iter().enumerate() {
+        write(&args.out.join(format!("img{}.png", v + 1)), png)?;
+    }
+    write(&args.out.join("overlay.png"), &demo.overlay_png)?;
+    write(&args.out.join("top.png"), &demo.top_png)?;
+    write(
+        &args.out.join("response.json"),
+        (api::to_json(&demo.response) + "\n").as_bytes(),
+    )?;
+    println!("{}", demo.summary);
+    println!(
+        "wrote {0}/img1.png img2.png img3.png overlay.png top.png response.json",
+        args.out.display()
+    );
     Ok(())
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::Demo(args) => run_demo(args),
+        Command::Extract(args) => run_extract(args),
         Command::Match(args) => run_match(args),
     };
     match result {

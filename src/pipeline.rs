@@ -4,14 +4,18 @@
 //! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ validate ⇄ reconstruct ─▶ merge fragments
 //! ```
 //!
+//! From images, [`match_images`] runs [`crate::extract`] on the three first (in parallel).
+//!
 //! Input problems are errors that name the list, the segment and the coordinate; zero-length
 //! segments are dropped and counted; empty lists give an empty result.
 
+use std::collections::HashMap;
 use std::time::Instant;
 
 use nalgebra::Point2;
 use thiserror::Error;
 
+use crate::extract::{self, Adjacent, Extraction, GreyImage};
 use crate::geometry::{Line3Fit, Rectification, RectifyError, Rig};
 use crate::matching::{self, Hypothesis, MatchParams, ParamError, RectSegment, Views};
 use crate::reconstruct::{reconstruct, reconstruct_pieces};
@@ -23,6 +27,56 @@ const OUT_OF_IMAGE_MARGIN: f64 = 1.0;
 /// Validation rounds at most (each after reconstruction rejected some winners); one or two
 /// suffice in practice.
 const MAX_VALIDATION_ROUNDS: usize = 4;
+/// Matching three images: what was extracted from each, and the match of those lists.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ImageMatch {
+    pub extracted: [Extraction; 3],
+    pub output: MatchOutput,
+}
+
+/// Extracts the segments of three images (in parallel) and matches them; view 1's segment
+/// graph feeds validation. `stats.total_ms` of the output covers extraction too.
+pub fn match_images(
+    rig: &Rig,
+    images: [&GreyImage; 3],
+    extract_params: &extract::Params,
+    params: &MatchParams,
+) -> Result<ImageMatch, MatchError> {
+    let start = Instant::now();
+    params.check()?;
+    extract_params.check()?;
+    for (view, image) in images.iter().enumerate() {
+        let cam = rig.camera(view);
+        if (image.width(), image.height()) != (cam.width(), cam.height()) {
+            return Err(MatchError::ImageSize {
+                view,
+                width: image.width(),
+                height: image.height(),
+                expected_width: cam.width(),
+                expected_height: cam.height(),
+            });
+        }
+    }
+    let one = |v: usize| extract::extract(images[v], Some(rig.camera(v)), extract_params);
+    let (first, (second, third)) = rayon::join(|| one(0), || rayon::join(|| one(1), || one(2)));
+    let lists = [
+        first.segments.clone(),
+        second.segments.clone(),
+        third.segments.clone(),
+    ];
+    let mut output = match_segments_with_graph(rig, &lists, &first.graph, params)?;
+    output.stats.extract_ms = Some([
+        first.stats.total_ms,
+        second.stats.total_ms,
+        third.stats.total_ms,
+    ]);
+    output.stats.total_ms = ms(start);
+    Ok(ImageMatch {
+        extracted: [first, second, third],
+        output,
+    })
+}
+
 /// A reconstructed 3D segment with its predicted direction uncertainty, degrees.
 type Fit = Option<(Line3Fit, f64)>;
 /// Segments shorter than this are zero-length: dropped and counted.
@@ -64,6 +118,8 @@ pub struct MatchStats {
     pub reconstruct_ms: f64,
     pub total_ms: f64,
     pub collinear_rig: bool,
+    /// Image input: extraction time of each image, milliseconds.
+    pub extract_ms: Option<[f64; 3]>,
 }
 
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -118,6 +174,18 @@ pub enum MatchError {
         value: f64,
         width: u32,
         height: u32,
+    },
+    #[error(transparent)]
+    Extract(#[from] extract::ParamError),
+    #[error(
+        "image {view}: {width}x{height} pixels, but its camera is {expected_width}x{expected_height}"
+    )]
+    ImageSize {
+        view: usize,
+        width: u32,
+        height: u32,
+        expected_width: u32,
+        expected_height: u32,
     },
     #[error("list {list}, segment {index}: gradient = {value} must be at least 0")]
     NegativeGradient {
@@ -229,6 +297,18 @@ pub fn match_segments(
     lists: &[SegmentList; 3],
     params: &MatchParams,
 ) -> Result<MatchOutput, MatchError> {
+    match_segments_with_graph(rig, lists, &[], params)
+}
+
+/// [`match_segments`], told which segments of view 1 meet (`graph`, indices into
+/// `lists[0]`, as [`crate::extract`] finds them): validation then counts support across
+/// those vertices as well as between segments whose ends are within `neighbour_radius_px`.
+pub fn match_segments_with_graph(
+    rig: &Rig,
+    lists: &[SegmentList; 3],
+    graph: &[Adjacent],
+    params: &MatchParams,
+) -> Result<MatchOutput, MatchError> {
     let start = Instant::now();
     params.check()?;
     let mut zero = [0u32; 3];
@@ -263,6 +343,7 @@ pub fn match_segments(
         &views,
         &prepared,
         &hypotheses,
+        graph,
         params,
         &mut stats,
     );
@@ -290,12 +371,14 @@ fn accept(fit: Option<Line3Fit>, rect: &Rectification, params: &MatchParams) -> 
 /// A winner that reconstruction rejects (no overlap, residual or direction uncertainty too
 /// large) leaves the pool and validation runs again, so a rival it displaced gets its turn.
 /// Returns the accepted hypotheses with their reconstructions.
+#[allow(clippy::too_many_arguments)]
 fn validate_and_reconstruct(
     rig: &Rig,
     rect: &Rectification,
     views: &Views,
     prepared: &[Prepared],
     hypotheses: &[Hypothesis],
+    graph: &[Adjacent],
     params: &MatchParams,
     stats: &mut MatchStats,
 ) -> Vec<(usize, Line3Fit, f64)> {
@@ -308,7 +391,8 @@ fn validate_and_reconstruct(
     ];
     let t = Instant::now();
     let ranking = if params.validate {
-        let adjacency = matching::adjacency(views.segments[0], params.neighbour_radius_px);
+        let mut adjacency = matching::adjacency(views.segments[0], params.neighbour_radius_px);
+        add_graph(&mut adjacency, graph, rig, rect, views.segments[0]);
         matching::rank(rect, views, &adjacency, hypotheses, params)
     } else {
         Vec::new()
@@ -349,6 +433,41 @@ fn validate_and_reconstruct(
     kept.into_iter()
         .filter_map(|h| fits[h].flatten().map(|(fit, sigma)| (h, fit, sigma)))
         .collect()
+}
+
+/// Adds the pairs of `graph` (indices into the caller's list of view 1) that `adjacency`
+/// (indices into `segments`, the prepared view 1) lacks, their vertex rectified.
+fn add_graph(
+    adjacency: &mut Vec<(u32, u32, Point2<f64>)>,
+    graph: &[Adjacent],
+    rig: &Rig,
+    rect: &Rectification,
+    segments: &[RectSegment],
+) {
+    use std::collections::HashSet;
+    if graph.is_empty() {
+        return;
+    }
+    let mut prepared_index: std::collections::HashMap<u32, u32> = HashMap::new();
+    for (i, s) in segments.iter().enumerate() {
+        prepared_index.insert(s.index, i as u32);
+    }
+    let mut known: HashSet<(u32, u32)> = adjacency
+        .iter()
+        .map(|&(a, b, _)| (a.min(b), a.max(b)))
+        .collect();
+    for e in graph {
+        let (Some(&a), Some(&b)) = (prepared_index.get(&e.a), prepared_index.get(&e.b)) else {
+            continue;
+        };
+        let key = (a.min(b), a.max(b));
+        if a == b || !known.insert(key) {
+            continue;
+        }
+        if let Some(vertex) = rect.to_rect(0, rig.camera(0).undistort(e.vertex)) {
+            adjacency.push((key.0, key.1, vertex));
+        }
+    }
 }
 
 /// The output: collinear fragments accepted together (they share a segment) make one 3D
@@ -421,7 +540,6 @@ fn assemble(
 /// together only as collinear fragments of one line). Groups hold positions in `kept`, come
 /// in order of their first member, members in input order.
 fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>> {
-    use std::collections::HashMap;
     let mut parent: Vec<usize> = (0..kept.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {

@@ -2,27 +2,34 @@
 """Scores `trinocular match` on the rendered scenes of ../shared/data with ../shared/eval.
 
     python3 tools/eval_shared.py [--shared ../shared] [--bin target/release/trinocular]
-        [--options '{"tolerancePx": 2}'] [--captures 00,01] [--keep DIR]
+        [--options '{"tolerancePx": 2}'] [--captures 00,01] [--keep DIR] [--images]
 
-For each capture: builds a MatchRequest from calib.json and segments_lsd.json (LSD segments,
-oriented by contrast), runs the CLI, writes the 3D segments in the scorer's format, scores
+For each capture: builds a MatchRequest from calib.json and either segments_lsd.json (LSD
+segments, oriented by contrast) or, with --images, the three PNG images (our own extraction),
+runs the CLI, writes the 3D segments in the scorer's format, scores
 them, and prints per-capture and pooled metrics (pooled: error rate over all segments,
 completeness over all eligible length). Needs numpy for the scorer: see ../shared/eval/README.md.
 """
-import argparse, json, os, subprocess, sys, tempfile
+import argparse, base64, json, os, subprocess, sys, tempfile
 
 
-def request_for(cdir, options):
+def request_for(cdir, options, images=False):
     calib = json.load(open(os.path.join(cdir, "calib.json")))
     cams = []
     for c in calib["cameras"]:
         cams.append({"name": c["name"], "width": c["width"], "height": c["height"],
                      "projection": [v for row in c["P"] for v in row]})
-    lsd = json.load(open(os.path.join(cdir, "segments_lsd.json")))
-    lists = [{"oriented": True,
-              "segments": [{"u1": s[0], "v1": s[1], "u2": s[2], "v2": s[3]} for s in im["segments"]]}
-             for im in lsd["images"]]
-    req = {"calibration": {"cameras": cams}, "segments": {"lists": lists}}
+    req = {"calibration": {"cameras": cams}}
+    if images:
+        req["images"] = {"images": [
+            {"encoded": base64.b64encode(open(os.path.join(cdir, f"img{i}.png"), "rb").read()).decode()}
+            for i in (1, 2, 3)]}
+    else:
+        lsd = json.load(open(os.path.join(cdir, "segments_lsd.json")))
+        lists = [{"oriented": True,
+                  "segments": [{"u1": s[0], "v1": s[1], "u2": s[2], "v2": s[3]} for s in im["segments"]]}
+                 for im in lsd["images"]]
+        req["segments"] = {"lists": lists}
     if options:
         req["options"] = options
     return req
@@ -36,6 +43,7 @@ def main():
     ap.add_argument("--options", default=None)
     ap.add_argument("--captures", default=None)
     ap.add_argument("--keep", default=None)
+    ap.add_argument("--images", action="store_true", help="match the images, not the LSD segments")
     a = ap.parse_args()
     data = os.path.join(a.shared, "data", "office")
     scorer = os.path.join(a.shared, "eval", "score.py")
@@ -51,7 +59,7 @@ def main():
     for cap in caps:
         cdir = os.path.join(data, "capture_" + cap)
         req_path = os.path.join(work, f"request_{cap}.json")
-        json.dump(request_for(cdir, options), open(req_path, "w"))
+        json.dump(request_for(cdir, options, a.images), open(req_path, "w"))
         out = json.loads(subprocess.run([a.bin, "match", req_path], check=True,
                                         capture_output=True, text=True).stdout)
         json.dump(out, open(os.path.join(work, f"response_{cap}.json"), "w"))

@@ -4,9 +4,11 @@
 use nalgebra::{Matrix3, Matrix3x4, Point2, Vector3};
 
 use super::{pb, InputError};
+use crate::extract::decode::{self, DecodeLimits};
+use crate::extract::{self, Extraction, GreyImage};
 use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
 use crate::matching::MatchParams;
-use crate::pipeline::{MatchError, MatchOutput};
+use crate::pipeline::{self, MatchError, MatchOutput};
 use crate::segment::{Segment2, SegmentList};
 
 fn exactly<const N: usize>(field: String, values: &[f64]) -> Result<[f64; N], InputError> {
@@ -123,7 +125,10 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         max_residual_px,
         line_noise_px,
         max_direction_sigma_deg,
-    } = *o;
+        // Read by `extract_params` and `match_request`.
+        extract: _,
+        return_extracted: _,
+    } = o;
     MatchParams {
         depth_min_m: depth_min_m.unwrap_or(d.depth_min_m),
         depth_max_m: depth_max_m.unwrap_or(d.depth_max_m),
@@ -139,6 +144,63 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         line_noise_px: line_noise_px.unwrap_or(d.line_noise_px),
         max_direction_sigma_deg: max_direction_sigma_deg.unwrap_or(d.max_direction_sigma_deg),
     }
+}
+
+/// Extraction parameters: each absent option takes its default.
+pub fn extract_params(options: Option<&pb::ExtractOptions>) -> extract::Params {
+    let d = extract::Params::default();
+    let Some(o) = options else {
+        return d;
+    };
+    let pb::ExtractOptions {
+        smoothing_sigma_px,
+        gradient_low,
+        gradient_high,
+        max_deviation_px,
+        min_segment_px,
+    } = o;
+    extract::Params {
+        smoothing_sigma_px: smoothing_sigma_px.unwrap_or(d.smoothing_sigma_px),
+        gradient_low: gradient_low.unwrap_or(d.gradient_low),
+        gradient_high: gradient_high.unwrap_or(d.gradient_high),
+        max_deviation_px: max_deviation_px.unwrap_or(d.max_deviation_px),
+        min_segment_px: min_segment_px.unwrap_or(d.min_segment_px),
+    }
+}
+
+/// The three images of an `ImageTriplet`, decoded within `limits`.
+pub fn images(
+    triplet: &pb::ImageTriplet,
+    limits: &DecodeLimits,
+) -> Result<[GreyImage; 3], InputError> {
+    let pb::ImageTriplet { images } = triplet;
+    if images.len() != 3 {
+        return Err(InputError::new(
+            "images.images",
+            format!("needs exactly 3 images, got {}", images.len()),
+        ));
+    }
+    let one = |i: usize| -> Result<GreyImage, InputError> {
+        let pb::Image { source } = &images[i];
+        match source {
+            Some(pb::image::Source::Encoded(bytes)) => decode::decode(bytes, limits)
+                .map_err(|e| InputError::new(format!("images.images[{i}].encoded"), e.to_string())),
+            Some(pb::image::Source::Raw(raw)) => {
+                let pb::RawImage {
+                    width,
+                    height,
+                    data,
+                } = raw;
+                decode::from_raw(*width, *height, data, limits)
+                    .map_err(|e| InputError::new(format!("images.images[{i}].raw"), e.to_string()))
+            }
+            None => Err(InputError::new(
+                format!("images.images[{i}]"),
+                "missing: give encoded bytes or a raw image",
+            )),
+        }
+    };
+    Ok([one(0)?, one(1)?, one(2)?])
 }
 
 /// The three segment lists of a `SegmentTriplet`.
@@ -175,16 +237,29 @@ pub fn segment_lists(triplet: &pb::SegmentTriplet) -> Result<[SegmentList; 3], I
     }))
 }
 
+/// What a request matches: three segment lists, or three images to extract them from.
+#[derive(Debug, Clone)]
+pub enum MatchSource {
+    Segments([SegmentList; 3]),
+    Images([GreyImage; 3]),
+}
+
 /// A checked `MatchRequest`, ready for the pipeline.
 #[derive(Debug, Clone)]
 pub struct MatchInput {
     pub rig: Rig,
     pub params: MatchParams,
-    pub lists: [SegmentList; 3],
+    pub extract: extract::Params,
+    pub return_extracted: bool,
+    pub source: MatchSource,
 }
 
-/// Converts a `MatchRequest`, checking what the schema cannot express.
-pub fn match_request(request: &pb::MatchRequest) -> Result<MatchInput, InputError> {
+/// Converts a `MatchRequest`, checking what the schema cannot express; images are decoded
+/// within `limits`.
+pub fn match_request(
+    request: &pb::MatchRequest,
+    limits: &DecodeLimits,
+) -> Result<MatchInput, InputError> {
     let pb::MatchRequest {
         calibration,
         options,
@@ -195,11 +270,97 @@ pub fn match_request(request: &pb::MatchRequest) -> Result<MatchInput, InputErro
     params
         .check()
         .map_err(|e| InputError::new(format!("options.{}", e.field()), e.to_string()))?;
-    let lists = match input {
-        Some(pb::match_request::Input::Segments(triplet)) => segment_lists(triplet)?,
-        None => return Err(InputError::new("input", "missing: give segments")),
+    let extract = extract_params(options.as_ref().and_then(|o| o.extract.as_ref()));
+    extract
+        .check()
+        .map_err(|e| InputError::new(format!("options.extract.{}", e.field), e.to_string()))?;
+    let return_extracted = options
+        .as_ref()
+        .and_then(|o| o.return_extracted)
+        .unwrap_or(false);
+    let source = match input {
+        Some(pb::match_request::Input::Segments(triplet)) => {
+            MatchSource::Segments(segment_lists(triplet)?)
+        }
+        Some(pb::match_request::Input::Images(triplet)) => {
+            MatchSource::Images(images(triplet, limits)?)
+        }
+        None => {
+            return Err(InputError::new(
+                "input",
+                "missing: give segments or images",
+            ))
+        }
     };
-    Ok(MatchInput { rig, params, lists })
+    Ok(MatchInput {
+        rig,
+        params,
+        extract,
+        return_extracted,
+        source,
+    })
+}
+
+/// What running a [`MatchInput`] produced.
+#[derive(Debug, Clone)]
+pub struct Executed {
+    pub output: MatchOutput,
+    /// Image input: what was extracted from each image.
+    pub extracted: Option<[Extraction; 3]>,
+}
+
+impl MatchInput {
+    /// Runs the pipeline on this input, or reports an input error naming the field.
+    pub fn execute(&self) -> Result<Executed, InputError> {
+        Ok(match &self.source {
+            MatchSource::Segments(lists) => Executed {
+                output: pipeline::match_segments(&self.rig, lists, &self.params)?,
+                extracted: None,
+            },
+            MatchSource::Images(images) => {
+                let [a, b, c] = images;
+                let result =
+                    pipeline::match_images(&self.rig, [a, b, c], &self.extract, &self.params)?;
+                Executed {
+                    output: result.output,
+                    extracted: Some(result.extracted),
+                }
+            }
+        })
+    }
+
+    /// The response to this input for what [`MatchInput::execute`] produced: the extracted
+    /// lists are included when the request asked for them.
+    pub fn response(&self, executed: &Executed) -> pb::MatchResponse {
+        let extracted = executed
+            .extracted
+            .as_ref()
+            .filter(|_| self.return_extracted);
+        match_response(&executed.output, extracted)
+    }
+
+    /// [`MatchInput::execute`], then [`MatchInput::response`].
+    pub fn run(&self) -> Result<pb::MatchResponse, InputError> {
+        Ok(self.response(&self.execute()?))
+    }
+}
+
+/// A `SegmentList` message.
+pub fn segment_list_to_pb(list: &SegmentList) -> pb::SegmentList {
+    pb::SegmentList {
+        oriented: list.oriented,
+        segments: list
+            .segments
+            .iter()
+            .map(|s| pb::Segment {
+                u1: s.start.x,
+                v1: s.start.y,
+                u2: s.end.x,
+                v2: s.end.y,
+                gradient: s.gradient,
+            })
+            .collect(),
+    }
 }
 
 impl From<MatchError> for InputError {
@@ -225,6 +386,8 @@ impl From<MatchError> for InputError {
             MatchError::NegativeGradient { list, index, .. } => {
                 format!("segments.lists[{list}].segments[{index}].gradient")
             }
+            MatchError::Extract(p) => format!("options.extract.{}", p.field),
+            MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),
         };
         InputError { field, message }
     }
@@ -238,8 +401,11 @@ fn point3(p: &nalgebra::Point3<f64>) -> pb::Point3 {
     }
 }
 
-/// The `MatchResponse` of a pipeline output.
-pub fn match_response(output: &MatchOutput) -> pb::MatchResponse {
+/// The `MatchResponse` of a pipeline output, with the extracted lists if given.
+pub fn match_response(
+    output: &MatchOutput,
+    extracted: Option<&[Extraction; 3]>,
+) -> pb::MatchResponse {
     let s = &output.stats;
     pb::MatchResponse {
         triplets: output
@@ -277,6 +443,10 @@ pub fn match_response(output: &MatchOutput) -> pb::MatchResponse {
             reconstruct_ms: s.reconstruct_ms,
             total_ms: s.total_ms,
             collinear_rig: s.collinear_rig,
+            extract_ms: s.extract_ms.map_or_else(Vec::new, |m| m.to_vec()),
         }),
+        extracted: extracted
+            .map(|e| e.iter().map(|x| segment_list_to_pb(&x.segments)).collect())
+            .unwrap_or_default(),
     }
 }

@@ -8,7 +8,8 @@
 mod convert;
 
 pub use convert::{
-    match_params, match_request, match_response, rig_from_calibration, segment_lists, MatchInput,
+    extract_params, images, match_params, match_request, match_response, rig_from_calibration,
+    segment_list_to_pb, segment_lists, Executed, MatchInput, MatchSource,
 };
 
 #[allow(clippy::all, missing_docs)]

@@ -3,12 +3,325 @@
 //! contrast, with the graph of segments that share a chain vertex or a junction.
 //!
 //! ```text
-//! GreyImage ─▶ gradient ─▶ nms (sub-pixel) ─▶ hysteresis ─▶ chain ─▶ undistort ─▶ polygon ─▶ segments + graph
+//! GreyImage ─▶ smooth ─▶ gradient ─▶ non-maximum suppression (sub-pixel) ─▶ hysteresis
+//!           ─▶ link into chains (+ junctions) ─▶ undistort points ─▶ split-and-merge ─▶ segments + graph
 //! ```
 //!
-//! Each stage is a plain function over plain data and can be tested alone. Pure and
-//! synchronous: one image per call (the pipeline runs the three images in parallel).
+//! Each stage is a plain function over plain data ([`gradient`], [`edges`], [`chain`],
+//! [`polygon`]) and can be tested alone; [`extract`] runs them all. Pure and synchronous, one
+//! image per call: the pipeline runs the three images of a triplet in parallel.
+//!
+//! Output segments are in the image's own (distorted) pixels, like any segment list a client
+//! sends, but their lines were fitted to undistorted edge points: undistorting the two ends
+//! (as the matcher does) gives back exactly the fitted line.
 
+pub mod chain;
+pub mod edges;
+pub mod gradient;
 pub mod image;
+pub mod polygon;
 
-pub use image::GreyImage;
+use std::time::Instant;
+
+use nalgebra::Point2;
+use thiserror::Error;
+
+use crate::geometry::Camera;
+use crate::segment::{Segment2, SegmentList};
+
+pub use self::image::GreyImage;
+
+/// Extraction parameters. Units are in the names; `Default` gives the documented defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Params {
+    /// Standard deviation of the Gaussian smoothing, pixels.
+    pub smoothing_sigma_px: f64,
+    /// Hysteresis thresholds on the gradient magnitude, grey levels (0–255 scale) per pixel:
+    /// edges start at `gradient_high` and continue down to `gradient_low`.
+    pub gradient_low: f64,
+    pub gradient_high: f64,
+    /// Largest distance of an edge point from its segment's line, pixels.
+    pub max_deviation_px: f64,
+    /// Shorter segments are not reported, pixels.
+    pub min_segment_px: f64,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            smoothing_sigma_px: 1.0,
+            gradient_low: 2.0,
+            gradient_high: 5.0,
+            max_deviation_px: 0.8,
+            min_segment_px: 6.0,
+        }
+    }
+}
+
+/// A parameter out of its domain; `field` is the schema's `ExtractOptions` field name.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[error("{field} must be {requirement}, got {value}")]
+pub struct ParamError {
+    pub field: &'static str,
+    pub value: f64,
+    pub requirement: &'static str,
+}
+
+/// Largest smoothing accepted, pixels: beyond it edges of a room-scale image melt together,
+/// and the kernel cost grows with σ.
+pub const MAX_SMOOTHING_SIGMA_PX: f64 = 10.0;
+
+impl Params {
+    /// Checks every field; reports the first problem.
+    pub fn check(&self) -> Result<(), ParamError> {
+        let fail = |field, value, requirement| {
+            Err(ParamError {
+                field,
+                value,
+                requirement,
+            })
+        };
+        let checks: [(&'static str, f64, bool, &'static str); 5] = [
+            (
+                "smoothing_sigma_px",
+                self.smoothing_sigma_px,
+                (0.0..=MAX_SMOOTHING_SIGMA_PX).contains(&self.smoothing_sigma_px),
+                "between 0 and 10",
+            ),
+            (
+                "gradient_low",
+                self.gradient_low,
+                self.gradient_low >= 0.0 && self.gradient_low.is_finite(),
+                "a finite number at least 0",
+            ),
+            (
+                "gradient_high",
+                self.gradient_high,
+                self.gradient_high >= self.gradient_low && self.gradient_high.is_finite(),
+                "a finite number at least gradient_low",
+            ),
+            (
+                "max_deviation_px",
+                self.max_deviation_px,
+                self.max_deviation_px > 0.0 && self.max_deviation_px.is_finite(),
+                "a finite number greater than 0",
+            ),
+            (
+                "min_segment_px",
+                self.min_segment_px,
+                self.min_segment_px >= 0.0 && self.min_segment_px.is_finite(),
+                "a finite number at least 0",
+            ),
+        ];
+        for (field, value, ok, requirement) in checks {
+            if !ok {
+                return fail(field, value, requirement);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Two segments that meet: at a vertex of one chain's polygon, or where one chain ends on
+/// another (a junction). `vertex` is where, in image pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Adjacent {
+    pub a: u32,
+    pub b: u32,
+    pub vertex: Point2<f64>,
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ExtractStats {
+    pub edge_points: u32,
+    pub chains: u32,
+    pub junctions: u32,
+    pub gradient_ms: f64,
+    pub edges_ms: f64,
+    pub chain_ms: f64,
+    pub polygon_ms: f64,
+    pub total_ms: f64,
+}
+
+/// The segments of one image and how they connect.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Extraction {
+    /// Oriented by contrast (DESIGN §1), with their mean gradient magnitude.
+    pub segments: SegmentList,
+    /// Each pair once, `a < b`, sorted.
+    pub graph: Vec<Adjacent>,
+    pub stats: ExtractStats,
+}
+
+fn ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+/// Points left out of a piece's line fit at each break: the smoothed corner is rounded over
+/// about 1.5 σ.
+fn corner_trim(params: &Params) -> usize {
+    (1.5 * params.smoothing_sigma_px).round() as usize
+}
+
+/// Extracts the oriented segments of `image` and their graph. `camera` (if given) supplies
+/// the lens distortion removed from edge points before the polygon fit. Parameters must
+/// have passed [`Params::check`].
+pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> Extraction {
+    let start = Instant::now();
+    let mut stats = ExtractStats::default();
+    let (w, h) = (image.width() as usize, image.height() as usize);
+
+    let t = Instant::now();
+    let smoothed = gradient::smooth(image, params.smoothing_sigma_px);
+    let grad = gradient::gradient(&smoothed, w, h);
+    stats.gradient_ms = ms(t);
+
+    let t = Instant::now();
+    let candidates = edges::non_maximum_suppression(&grad, params.gradient_low as f32);
+    let map = edges::hysteresis(&candidates, params.gradient_high as f32);
+    stats.edges_ms = ms(t);
+    stats.edge_points = map.points.len() as u32;
+
+    let t = Instant::now();
+    let chains = chain::link(&map);
+    stats.chain_ms = ms(t);
+    stats.chains = chains.chains.len() as u32;
+    stats.junctions = chains.junctions.len() as u32;
+
+    let t = Instant::now();
+    let undistort = |u: f32, v: f32| {
+        let p = Point2::new(f64::from(u), f64::from(v));
+        camera.map_or(p, |c| c.undistort(p))
+    };
+    let distort = |p: Point2<f64>| camera.map_or(p, |c| c.distort(p));
+    let trim = corner_trim(params);
+    let mut segments = Vec::new();
+    let mut graph = Vec::new();
+    // Per chain: (first point position, last point position, segment index) of its kept pieces.
+    let mut kept: Vec<Vec<(usize, usize, u32)>> = Vec::with_capacity(chains.chains.len());
+    for c in &chains.chains {
+        let mut ids = c.points.clone();
+        if c.closed {
+            // Start a loop at a corner: the point farthest from its centroid is one for any
+            // convex outline, so no side is cut in two at an arbitrary start.
+            let n = ids.len() as f32;
+            let (cu, cv) = ids.iter().fold((0.0, 0.0), |(su, sv), &i| {
+                let p = &map.points[i as usize];
+                (su + p.u / n, sv + p.v / n)
+            });
+            let far = (0..ids.len())
+                .max_by(|&a, &b| {
+                    let d = |i: usize| {
+                        let p = &map.points[ids[i] as usize];
+                        (p.u - cu).powi(2) + (p.v - cv).powi(2)
+                    };
+                    d(a).total_cmp(&d(b))
+                })
+                .unwrap_or(0);
+            ids.rotate_left(far);
+        }
+        let rotation = if c.closed {
+            c.points.iter().position(|&p| p == ids[0]).unwrap_or(0)
+        } else {
+            0
+        };
+        let points: Vec<Point2<f64>> = ids
+            .iter()
+            .map(|&i| {
+                let p = &map.points[i as usize];
+                undistort(p.u, p.v)
+            })
+            .collect();
+        let mut mine = Vec::new();
+        for piece in polygon::approximate(&points, c.closed, params.max_deviation_px, trim) {
+            if (piece.end - piece.start).norm() < params.min_segment_px.max(1e-9) {
+                continue;
+            }
+            let last = if piece.last < piece.first {
+                ids.len() - 1
+            } else {
+                piece.last
+            };
+            let (mut gu, mut gv, mut magnitude) = (0.0f64, 0.0f64, 0.0f64);
+            for &i in &ids[piece.first..=last] {
+                let p = &map.points[i as usize];
+                gu += f64::from(p.gu);
+                gv += f64::from(p.gv);
+                magnitude += f64::from(p.magnitude);
+            }
+            let count = (last - piece.first + 1) as f64;
+            let (mut a, mut b) = (piece.start, piece.end);
+            // Chains walk with the bright side on the left; check against the mean gradient
+            // in case a piece straddles a weak flip.
+            let d = b - a;
+            if gu * d.y - gv * d.x < 0.0 {
+                std::mem::swap(&mut a, &mut b);
+            }
+            let id = segments.len() as u32;
+            segments.push(Segment2 {
+                start: distort(a),
+                end: distort(b),
+                gradient: Some(magnitude / count),
+            });
+            // Positions in the chain's own order (undo the loop's rotation).
+            let to_chain = |k: usize| (k + rotation) % ids.len();
+            mine.push((to_chain(piece.first), to_chain(last), id));
+            if let Some(&(_, _, previous)) = mine.iter().rev().nth(1) {
+                graph.push((previous, id, distort(piece.start)));
+            }
+        }
+        if c.closed && mine.len() > 2 {
+            let (first, last) = (mine[0].2, mine[mine.len() - 1].2);
+            graph.push((first, last, segments[first as usize].start));
+        }
+        kept.push(mine);
+    }
+    for j in &chains.junctions {
+        let pieces = &kept[j.chain as usize];
+        let end_piece = if j.at_start {
+            pieces.first()
+        } else {
+            pieces.last()
+        };
+        let Some(&(_, _, a)) = end_piece else {
+            continue;
+        };
+        let at = j.other_position as usize;
+        let Some(&(_, _, b)) = kept[j.other as usize]
+            .iter()
+            .find(|&&(first, last, _)| {
+                if first <= last {
+                    (first..=last).contains(&at)
+                } else {
+                    at >= first || at <= last // a loop's piece across its start
+                }
+            })
+        else {
+            continue;
+        };
+        let other = &chains.chains[j.other as usize];
+        let p = &map.points[other.points[at] as usize];
+        graph.push((a, b, Point2::new(f64::from(p.u), f64::from(p.v))));
+    }
+    let mut graph: Vec<Adjacent> = graph
+        .into_iter()
+        .filter(|(a, b, _)| a != b)
+        .map(|(a, b, vertex)| Adjacent {
+            a: a.min(b),
+            b: a.max(b),
+            vertex,
+        })
+        .collect();
+    graph.sort_by_key(|e| (e.a, e.b));
+    graph.dedup_by_key(|e| (e.a, e.b));
+    stats.polygon_ms = ms(t);
+    stats.total_ms = ms(start);
+    Extraction {
+        segments: SegmentList {
+            segments,
+            oriented: true,
+        },
+        graph,
+        stats,
+    }
+}

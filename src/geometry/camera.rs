@@ -365,6 +365,20 @@ impl Camera {
         }
     }
 
+    /// Applies lens distortion to an ideal (undistorted) pixel: the inverse of
+    /// [`Camera::undistort`]. Identity for a camera without distortion.
+    pub fn distort(&self, pixel: Point2<f64>) -> Point2<f64> {
+        match &self.distortion {
+            None => pixel,
+            Some(d) => {
+                let n = self.intrinsics_inv * Vector3::new(pixel.x, pixel.y, 1.0);
+                let (x, y) = d.apply(n.x / n.z, n.y / n.z);
+                let p = self.intrinsics * Vector3::new(x, y, 1.0);
+                Point2::new(p.x, p.y)
+            }
+        }
+    }
+
     /// Direction (rig frame, not normalised) of the ray through an *undistorted* pixel.
     pub fn ray(&self, pixel: Point2<f64>) -> Vector3<f64> {
         self.rotation.transpose() * (self.intrinsics_inv * Vector3::new(pixel.x, pixel.y, 1.0))
@@ -502,6 +516,34 @@ mod tests {
             let (xu, yu) = d.remove(xd, yd);
             assert!((xu - x).abs() < 1e-9 && (yu - y).abs() < 1e-9, "{x} {y}");
         }
+    }
+
+    #[test]
+    fn pixels_distort_and_undistort_back() {
+        let k = Matrix3::new(600.0, 0.0, 256.0, 0.0, 600.0, 250.0, 0.0, 0.0, 1.0);
+        let d = Distortion {
+            k1: -0.28,
+            k2: 0.07,
+            p1: 0.001,
+            p2: -0.0005,
+            k3: 0.0,
+        };
+        let cam = Camera::from_krt(
+            "c",
+            512,
+            512,
+            k,
+            Matrix3::identity(),
+            Vector3::zeros(),
+            Some(d),
+        )
+        .unwrap();
+        let point = Point3::new(0.3, -0.2, 2.0);
+        let observed = cam.project(&point).unwrap();
+        let ideal = cam.undistort(observed);
+        assert!((ideal - Point2::new(256.0 + 90.0, 250.0 - 60.0)).norm() < 1e-6);
+        assert!((cam.distort(ideal) - observed).norm() < 1e-9);
+        assert_eq!(sample_camera().distort(observed), observed);
     }
 
     #[test]

@@ -5,7 +5,7 @@ use std::process::Command;
 
 use serde_json::{json, Value};
 use trinocular::api::{self, pb};
-use trinocular::pipeline::match_segments;
+use trinocular::extract::decode::DecodeLimits;
 
 use crate::common::{calibration_json, request_json, segment};
 
@@ -13,10 +13,8 @@ use crate::common::{calibration_json, request_json, segment};
 fn run(request: &Value) -> Result<pb::MatchResponse, String> {
     let req: pb::MatchRequest =
         api::from_json("request", &request.to_string()).map_err(|e| e.field)?;
-    let input = api::match_request(&req).map_err(|e| e.field)?;
-    let out = match_segments(&input.rig, &input.lists, &input.params)
-        .map_err(|e| api::InputError::from(e).field)?;
-    Ok(api::match_response(&out))
+    let input = api::match_request(&req, &DecodeLimits::default()).map_err(|e| e.field)?;
+    input.run().map_err(|e| e.field)
 }
 
 fn field_of(request: &Value) -> String {

@@ -1,0 +1,230 @@
+//! Edge points: non-maximum suppression with sub-pixel localisation, then hysteresis.
+//!
+//! 1. **Non-maximum suppression** (Devernay 1995): a pixel is an edge point when its gradient
+//!    magnitude is a maximum along the axis (u or v) closest to the gradient direction, and at
+//!    least `low_gradient`. Comparing along an axis rather than along the quantised diagonal
+//!    keeps the chain one pixel thin and makes the sub-pixel step below unbiased.
+//! 2. **Sub-pixel localisation**: a parabola through the three magnitudes along that axis puts
+//!    the point at the parabola's peak (within half a pixel of the pixel centre).
+//! 3. **Hysteresis**: points at least `high_gradient` are edges, and so are points connected to
+//!    them through 8-connected edge points; isolated weak responses (noise) go.
+
+use super::gradient::Gradient;
+
+/// Marks "no edge point here" in [`EdgeMap::index`].
+pub const NO_POINT: u32 = u32::MAX;
+
+/// One edge point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgePoint {
+    /// Sub-pixel position, pixels (DESIGN §1: pixel centres at integers).
+    pub u: f32,
+    pub v: f32,
+    /// Gradient there, grey levels per pixel.
+    pub gu: f32,
+    pub gv: f32,
+    pub magnitude: f32,
+}
+
+/// Edge points and, per pixel, the index of the point found there.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EdgeMap {
+    pub width: usize,
+    pub height: usize,
+    /// In row-major order of their pixels.
+    pub points: Vec<EdgePoint>,
+    /// Per pixel (row-major): index into `points`, or [`NO_POINT`].
+    pub index: Vec<u32>,
+}
+
+impl EdgeMap {
+    /// The point at pixel `(x, y)`, if any.
+    #[inline]
+    pub fn at(&self, x: usize, y: usize) -> Option<u32> {
+        let i = self.index[y * self.width + x];
+        (i != NO_POINT).then_some(i)
+    }
+}
+
+/// Offset of the peak of the parabola through `(−1, before)`, `(0, centre)`, `(1, after)`,
+/// clamped to ±0.5; 0 when the three do not bend down.
+#[inline]
+pub fn subpixel_offset(before: f32, centre: f32, after: f32) -> f32 {
+    let curvature = before - 2.0 * centre + after;
+    if curvature < 0.0 {
+        (0.5 * (before - after) / curvature).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    }
+}
+
+/// Step 1 and 2: the local maxima of the gradient magnitude of at least `low_gradient`.
+pub fn non_maximum_suppression(gradient: &Gradient, low_gradient: f32) -> EdgeMap {
+    let (w, h) = (gradient.width, gradient.height);
+    let mut map = EdgeMap {
+        width: w,
+        height: h,
+        points: Vec::new(),
+        index: vec![NO_POINT; w * h],
+    };
+    if w < 3 || h < 3 {
+        return map;
+    }
+    let m = &gradient.magnitude;
+    // A noiseless flat image has magnitude 0 everywhere: never an edge, whatever the threshold.
+    let low = low_gradient.max(f32::MIN_POSITIVE);
+    for y in 1..h - 1 {
+        let row = y * w;
+        for x in 1..w - 1 {
+            let i = row + x;
+            let centre = m[i];
+            if centre < low {
+                continue;
+            }
+            let (gu, gv) = (gradient.gu[i], gradient.gv[i]);
+            let along_u = gu.abs() >= gv.abs();
+            let (before, after) = if along_u {
+                (m[i - 1], m[i + 1])
+            } else {
+                (m[i - w], m[i + w])
+            };
+            // Strict on one side so a plateau of two equal pixels gives one point, not none.
+            let is_max = (centre > before && centre >= after) || (centre >= before && centre > after);
+            if !is_max {
+                continue;
+            }
+            let s = subpixel_offset(before, centre, after);
+            let (u, v) = if along_u {
+                (x as f32 + s, y as f32)
+            } else {
+                (x as f32, y as f32 + s)
+            };
+            map.index[i] = map.points.len() as u32;
+            map.points.push(EdgePoint {
+                u,
+                v,
+                gu,
+                gv,
+                magnitude: centre,
+            });
+        }
+    }
+    map
+}
+
+/// Step 3: keeps the points connected (8-connectivity) to a point of at least `high_gradient`.
+pub fn hysteresis(map: &EdgeMap, high_gradient: f32) -> EdgeMap {
+    let (w, h) = (map.width, map.height);
+    let mut keep = vec![false; map.points.len()];
+    let mut stack: Vec<usize> = Vec::new();
+    for (i, p) in map.points.iter().enumerate() {
+        if p.magnitude >= high_gradient && !keep[i] {
+            keep[i] = true;
+            stack.push(i);
+            while let Some(j) = stack.pop() {
+                let q = &map.points[j];
+                let (x, y) = (q.u.round() as usize, q.v.round() as usize);
+                for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                    for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                        if let Some(k) = map.at(nx, ny) {
+                            if !keep[k as usize] {
+                                keep[k as usize] = true;
+                                stack.push(k as usize);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let mut out = EdgeMap {
+        width: w,
+        height: h,
+        points: Vec::with_capacity(map.points.len()),
+        index: vec![NO_POINT; w * h],
+    };
+    for (i, p) in map.points.iter().enumerate() {
+        if keep[i] {
+            let pixel = pixel_of(p, w);
+            out.index[pixel] = out.points.len() as u32;
+            out.points.push(*p);
+        }
+    }
+    out
+}
+
+/// Row-major pixel index of a point's pixel (its offset is under half a pixel).
+#[inline]
+pub fn pixel_of(p: &EdgePoint, width: usize) -> usize {
+    p.v.round() as usize * width + p.u.round() as usize
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::gradient::{gradient, smooth};
+    use super::super::GreyImage;
+    use super::*;
+
+    #[test]
+    fn parabola_peak() {
+        assert_eq!(subpixel_offset(1.0, 2.0, 1.0), 0.0);
+        assert!((subpixel_offset(1.0, 2.0, 1.5) - (0.5 * -0.5 / -1.5)).abs() < 1e-6);
+        assert_eq!(subpixel_offset(1.0, 1.0, 1.0), 0.0);
+        assert_eq!(subpixel_offset(0.0, 1.0, 1.0), 0.5, "a plateau peaks half-way");
+        assert_eq!(subpixel_offset(0.0, 1.0, 5.0), 0.0, "not a peak");
+    }
+
+    /// A vertical step edge at u = `edge` (sub-pixel), area-sampled, dark left, bright right.
+    fn step(width: usize, height: usize, edge: f32) -> GreyImage {
+        let px = (0..width * height)
+            .map(|i| {
+                let u = (i % width) as f32;
+                let covered = (u + 0.5 - edge).clamp(0.0, 1.0);
+                20.0 + 100.0 * covered
+            })
+            .collect();
+        GreyImage::new(width as u32, height as u32, px).unwrap()
+    }
+
+    #[test]
+    fn a_step_gives_one_thin_line_of_points_at_the_edge() {
+        for edge in [10.0f32, 10.25, 10.5, 10.8] {
+            let img = step(24, 12, edge);
+            let g = gradient(&smooth(&img, 1.0), 24, 12);
+            let map = non_maximum_suppression(&g, 2.0);
+            // Rows 1..=10 each hold exactly one point, within 0.1 px of the edge.
+            assert_eq!(map.points.len(), 10, "edge at {edge}");
+            for p in &map.points {
+                assert!((p.u - edge).abs() < 0.1, "edge {edge}: point at {}", p.u);
+                assert!(p.gu > 0.0 && p.gv.abs() < 1e-3);
+            }
+        }
+    }
+
+    #[test]
+    fn hysteresis_keeps_weak_points_connected_to_strong_ones_only() {
+        // Row 2: a strong point at x=2 with weak neighbours continuing to x=5; row 6: weak only.
+        let (w, h) = (10, 9);
+        let mut m = vec![0.0f32; w * h];
+        for (x, val) in [(2, 10.0), (3, 3.0), (4, 3.0), (5, 3.0)] {
+            m[2 * w + x] = val;
+        }
+        for x in 2..6 {
+            m[6 * w + x] = 3.0;
+        }
+        let g = Gradient {
+            width: w,
+            height: h,
+            gu: vec![0.0; w * h],
+            gv: m.clone(),
+            magnitude: m,
+        };
+        let all = non_maximum_suppression(&g, 2.0);
+        assert_eq!(all.points.len(), 8);
+        let kept = hysteresis(&all, 8.0);
+        assert_eq!(kept.points.len(), 4);
+        assert!(kept.points.iter().all(|p| p.v == 2.0));
+        assert_eq!(kept.at(3, 2), Some(1));
+        assert_eq!(kept.at(3, 6), None);
+    }
+}

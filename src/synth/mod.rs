@@ -14,7 +14,8 @@
 //! - [`visibility`]: exact visible sub-intervals of every edge in every camera, and contrast.
 //! - [`defects`]: segment lists as an extractor would report them (noise, fragments, misses,
 //!   clutter), each segment labelled with its ground-truth edge.
-//! - [`render`]: noise-free images of a scene, to look at or to feed the extractor.
+//! - [`render`]: grey images of a scene, exact or camera-like (anti-aliased, blurred, noisy),
+//!   to look at or to feed the extractor.
 //! - [`score`]: the metrics of `shared/eval/score.py`, in Rust.
 //! - [`bvh`]: a bounding-volume hierarchy that makes the many contrast probes cheap.
 //! - [`rng`]: the seeded generator that makes all of it reproducible.
@@ -33,7 +34,7 @@ pub mod visibility;
 
 pub use bvh::SceneIndex;
 pub use defects::{observe, Defects, Observation};
-pub use render::render;
+pub use render::{render, render_image, render_triplet, RenderParams};
 pub use rig::{cam_from_rig_rotation, CameraSpec, Pose, RigSpec, SynthError};
 pub use rng::Rng;
 pub use scatter::scattered_capture;

@@ -424,11 +424,6 @@ impl FlatCamera {
         )
     }
 
-    /// Grey level through a (distorted) pixel.
-    pub(crate) fn radiance<T: Tracer>(&self, tracer: &T, pixel: Point2<f64>) -> f64 {
-        tracer.radiance(&self.centre, &self.ray([pixel.x, pixel.y]))
-    }
-
     /// [`contrast_at`] on this camera.
     pub(crate) fn contrast<T: Tracer>(&self, tracer: &T, edge: &Segment3, s: f64) -> Option<f64> {
         let (a, b) = (edge.start, edge.end);

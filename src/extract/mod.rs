@@ -9,6 +9,8 @@
 //! Each stage is a plain function over plain data and can be tested alone. Pure and
 //! synchronous: one image per call (the pipeline runs the three images in parallel).
 
+pub mod decode;
 pub mod image;
 
+pub use decode::{check_size, decode, from_raw, DecodeError, DecodeLimits};
 pub use image::GreyImage;

@@ -16,6 +16,7 @@
 //! (as the matcher does) gives back exactly the fitted line.
 
 pub mod chain;
+pub mod decode;
 pub mod edges;
 pub mod gradient;
 pub mod image;
@@ -30,6 +31,7 @@ use crate::geometry::Camera;
 use crate::segment::{Segment2, SegmentList};
 
 pub use self::image::GreyImage;
+pub use decode::{check_size, decode, from_raw, DecodeError, DecodeLimits};
 
 /// Extraction parameters. Units are in the names; `Default` gives the documented defaults.
 #[derive(Debug, Clone, PartialEq)]

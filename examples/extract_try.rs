@@ -4,10 +4,25 @@ fn main() {
     let img = image::open(&path).unwrap().to_luma8();
     let g = GreyImage::from_u8(img.width(), img.height(), img.as_raw()).unwrap();
     let mut p = Params::default();
-    for a in std::env::args().skip(2) { let (k, v) = a.split_once('=').unwrap(); let v: f64 = v.parse().unwrap(); match k { "lo" => p.gradient_low = v, "hi" => p.gradient_high = v, "dev" => p.max_deviation_px = v, "sigma" => p.smoothing_sigma_px = v, "min" => p.min_segment_px = v, _ => panic!() } }
+    for a in std::env::args().skip(2) {
+        let (k, v) = a.split_once('=').unwrap();
+        let v: f64 = v.parse().unwrap();
+        match k {
+            "lo" => p.gradient_low = v,
+            "hi" => p.gradient_high = v,
+            "dev" => p.max_deviation_px = v,
+            "sigma" => p.smoothing_sigma_px = v,
+            "min" => p.min_segment_px = v,
+            _ => panic!(),
+        }
+    }
     let mut t = vec![];
     let mut last = None;
-    for _ in 0..30 { let e = extract(&g, None, &p); t.push(e.stats.clone()); last = Some(e); }
+    for _ in 0..30 {
+        let e = extract(&g, None, &p);
+        t.push(e.stats.clone());
+        last = Some(e);
+    }
     t.sort_by(|a, b| a.total_ms.total_cmp(&b.total_ms));
     let e = last.unwrap();
     let s = &t[15];

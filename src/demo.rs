@@ -13,8 +13,7 @@ use crate::overlay;
 use crate::pipeline::match_images;
 use crate::segment::Segment3;
 use crate::synth::{
-    eligible_intervals, render_triplet, rig_centre, score, standard_capture, Defects,
-    RenderParams,
+    eligible_intervals, render_triplet, rig_centre, score, standard_capture, Defects, RenderParams,
 };
 
 /// Top view scale, pixels per metre: a 6 m room in about 700 pixels.

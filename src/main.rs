@@ -167,7 +167,10 @@ fn draw_overlay(input: &MatchInput, executed: &Executed, path: &Path) -> Result<
         lists,
         [&labels[0], &labels[1], &labels[2]],
     );
-    write(path, &picture.to_png().context("cannot encode the overlay")?)?;
+    write(
+        path,
+        &picture.to_png().context("cannot encode the overlay")?,
+    )?;
     Ok(())
 }
 

@@ -187,7 +187,12 @@ pub fn top_view(
         )
     };
     for s in reference {
-        pic.line(to_px(s.start.x, s.start.y), to_px(s.end.x, s.end.y), REFERENCE, 1);
+        pic.line(
+            to_px(s.start.x, s.start.y),
+            to_px(s.end.x, s.end.y),
+            REFERENCE,
+            1,
+        );
     }
     for (i, s) in segments.iter().enumerate() {
         pic.line(
@@ -240,7 +245,10 @@ mod tests {
         let pic = top_view(&[s], &[], &[nalgebra::Point3::new(1.0, 0.0, 1.0)], 50.0);
         assert_eq!((pic.width, pic.height), (90, 140));
         let red_at = |x: u32, y: u32| pic.rgb[3 * (y * pic.width + x) as usize] > 100;
-        assert!(red_at(20, 30) && red_at(20, 110), "segment along the left edge");
+        assert!(
+            red_at(20, 30) && red_at(20, 110),
+            "segment along the left edge"
+        );
         assert!(red_at(70, 120), "camera dot bottom right");
     }
 }

@@ -285,12 +285,7 @@ pub fn match_request(
         Some(pb::match_request::Input::Images(triplet)) => {
             MatchSource::Images(images(triplet, limits)?)
         }
-        None => {
-            return Err(InputError::new(
-                "input",
-                "missing: give segments or images",
-            ))
-        }
+        None => return Err(InputError::new("input", "missing: give segments or images")),
     };
     Ok(MatchInput {
         rig,

@@ -115,8 +115,8 @@ pub fn link(map: &EdgeMap) -> Chains {
         chains.push(Chain { points, closed });
     };
     // Open chains start at points without a predecessor; what is left are loops.
-    for p in 0..n {
-        if previous[p] == NONE {
+    for (p, &before) in previous.iter().enumerate() {
+        if before == NONE {
             walk(p, &mut chains, &mut chain_of);
         }
     }

@@ -89,7 +89,8 @@ pub fn non_maximum_suppression(gradient: &Gradient, low_gradient: f32) -> EdgeMa
                 (m[i - w], m[i + w])
             };
             // Strict on one side so a plateau of two equal pixels gives one point, not none.
-            let is_max = (centre > before && centre >= after) || (centre >= before && centre > after);
+            let is_max =
+                (centre > before && centre >= after) || (centre >= before && centre > after);
             if !is_max {
                 continue;
             }
@@ -170,7 +171,11 @@ mod tests {
         assert_eq!(subpixel_offset(1.0, 2.0, 1.0), 0.0);
         assert!((subpixel_offset(1.0, 2.0, 1.5) - (0.5 * -0.5 / -1.5)).abs() < 1e-6);
         assert_eq!(subpixel_offset(1.0, 1.0, 1.0), 0.0);
-        assert_eq!(subpixel_offset(0.0, 1.0, 1.0), 0.5, "a plateau peaks half-way");
+        assert_eq!(
+            subpixel_offset(0.0, 1.0, 1.0),
+            0.5,
+            "a plateau peaks half-way"
+        );
         assert_eq!(subpixel_offset(0.0, 1.0, 5.0), 0.0, "not a peak");
     }
 

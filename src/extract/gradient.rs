@@ -25,7 +25,7 @@ pub struct Gradient {
 
 /// Normalised Gaussian weights for `sigma_px`, of odd length; `[1.0]` when `sigma_px` ≤ 0.
 pub fn gaussian_kernel(sigma_px: f64) -> Vec<f32> {
-    if !(sigma_px > 0.0) {
+    if sigma_px.is_nan() || sigma_px <= 0.0 {
         return vec![1.0];
     }
     let radius = (KERNEL_SIGMAS * sigma_px).ceil() as i64;

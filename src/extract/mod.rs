@@ -18,6 +18,7 @@
 pub mod chain;
 pub mod decode;
 pub mod edges;
+pub mod ends;
 pub mod gradient;
 pub mod image;
 pub mod polygon;
@@ -235,10 +236,37 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
             })
             .collect();
         let mut mine = Vec::new();
-        for piece in polygon::approximate(&points, c.closed, params.max_deviation_px, trim) {
-            if (piece.end - piece.start).norm() < params.min_segment_px.max(1e-9) {
+        let pieces = polygon::approximate(&points, c.closed, params.max_deviation_px, trim);
+        // An end is free unless it is a vertex shared with a neighbouring piece kept.
+        let long =
+            |k: usize| (pieces[k].end - pieces[k].start).norm() >= params.min_segment_px.max(1e-9);
+        let count = pieces.len();
+        for (k, piece) in pieces.iter().enumerate() {
+            if !long(k) {
                 continue;
             }
+            let shares_start = if c.closed {
+                long((k + count - 1) % count)
+            } else {
+                k > 0 && long(k - 1)
+            };
+            let shares_end = if c.closed {
+                long((k + 1) % count)
+            } else {
+                k + 1 < count && long(k + 1)
+            };
+            let (start, end) = ends::refine_ends(
+                &grad,
+                distort,
+                piece.start,
+                piece.end,
+                (!shares_start, !shares_end),
+            );
+            let piece = polygon::Piece {
+                start,
+                end,
+                ..*piece
+            };
             let last = if piece.last < piece.first {
                 ids.len() - 1
             } else {
@@ -289,16 +317,13 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
             continue;
         };
         let at = j.other_position as usize;
-        let Some(&(_, _, b)) = kept[j.other as usize]
-            .iter()
-            .find(|&&(first, last, _)| {
-                if first <= last {
-                    (first..=last).contains(&at)
-                } else {
-                    at >= first || at <= last // a loop's piece across its start
-                }
-            })
-        else {
+        let Some(&(_, _, b)) = kept[j.other as usize].iter().find(|&&(first, last, _)| {
+            if first <= last {
+                (first..=last).contains(&at)
+            } else {
+                at >= first || at <= last // a loop's piece across its start
+            }
+        }) else {
             continue;
         };
         let other = &chains.chains[j.other as usize];

@@ -177,7 +177,11 @@ pub fn approximate(
     for w in breaks.windows(2) {
         let (first, last) = (w[0], w[1]);
         let all = &run[first..=last];
-        let lo = if interior_break(first) { corner_trim } else { 0 };
+        let lo = if interior_break(first) {
+            corner_trim
+        } else {
+            0
+        };
         let hi = if interior_break(last) { corner_trim } else { 0 };
         let core = if all.len() >= lo + hi + 3 {
             &all[lo..all.len() - hi]
@@ -198,11 +202,20 @@ pub fn approximate(
     }
     // Corners: neighbours in the chain share the intersection of their lines.
     let count = pieces.len();
-    let pairs = if closed && count > 2 { count } else { count.saturating_sub(1) };
+    let pairs = if closed && count > 2 {
+        count
+    } else {
+        count.saturating_sub(1)
+    };
     for i in 0..pairs {
         let j = (i + 1) % count;
         let (a, b) = (pieces[i], pieces[j]);
-        let angle = a.line.direction.dot(&b.line.direction).clamp(-1.0, 1.0).acos();
+        let angle = a
+            .line
+            .direction
+            .dot(&b.line.direction)
+            .clamp(-1.0, 1.0)
+            .acos();
         if angle < MIN_CORNER_ANGLE_RAD {
             continue;
         }
@@ -253,7 +266,11 @@ mod tests {
         assert_eq!(pieces.len(), 2, "{pieces:?}");
         assert!((pieces[0].start - p(0.0, 0.0)).norm() < 0.2);
         assert_eq!(pieces[0].end, pieces[1].start, "shared vertex");
-        assert!((pieces[0].end - p(20.0, 0.0)).norm() < 0.2, "{:?}", pieces[0].end);
+        assert!(
+            (pieces[0].end - p(20.0, 0.0)).norm() < 0.2,
+            "{:?}",
+            pieces[0].end
+        );
         assert!((pieces[1].end - p(20.0, 15.0)).norm() < 0.2);
     }
 
@@ -286,7 +303,11 @@ mod tests {
             .into_iter()
             .enumerate()
         {
-            assert!((pieces[k].end - corner).norm() < 1e-6, "{k}: {:?}", pieces[k]);
+            assert!(
+                (pieces[k].end - corner).norm() < 1e-6,
+                "{k}: {:?}",
+                pieces[k]
+            );
             assert_eq!(pieces[k].end, pieces[(k + 1) % 4].start);
         }
     }

@@ -361,6 +361,41 @@ pub fn match_labels(
         .collect()
 }
 
+/// How many of the ground-truth image segments of camera `camera` an extractor found: the
+/// segments of the observation's (clean) list for that camera at least `min_length_px` long,
+/// of edges whose contrast there is at least `min_contrast` grey levels, for which some
+/// extracted segment has both endpoints within `tolerance_px` of theirs, in the same order
+/// (so the same contrast orientation). Returns `(found, total)`.
+pub fn edge_recall(
+    extracted: &crate::segment::SegmentList,
+    obs: &Observation,
+    camera: usize,
+    min_length_px: f64,
+    min_contrast: f64,
+    tolerance_px: f64,
+) -> (usize, usize) {
+    let mut found = 0;
+    let mut total = 0;
+    for (g, label) in obs.lists[camera].segments.iter().zip(&obs.truth[camera]) {
+        let Some(edge) = *label else { continue };
+        let contrast = obs
+            .visibility
+            .get(edge)
+            .and_then(|v| v.contrast[camera])
+            .unwrap_or(0.0);
+        if g.length() < min_length_px || contrast < min_contrast {
+            continue;
+        }
+        total += 1;
+        if extracted.segments.iter().any(|e| {
+            (e.start - g.start).norm() <= tolerance_px && (e.end - g.end).norm() <= tolerance_px
+        }) {
+            found += 1;
+        }
+    }
+    (found, total)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -439,39 +474,4 @@ mod tests {
         assert!((percentile(&v, 90.0).unwrap() - 3.7).abs() < 1e-12);
         assert_eq!(percentile(&[], 50.0), None);
     }
-}
-
-/// How many of the ground-truth image segments of camera `camera` an extractor found: the
-/// segments of the observation's (clean) list for that camera at least `min_length_px` long,
-/// of edges whose contrast there is at least `min_contrast` grey levels, for which some
-/// extracted segment has both endpoints within `tolerance_px` of theirs, in the same order
-/// (so the same contrast orientation). Returns `(found, total)`.
-pub fn edge_recall(
-    extracted: &crate::segment::SegmentList,
-    obs: &Observation,
-    camera: usize,
-    min_length_px: f64,
-    min_contrast: f64,
-    tolerance_px: f64,
-) -> (usize, usize) {
-    let mut found = 0;
-    let mut total = 0;
-    for (g, label) in obs.lists[camera].segments.iter().zip(&obs.truth[camera]) {
-        let Some(edge) = *label else { continue };
-        let contrast = obs
-            .visibility
-            .get(edge)
-            .and_then(|v| v.contrast[camera])
-            .unwrap_or(0.0);
-        if g.length() < min_length_px || contrast < min_contrast {
-            continue;
-        }
-        total += 1;
-        if extracted.segments.iter().any(|e| {
-            (e.start - g.start).norm() <= tolerance_px && (e.end - g.end).norm() <= tolerance_px
-        }) {
-            found += 1;
-        }
-    }
-    (found, total)
 }

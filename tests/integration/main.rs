@@ -4,3 +4,4 @@
 mod accuracy;
 mod bad_input;
 mod common;
+mod images;

@@ -1,0 +1,197 @@
+//! Where a segment really ends.
+//!
+//! A chain stops short of the end of its edge: near a corner or a junction the smoothed
+//! gradient bends towards the other edge and non-maximum suppression gives up a pixel or two
+//! early. But along a straight step edge that stops, the Gaussian-smoothed gradient across it
+//! falls to exactly half its plateau value at the end, whatever σ (half the kernel still sees
+//! the edge). So each free end slides along the segment's line to where the gradient
+//! component across the line crosses half of its median along the segment. Taking the
+//! component across the line ignores the gradient of a perpendicular edge meeting there.
+
+use nalgebra::{Point2, Vector2};
+
+use super::gradient::Gradient;
+
+/// How far an end may move, pixels: a chain can stop up to ~5 px short of a sharp corner whose
+/// pixels the other side's chain took.
+pub const MAX_SLIDE_PX: f64 = 6.0;
+/// Sampling step along the line, pixels.
+const STEP_PX: f64 = 0.25;
+/// A free end this close to the image frame (along the segment) is moved onto it, pixels:
+/// the gradient is zero on the one-pixel border, so chains stop 1.5 px short of the frame.
+const FRAME_SNAP_PX: f64 = 2.5;
+/// Samples closer than this to an end do not count towards the plateau, pixels.
+const PLATEAU_MARGIN_PX: f64 = 3.0;
+
+/// Gradient at a sub-pixel position (bilinear), `None` outside the image's interior.
+fn sample(g: &Gradient, p: Point2<f64>) -> Option<Vector2<f64>> {
+    let (x, y) = (p.x.floor(), p.y.floor());
+    if !(x >= 1.0 && y >= 1.0 && x + 2.0 < g.width as f64 && y + 2.0 < g.height as f64) {
+        return None;
+    }
+    let (fx, fy) = (p.x - x, p.y - y);
+    let i = y as usize * g.width + x as usize;
+    let w = g.width;
+    let lerp = |a: &[f32]| {
+        let top = f64::from(a[i]) * (1.0 - fx) + f64::from(a[i + 1]) * fx;
+        let bottom = f64::from(a[i + w]) * (1.0 - fx) + f64::from(a[i + w + 1]) * fx;
+        top * (1.0 - fy) + bottom * fy
+    };
+    Some(Vector2::new(lerp(&g.gu), lerp(&g.gv)))
+}
+
+/// The gradient across the segment `start`→`end` at position `t` (pixels from `start`),
+/// positive when it agrees with the segment's contrast orientation (DESIGN §1: gradient along
+/// `(dv, −du)`). `to_image` maps the segment's (undistorted) frame to image pixels.
+fn across(
+    g: &Gradient,
+    to_image: &impl Fn(Point2<f64>) -> Point2<f64>,
+    start: Point2<f64>,
+    dir: Vector2<f64>,
+    t: f64,
+) -> Option<f64> {
+    let normal = Vector2::new(dir.y, -dir.x);
+    sample(g, to_image(start + dir * t)).map(|v| v.dot(&normal))
+}
+
+/// Moves the free ends of the oriented segment `start`→`end` (flags say which ends are free)
+/// to where the gradient across it falls to half its median; returns the new ends. An end
+/// stays put when the profile does not cross half within [`MAX_SLIDE_PX`] or leaves the image.
+/// The segment lives in undistorted pixels; `to_image` maps them to the gradient's pixels
+/// (identity without lens distortion), so the ends stay on the segment's line.
+pub fn refine_ends(
+    g: &Gradient,
+    to_image: impl Fn(Point2<f64>) -> Point2<f64>,
+    start: Point2<f64>,
+    end: Point2<f64>,
+    free: (bool, bool),
+) -> (Point2<f64>, Point2<f64>) {
+    let len = (end - start).norm();
+    if len < 1e-9 || !(free.0 || free.1) {
+        return (start, end);
+    }
+    let dir = (end - start) / len;
+    // Plateau: the median over the interior of the segment.
+    let mut values: Vec<f64> = Vec::new();
+    let mut t = PLATEAU_MARGIN_PX.min(len / 2.0);
+    while t <= len - PLATEAU_MARGIN_PX.min(len / 2.0) {
+        if let Some(v) = across(g, &to_image, start, dir, t) {
+            values.push(v);
+        }
+        t += 1.0;
+    }
+    if values.is_empty() {
+        return (start, end);
+    }
+    values.sort_by(f64::total_cmp);
+    let half = 0.5 * values[values.len() / 2];
+    if half.is_nan() || half <= 0.0 {
+        return (start, end);
+    }
+    // Position (from `start`, along `dir`) where the profile crosses `half` near `t0`, moving
+    // outwards with `outward` = +1 (beyond the end) or −1 (beyond the start).
+    let crossing = |t0: f64, outward: f64| -> Option<f64> {
+        let value = |t: f64| across(g, &to_image, start, dir, t);
+        let at = value(t0)?;
+        // Above half: walk outwards until below; below: walk inwards until above.
+        let step = if at >= half { outward } else { -outward } * STEP_PX;
+        let (mut t_prev, mut v_prev) = (t0, at);
+        let mut moved = 0.0;
+        while moved < MAX_SLIDE_PX {
+            let t_next = t_prev + step;
+            let v_next = value(t_next)?;
+            if (v_prev >= half) != (v_next >= half) {
+                let f = (v_prev - half) / (v_prev - v_next);
+                return Some(t_prev + (t_next - t_prev) * f);
+            }
+            (t_prev, v_prev) = (t_next, v_next);
+            moved += STEP_PX;
+        }
+        None
+    };
+    let mut t_start = if free.0 { crossing(0.0, -1.0) } else { None }.unwrap_or(0.0);
+    let mut t_end = if free.1 { crossing(len, 1.0) } else { None }.unwrap_or(len);
+    // An edge that runs out of the image ends at the frame, not where the gradient (zero on
+    // the one-pixel border) stops showing it.
+    let frame = |t: f64, outward: f64| -> f64 {
+        let p = to_image(start + dir * t);
+        let d = to_image(start + dir * (t + outward)) - p;
+        let (w, h) = (g.width as f64 - 0.5, g.height as f64 - 0.5);
+        let mut best = t;
+        for (coord, delta, lo, hi) in [(p.x, d.x, -0.5, w), (p.y, d.y, -0.5, h)] {
+            let to_border = if delta < -0.3 {
+                (coord - lo) / -delta
+            } else if delta > 0.3 {
+                (hi - coord) / delta
+            } else {
+                continue;
+            };
+            if (0.0..=FRAME_SNAP_PX).contains(&to_border) {
+                best = t + outward * to_border;
+            }
+        }
+        best
+    };
+    if free.0 {
+        t_start = frame(t_start, -1.0);
+    }
+    if free.1 {
+        t_end = frame(t_end, 1.0);
+    }
+    if t_end - t_start < 1.0 {
+        return (start, end);
+    }
+    (start + dir * t_start, start + dir * t_end)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::gradient::{gradient, smooth};
+    use super::super::GreyImage;
+    use super::*;
+
+    /// A bright rectangle [10.3, 30.6] x [8.5, 40.2] (area-sampled) on a dark background.
+    fn rectangle() -> GreyImage {
+        let (w, h) = (48usize, 52usize);
+        let cover = |lo: f64, hi: f64, c: f64| ((c + 0.5).min(hi) - (c - 0.5).max(lo)).max(0.0);
+        let px = (0..w * h)
+            .map(|i| {
+                let (u, v) = ((i % w) as f64, (i / w) as f64);
+                (30.0 + 150.0 * cover(10.3, 30.6, u) * cover(8.5, 40.2, v)) as f32
+            })
+            .collect();
+        GreyImage::new(w as u32, h as u32, px).unwrap()
+    }
+
+    #[test]
+    fn ends_slide_to_the_corners() {
+        let img = rectangle();
+        let g = gradient(&smooth(&img, 1.0), 48, 52);
+        // The left side: bright on the right of the image, so on the left of a walker going
+        // down the screen.
+        let id = |p: Point2<f64>| p;
+        let (start, end) = (Point2::new(10.3, 11.0), Point2::new(10.3, 38.0));
+        let (s, e) = refine_ends(&g, id, start, end, (true, true));
+        assert!((s.y - 8.5).abs() < 0.25, "start {s:?}");
+        assert!((e.y - 40.2).abs() < 0.25, "end {e:?}");
+        // Overshooting ends come back.
+        let (s, e) = refine_ends(
+            &g,
+            id,
+            Point2::new(10.3, 7.0),
+            Point2::new(10.3, 42.0),
+            (true, true),
+        );
+        assert!(
+            (s.y - 8.5).abs() < 0.25 && (e.y - 40.2).abs() < 0.25,
+            "{s:?} {e:?}"
+        );
+        // Ends that are not free stay, and a segment walked against its contrast has no
+        // plateau to measure.
+        assert_eq!(
+            refine_ends(&g, id, start, end, (false, false)),
+            (start, end)
+        );
+        assert_eq!(refine_ends(&g, id, end, start, (true, true)), (end, start));
+    }
+}

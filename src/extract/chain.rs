@@ -41,18 +41,19 @@ pub struct Chains {
     pub junctions: Vec<Junction>,
 }
 
-/// Best neighbour of point `p` ahead (`forward`) or behind along its edge direction.
-fn best_neighbour(map: &EdgeMap, p: usize, forward: bool) -> u32 {
+/// Best neighbours of point `p` ahead of it and behind it along its edge direction.
+#[inline]
+fn best_neighbours(map: &EdgeMap, p: usize) -> (u32, u32) {
     let a = &map.points[p];
     // Edge direction: the gradient turned so that the bright side is on the left (v down).
     let (tu, tv) = (-a.gv, a.gu);
-    let (x, y) = (a.u.round() as usize, a.v.round() as usize);
-    let mut best = NONE;
-    let mut best_d2 = f32::INFINITY;
+    let (x, y) = (a.x as usize, a.y as usize);
+    let (mut ahead, mut behind) = ((NONE, f32::INFINITY), (NONE, f32::INFINITY));
+    let (x0, x1) = (x.saturating_sub(1), (x + 1).min(map.width - 1));
     for ny in y.saturating_sub(1)..=(y + 1).min(map.height - 1) {
-        for nx in x.saturating_sub(1)..=(x + 1).min(map.width - 1) {
-            let Some(q) = map.at(nx, ny) else { continue };
-            if q as usize == p {
+        let row = &map.index[ny * map.width + x0..=ny * map.width + x1];
+        for &q in row {
+            if q == NONE || q as usize == p {
                 continue;
             }
             let b = &map.points[q as usize];
@@ -60,26 +61,23 @@ fn best_neighbour(map: &EdgeMap, p: usize, forward: bool) -> u32 {
                 continue;
             }
             let (du, dv) = (b.u - a.u, b.v - a.v);
-            let ahead = du * tu + dv * tv;
-            if (forward && ahead <= 0.0) || (!forward && ahead >= 0.0) {
-                continue;
-            }
+            let along = du * tu + dv * tv;
             let d2 = du * du + dv * dv;
-            if d2 < best_d2 {
-                best_d2 = d2;
-                best = q;
+            if along > 0.0 && d2 < ahead.1 {
+                ahead = (q, d2);
+            } else if along < 0.0 && d2 < behind.1 {
+                behind = (q, d2);
             }
         }
     }
-    best
+    (ahead.0, behind.0)
 }
 
 /// Links the points of `map` into chains (see the module doc). Chains come in the order of
 /// their first point's pixel (row-major), so the result is deterministic.
 pub fn link(map: &EdgeMap) -> Chains {
     let n = map.points.len();
-    let forward: Vec<u32> = (0..n).map(|p| best_neighbour(map, p, true)).collect();
-    let backward: Vec<u32> = (0..n).map(|p| best_neighbour(map, p, false)).collect();
+    let (forward, backward): (Vec<u32>, Vec<u32>) = (0..n).map(|p| best_neighbours(map, p)).unzip();
     let mut next = vec![NONE; n];
     let mut previous = vec![NONE; n];
     for p in 0..n {
@@ -170,6 +168,8 @@ mod tests {
         };
         for &(u, v, gu, gv) in points {
             let p = EdgePoint {
+                x: u.round() as u32,
+                y: v.round() as u32,
                 u,
                 v,
                 gu,

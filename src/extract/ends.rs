@@ -10,41 +10,53 @@
 
 use nalgebra::{Point2, Vector2};
 
-use super::gradient::Gradient;
+use super::gradient::gradient_at;
 
 /// How far an end may move, pixels: a chain can stop up to ~5 px short of a sharp corner whose
 /// pixels the other side's chain took.
 pub const MAX_SLIDE_PX: f64 = 6.0;
 /// Sampling step along the line, pixels.
 const STEP_PX: f64 = 0.25;
+/// Samples of the plateau, at most: a median of 16 is steady, and long segments would
+/// otherwise cost a sample per pixel.
+const PLATEAU_SAMPLES: usize = 16;
 /// A free end this close to the image frame (along the segment) is moved onto it, pixels:
 /// the gradient is zero on the one-pixel border, so chains stop 1.5 px short of the frame.
 const FRAME_SNAP_PX: f64 = 2.5;
 /// Samples closer than this to an end do not count towards the plateau, pixels.
 const PLATEAU_MARGIN_PX: f64 = 3.0;
 
+/// The smoothed image the gradient is computed from, on demand: a few hundred samples per
+/// image do not justify keeping image-sized gradient arrays.
+#[derive(Debug, Clone, Copy)]
+pub struct Smoothed<'a> {
+    pub pixels: &'a [f32],
+    pub width: usize,
+    pub height: usize,
+}
+
 /// Gradient at a sub-pixel position (bilinear), `None` outside the image's interior.
-fn sample(g: &Gradient, p: Point2<f64>) -> Option<Vector2<f64>> {
+fn sample(g: &Smoothed, p: Point2<f64>) -> Option<Vector2<f64>> {
     let (x, y) = (p.x.floor(), p.y.floor());
     if !(x >= 1.0 && y >= 1.0 && x + 2.0 < g.width as f64 && y + 2.0 < g.height as f64) {
         return None;
     }
     let (fx, fy) = (p.x - x, p.y - y);
-    let i = y as usize * g.width + x as usize;
-    let w = g.width;
-    let lerp = |a: &[f32]| {
-        let top = f64::from(a[i]) * (1.0 - fx) + f64::from(a[i + 1]) * fx;
-        let bottom = f64::from(a[i + w]) * (1.0 - fx) + f64::from(a[i + w + 1]) * fx;
-        top * (1.0 - fy) + bottom * fy
+    let (x, y) = (x as usize, y as usize);
+    let at = |dx: usize, dy: usize| {
+        let (u, v) = gradient_at(g.pixels, g.width, g.height, x + dx, y + dy);
+        Vector2::new(f64::from(u), f64::from(v))
     };
-    Some(Vector2::new(lerp(&g.gu), lerp(&g.gv)))
+    let top = at(0, 0) * (1.0 - fx) + at(1, 0) * fx;
+    let bottom = at(0, 1) * (1.0 - fx) + at(1, 1) * fx;
+    Some(top * (1.0 - fy) + bottom * fy)
 }
 
 /// The gradient across the segment `start`→`end` at position `t` (pixels from `start`),
 /// positive when it agrees with the segment's contrast orientation (DESIGN §1: gradient along
 /// `(dv, −du)`). `to_image` maps the segment's (undistorted) frame to image pixels.
 fn across(
-    g: &Gradient,
+    g: &Smoothed,
     to_image: &impl Fn(Point2<f64>) -> Point2<f64>,
     start: Point2<f64>,
     dir: Vector2<f64>,
@@ -60,7 +72,7 @@ fn across(
 /// The segment lives in undistorted pixels; `to_image` maps them to the gradient's pixels
 /// (identity without lens distortion), so the ends stay on the segment's line.
 pub fn refine_ends(
-    g: &Gradient,
+    g: &Smoothed,
     to_image: impl Fn(Point2<f64>) -> Point2<f64>,
     start: Point2<f64>,
     end: Point2<f64>,
@@ -72,14 +84,12 @@ pub fn refine_ends(
     }
     let dir = (end - start) / len;
     // Plateau: the median over the interior of the segment.
-    let mut values: Vec<f64> = Vec::new();
-    let mut t = PLATEAU_MARGIN_PX.min(len / 2.0);
-    while t <= len - PLATEAU_MARGIN_PX.min(len / 2.0) {
-        if let Some(v) = across(g, &to_image, start, dir, t) {
-            values.push(v);
-        }
-        t += 1.0;
-    }
+    let margin = PLATEAU_MARGIN_PX.min(len / 2.0);
+    let samples = ((len - 2.0 * margin).floor() as usize + 1).min(PLATEAU_SAMPLES);
+    let spacing = (len - 2.0 * margin) / (samples.max(2) - 1) as f64;
+    let mut values: Vec<f64> = (0..samples)
+        .filter_map(|k| across(g, &to_image, start, dir, margin + spacing * k as f64))
+        .collect();
     if values.is_empty() {
         return (start, end);
     }
@@ -146,7 +156,7 @@ pub fn refine_ends(
 
 #[cfg(test)]
 mod tests {
-    use super::super::gradient::{gradient, smooth};
+    use super::super::gradient::smooth;
     use super::super::GreyImage;
     use super::*;
 
@@ -166,7 +176,12 @@ mod tests {
     #[test]
     fn ends_slide_to_the_corners() {
         let img = rectangle();
-        let g = gradient(&smooth(&img, 1.0), 48, 52);
+        let pixels = smooth(&img, 1.0);
+        let g = Smoothed {
+            pixels: &pixels,
+            width: 48,
+            height: 52,
+        };
         // The left side: bright on the right of the image, so on the left of a walker going
         // down the screen.
         let id = |p: Point2<f64>| p;

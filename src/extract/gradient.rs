@@ -75,6 +75,38 @@ pub fn smooth(image: &GreyImage, sigma_px: f64) -> Vec<f32> {
     out
 }
 
+/// The Sobel gradient of row `y` (1 ≤ y < height − 1) of a `width`-wide image into `gu`, `gv`,
+/// `magnitude` (each `width` long; the first and last entries are zero).
+#[inline]
+pub fn gradient_row(
+    smoothed: &[f32],
+    width: usize,
+    y: usize,
+    gu: &mut [f32],
+    gv: &mut [f32],
+    magnitude: &mut [f32],
+) {
+    let above = &smoothed[(y - 1) * width..y * width];
+    let row = &smoothed[y * width..(y + 1) * width];
+    let below = &smoothed[(y + 1) * width..(y + 2) * width];
+    for x in 1..width - 1 {
+        let u = (above[x + 1] - above[x - 1])
+            + 2.0 * (row[x + 1] - row[x - 1])
+            + (below[x + 1] - below[x - 1]);
+        let v = (below[x - 1] - above[x - 1])
+            + 2.0 * (below[x] - above[x])
+            + (below[x + 1] - above[x + 1]);
+        let (u, v) = (u * 0.125, v * 0.125);
+        gu[x] = u;
+        gv[x] = v;
+        magnitude[x] = (u * u + v * v).sqrt();
+    }
+    for out in [gu, gv, magnitude] {
+        out[0] = 0.0;
+        out[width - 1] = 0.0;
+    }
+}
+
 /// Sobel gradient of a `width` x `height` image, divided by 8 so a ramp of slope 1 grey level
 /// per pixel gives magnitude 1.
 pub fn gradient(smoothed: &[f32], width: usize, height: usize) -> Gradient {
@@ -90,24 +122,34 @@ pub fn gradient(smoothed: &[f32], width: usize, height: usize) -> Gradient {
         return g;
     }
     for y in 1..height - 1 {
-        let above = &smoothed[(y - 1) * width..y * width];
-        let row = &smoothed[y * width..(y + 1) * width];
-        let below = &smoothed[(y + 1) * width..(y + 2) * width];
-        let out = y * width;
-        for x in 1..width - 1 {
-            let gu = (above[x + 1] - above[x - 1])
-                + 2.0 * (row[x + 1] - row[x - 1])
-                + (below[x + 1] - below[x - 1]);
-            let gv = (below[x - 1] - above[x - 1])
-                + 2.0 * (below[x] - above[x])
-                + (below[x + 1] - above[x + 1]);
-            let (gu, gv) = (gu * 0.125, gv * 0.125);
-            g.gu[out + x] = gu;
-            g.gv[out + x] = gv;
-            g.magnitude[out + x] = (gu * gu + gv * gv).sqrt();
-        }
+        let r = y * width..(y + 1) * width;
+        gradient_row(
+            smoothed,
+            width,
+            y,
+            &mut g.gu[r.clone()],
+            &mut g.gv[r.clone()],
+            &mut g.magnitude[r],
+        );
     }
     g
+}
+
+/// The gradient at pixel `(x, y)` alone (zero on the one-pixel frame and outside).
+pub fn gradient_at(
+    smoothed: &[f32],
+    width: usize,
+    height: usize,
+    x: usize,
+    y: usize,
+) -> (f32, f32) {
+    if x == 0 || y == 0 || x + 1 >= width || y + 1 >= height {
+        return (0.0, 0.0);
+    }
+    let s = |dx: usize, dy: usize| smoothed[(y + dy - 1) * width + x + dx - 1];
+    let u = (s(2, 0) - s(0, 0)) + 2.0 * (s(2, 1) - s(0, 1)) + (s(2, 2) - s(0, 2));
+    let v = (s(0, 2) - s(0, 0)) + 2.0 * (s(1, 2) - s(1, 0)) + (s(2, 2) - s(2, 0));
+    (u * 0.125, v * 0.125)
 }
 
 #[cfg(test)]
@@ -143,5 +185,7 @@ mod tests {
         assert!((g.gu[i] - 3.0).abs() < 1e-6 && g.gv[i].abs() < 1e-6);
         assert!((g.magnitude[i] - 3.0).abs() < 1e-6);
         assert_eq!(g.magnitude[0], 0.0, "frame stays zero");
+        assert_eq!(gradient_at(&ramp, w, h, 4, 3), (g.gu[i], g.gv[i]));
+        assert_eq!(gradient_at(&ramp, w, h, 0, 3), (0.0, 0.0));
     }
 }

@@ -139,7 +139,9 @@ pub struct ExtractStats {
     pub edge_points: u32,
     pub chains: u32,
     pub junctions: u32,
-    pub gradient_ms: f64,
+    /// Gaussian smoothing.
+    pub smooth_ms: f64,
+    /// Gradient, non-maximum suppression, hysteresis.
     pub edges_ms: f64,
     pub chain_ms: f64,
     pub polygon_ms: f64,
@@ -176,12 +178,11 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
 
     let t = Instant::now();
     let smoothed = gradient::smooth(image, params.smoothing_sigma_px);
-    let grad = gradient::gradient(&smoothed, w, h);
-    stats.gradient_ms = ms(t);
+    stats.smooth_ms = ms(t);
 
     let t = Instant::now();
-    let candidates = edges::non_maximum_suppression(&grad, params.gradient_low as f32);
-    let map = edges::hysteresis(&candidates, params.gradient_high as f32);
+    let candidates = edges::edge_points(&smoothed, w, h, params.gradient_low as f32);
+    let map = edges::hysteresis(candidates, params.gradient_high as f32);
     stats.edges_ms = ms(t);
     stats.edge_points = map.points.len() as u32;
 
@@ -256,7 +257,11 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
                 k + 1 < count && long(k + 1)
             };
             let (start, end) = ends::refine_ends(
-                &grad,
+                &ends::Smoothed {
+                    pixels: &smoothed,
+                    width: w,
+                    height: h,
+                },
                 distort,
                 piece.start,
                 piece.end,

@@ -121,24 +121,48 @@ pub fn split(points: &[Point2<f64>], max_deviation_px: f64) -> Vec<usize> {
 }
 
 /// Step 2: joins neighbouring pieces (between consecutive `breaks`) while one line fits
-/// their union within `max_deviation_px`, best fit first.
+/// their union within `max_deviation_px`, best fit first. Each merge changes only the costs
+/// of the two pairs around it, so only those are refitted.
 pub fn merge(points: &[Point2<f64>], breaks: &[usize], max_deviation_px: f64) -> Vec<usize> {
     let mut breaks = breaks.to_vec();
-    loop {
-        let mut best: Option<(usize, f64)> = None;
-        for m in 1..breaks.len().saturating_sub(1) {
-            let run = &points[breaks[m - 1]..=breaks[m + 1]];
-            let Some(line) = fit_line(run) else { continue };
-            let dev = max_deviation(run, &line);
-            if dev <= max_deviation_px && best.is_none_or(|(_, d)| dev < d) {
-                best = Some((m, dev));
+    // cost[m]: max deviation of the line through pieces m-1 and m joined at break m (interior
+    // breaks only); infinite when no line fits within the bound.
+    let cost_at = |breaks: &[usize], m: usize| -> f64 {
+        let run = &points[breaks[m - 1]..=breaks[m + 1]];
+        match fit_line(run) {
+            Some(line) => {
+                let dev = max_deviation(run, &line);
+                if dev <= max_deviation_px {
+                    dev
+                } else {
+                    f64::INFINITY
+                }
             }
+            None => f64::INFINITY,
         }
-        match best {
-            Some((m, _)) => {
-                breaks.remove(m);
+    };
+    let mut cost: Vec<f64> = (0..breaks.len())
+        .map(|m| {
+            if m == 0 || m + 1 >= breaks.len() {
+                f64::INFINITY
+            } else {
+                cost_at(&breaks, m)
             }
-            None => return breaks,
+        })
+        .collect();
+    loop {
+        let best = (1..breaks.len().saturating_sub(1))
+            .filter(|&m| cost[m].is_finite())
+            .min_by(|&a, &b| cost[a].total_cmp(&cost[b]));
+        let Some(m) = best else {
+            return breaks;
+        };
+        breaks.remove(m);
+        cost.remove(m);
+        for k in [m - 1, m] {
+            if k >= 1 && k + 1 < breaks.len() {
+                cost[k] = cost_at(&breaks, k);
+            }
         }
     }
 }

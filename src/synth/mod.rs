@@ -78,6 +78,27 @@ pub fn standard_capture(seed: u64, defects: Defects, collinear: bool) -> (Scene,
     (scene, rig, obs)
 }
 
+/// The standard room and rig of [`standard_capture`] (seed `seed`) with every camera's
+/// resolution multiplied by `scale`: same field of view, `scale²` times the pixels. For
+/// benchmarks at several image sizes.
+pub fn bench_capture(seed: u64, scale: f64) -> (Scene, Rig) {
+    let mut spec = RigSpec::non_collinear(seed);
+    spec.width = (f64::from(spec.width) * scale).round() as u32;
+    spec.height = (f64::from(spec.height) * scale).round() as u32;
+    for c in &mut spec.cameras {
+        // Pixel centres at integers: the image's corner -0.5 stays at -0.5.
+        c.fx *= scale;
+        c.fy *= scale;
+        c.cx = (c.cx + 0.5) * scale - 0.5;
+        c.cy = (c.cy + 0.5) * scale - 0.5;
+    }
+    let pose = Pose::from_position_yaw(Point3::from(STANDARD_RIG_POSITION), 0.0);
+    let rig = spec
+        .build(&pose)
+        .expect("preset rigs stay valid when scaled up");
+    (Scene::room(seed), rig)
+}
+
 /// The centroid of a rig's optical centres: the `rig_centre` of [`score()`].
 pub fn rig_centre(rig: &Rig) -> Point3<f64> {
     let c = rig.cameras();

@@ -1,6 +1,7 @@
 //! Extraction and whole-pipeline benchmarks on rendered rooms (criterion, release):
 //! - `extract/512`, `extract/1024`: one image, one thread, segments out (all stages);
-//! - `stage/...`: the stages of `extract/512` alone;
+//! - `stage/...`: the stages of `extract/512` alone (`edge_points` is `gradient` and `nms`
+//!   fused into one pass, as `extract` runs them);
 //! - `peer_lsdetect/512`, `peer_lsdetect/1024`: the pure-Rust LSD (`lsdetect`) on the same
 //!   images, one thread — a peer measured in the same run;
 //! - `images/512`, `images/1024`: a whole image triplet (extract ×3, match, reconstruct) on a
@@ -79,6 +80,9 @@ fn bench_extract(c: &mut Criterion) {
     });
     group.bench_function("nms", |b| {
         b.iter(|| edges::non_maximum_suppression(&grad, params.gradient_low as f32))
+    });
+    group.bench_function("edge_points", |b| {
+        b.iter(|| edges::edge_points(&smoothed, w, h, params.gradient_low as f32))
     });
     group.bench_function("hysteresis", |b| {
         b.iter_batched(

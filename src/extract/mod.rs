@@ -163,9 +163,10 @@ fn ms(since: Instant) -> f64 {
 }
 
 /// Points left out of a piece's line fit at each break: the smoothed corner is rounded over
-/// about 1.5 σ.
+/// about σ. (Measured on the rendered office: 1 point at σ = 1 gives 21.4% strict errors, 0
+/// points 28.8%, 2 points 23.0%, 3 points 26.0%: short segments need every point they have.)
 fn corner_trim(params: &Params) -> usize {
-    (1.5 * params.smoothing_sigma_px).round() as usize
+    params.smoothing_sigma_px.round() as usize
 }
 
 /// Extracts the oriented segments of `image` and their graph. `camera` (if given) supplies

@@ -111,7 +111,7 @@ fn end_to_end(seed: u64, params: &MatchParams) -> (f64, f64, usize) {
 
 #[test]
 fn rendered_triplets_match_end_to_end() {
-    // Defaults: every match, precise or not. Measured (README): 36% / 51% on seed 1.
+    // Defaults: every match, precise or not. Measured (README): 39% / 51% on seed 1.
     let (error, completeness, n) = end_to_end(1, &MatchParams::default());
     println!("defaults: {n} segments, error {error:.3}, completeness {completeness:.3}");
     assert!(n > 100 && completeness > 0.40 && error < 0.45);

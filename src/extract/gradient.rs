@@ -38,6 +38,24 @@ pub fn gaussian_kernel(sigma_px: f64) -> Vec<f32> {
 
 /// Separable Gaussian blur with replicated borders.
 pub fn smooth(image: &GreyImage, sigma_px: f64) -> Vec<f32> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 was just detected on the running CPU.
+        return unsafe { smooth_avx2(image, sigma_px) };
+    }
+    smooth_body(image, sigma_px)
+}
+
+/// [`smooth_body`] compiled for AVX2: the same operations in the same order (no fused
+/// multiply-add), so the same bits, eight lanes at a time instead of four.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn smooth_avx2(image: &GreyImage, sigma_px: f64) -> Vec<f32> {
+    smooth_body(image, sigma_px)
+}
+
+#[inline(always)]
+fn smooth_body(image: &GreyImage, sigma_px: f64) -> Vec<f32> {
     let (w, h) = (image.width() as usize, image.height() as usize);
     let kernel = gaussian_kernel(sigma_px);
     if kernel.len() == 1 || w == 0 || h == 0 {

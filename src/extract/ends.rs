@@ -6,7 +6,9 @@
 //! falls to exactly half its plateau value at the end, whatever σ (half the kernel still sees
 //! the edge). So each free end slides along the segment's line to where the gradient
 //! component across the line crosses half of its median along the segment. Taking the
-//! component across the line ignores the gradient of a perpendicular edge meeting there.
+//! component across the line ignores the gradient of a perpendicular edge meeting there. Ends
+//! only move outwards: where a chain stopped with the gradient already below half, the edge
+//! goes on with a weaker contrast and the chain end is as good a guess as any.
 
 use nalgebra::{Point2, Vector2};
 
@@ -67,8 +69,9 @@ fn across(
 }
 
 /// Moves the free ends of the oriented segment `start`→`end` (flags say which ends are free)
-/// to where the gradient across it falls to half its median; returns the new ends. An end
-/// stays put when the profile does not cross half within [`MAX_SLIDE_PX`] or leaves the image.
+/// outwards to where the gradient across it falls to half its median; returns the new ends.
+/// An end stays put when the gradient there is already below half, or does not fall to half
+/// within [`MAX_SLIDE_PX`], or the walk leaves the image.
 /// The segment lives in undistorted pixels; `to_image` maps them to the gradient's pixels
 /// (identity without lens distortion), so the ends stay on the segment's line.
 pub fn refine_ends(
@@ -103,8 +106,13 @@ pub fn refine_ends(
     let crossing = |t0: f64, outward: f64| -> Option<f64> {
         let value = |t: f64| across(g, &to_image, start, dir, t);
         let at = value(t0)?;
-        // Above half: walk outwards until below; below: walk inwards until above.
-        let step = if at >= half { outward } else { -outward } * STEP_PX;
+        // Ends only grow: a chain that stops where the gradient is already below half ended
+        // at a change of contrast along a longer edge (a T-junction seen from the weaker
+        // side), and walking back would cut the edge there.
+        if at < half {
+            return None;
+        }
+        let step = outward * STEP_PX;
         let (mut t_prev, mut v_prev) = (t0, at);
         let mut moved = 0.0;
         while moved < MAX_SLIDE_PX {
@@ -189,18 +197,9 @@ mod tests {
         let (s, e) = refine_ends(&g, id, start, end, (true, true));
         assert!((s.y - 8.5).abs() < 0.25, "start {s:?}");
         assert!((e.y - 40.2).abs() < 0.25, "end {e:?}");
-        // Overshooting ends come back.
-        let (s, e) = refine_ends(
-            &g,
-            id,
-            Point2::new(10.3, 7.0),
-            Point2::new(10.3, 42.0),
-            (true, true),
-        );
-        assert!(
-            (s.y - 8.5).abs() < 0.25 && (e.y - 40.2).abs() < 0.25,
-            "{s:?} {e:?}"
-        );
+        // Ends already beyond the edge's end stay (ends only grow).
+        let long = (Point2::new(10.3, 7.0), Point2::new(10.3, 42.0));
+        assert_eq!(refine_ends(&g, id, long.0, long.1, (true, true)), long);
         // Ends that are not free stay, and a segment walked against its contrast has no
         // plateau to measure.
         assert_eq!(

@@ -4,7 +4,8 @@
 //!
 //! ```text
 //! GreyImage ─▶ smooth ─▶ gradient ─▶ non-maximum suppression (sub-pixel) ─▶ hysteresis
-//!           ─▶ link into chains (+ junctions) ─▶ undistort points ─▶ split-and-merge ─▶ segments + graph
+//!           ─▶ link into chains (+ junctions) ─▶ undistort points ─▶ split-and-merge ─▶ ends
+//!           ─▶ segments + graph
 //! ```
 //!
 //! Each stage is a plain function over plain data ([`gradient`], [`edges`], [`chain`],
@@ -247,16 +248,19 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
             if !long(k) {
                 continue;
             }
-            let shares_start = if c.closed {
-                long((k + count - 1) % count)
-            } else {
-                k > 0 && long(k - 1)
-            };
-            let shares_end = if c.closed {
-                long((k + 1) % count)
-            } else {
-                k + 1 < count && long(k + 1)
-            };
+            // A corner shared with a kept neighbour stays; any other end is free to slide.
+            let shares_start = piece.joined.0
+                && if c.closed {
+                    long((k + count - 1) % count)
+                } else {
+                    k > 0 && long(k - 1)
+                };
+            let shares_end = piece.joined.1
+                && if c.closed {
+                    long((k + 1) % count)
+                } else {
+                    k + 1 < count && long(k + 1)
+                };
             let (start, end) = ends::refine_ends(
                 &ends::Smoothed {
                     pixels: &smoothed,

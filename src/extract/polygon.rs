@@ -176,6 +176,9 @@ pub struct Piece {
     pub line: Line,
     pub start: Point2<f64>,
     pub end: Point2<f64>,
+    /// Whether `start` / `end` is the corner shared with the previous / next piece (the
+    /// intersection of their lines); otherwise it is the projection of the extreme point.
+    pub joined: (bool, bool),
 }
 
 /// Steps 1–3 for one chain of points (undistorted pixels, in walking order).
@@ -222,6 +225,7 @@ pub fn approximate(
             line,
             start: line.project(all[0]),
             end: line.project(all[all.len() - 1]),
+            joined: (false, false),
         });
     }
     // Corners: neighbours in the chain share the intersection of their lines.
@@ -249,6 +253,8 @@ pub fn approximate(
         if (x - run[break_at[i]]).norm() <= MAX_CORNER_SHIFT_PX {
             pieces[i].end = x;
             pieces[j].start = x;
+            pieces[i].joined.1 = true;
+            pieces[j].joined.0 = true;
         }
     }
     pieces

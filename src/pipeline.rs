@@ -573,3 +573,47 @@ fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>>
     }
     groups
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{Pose, RigSpec};
+
+    #[test]
+    fn the_extractors_graph_joins_validations_adjacency_in_prepared_indices() {
+        let rig = RigSpec::non_collinear(1)
+            .build(&Pose::identity())
+            .expect("preset rig");
+        let rect = Rectification::new(&rig).unwrap();
+        let p = |u: f64, v: f64| rect.to_rect(0, Point2::new(u, v)).unwrap();
+        // Prepared view 1: the caller's segments 0, 2 and 3 (1 was too short, say).
+        let segments = [
+            RectSegment::new(p(100.0, 100.0), p(100.0, 200.0), f64::NAN, 0),
+            RectSegment::new(p(300.0, 100.0), p(300.0, 200.0), f64::NAN, 2),
+            RectSegment::new(p(100.0, 200.0), p(200.0, 200.0), f64::NAN, 3),
+        ];
+        let mut adjacency = vec![(0, 2, p(100.0, 200.0))];
+        let graph = [
+            Adjacent {
+                a: 0,
+                b: 3,
+                vertex: Point2::new(100.0, 200.0),
+            }, // already known
+            Adjacent {
+                a: 0,
+                b: 2,
+                vertex: Point2::new(200.0, 150.0),
+            }, // new: far ends meet
+            Adjacent {
+                a: 1,
+                b: 2,
+                vertex: Point2::new(300.0, 100.0),
+            }, // 1 was dropped
+        ];
+        add_graph(&mut adjacency, &graph, &rig, &rect, &segments);
+        assert_eq!(adjacency.len(), 2);
+        let (a, b, vertex) = adjacency[1];
+        assert_eq!((a, b), (0, 1));
+        assert!((vertex - p(200.0, 150.0)).norm() < 1e-9);
+    }
+}

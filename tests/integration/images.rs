@@ -79,6 +79,70 @@ fn reversed_contrast_reverses_every_segment() {
     );
 }
 
+#[test]
+fn lens_distortion_is_removed_before_the_polygon_fit() {
+    use trinocular::geometry::Distortion;
+    use trinocular::synth::{observe, Pose, RigSpec, Scene, STANDARD_RIG_POSITION};
+    // Strong barrel distortion: straight edges bow by pixels across the image.
+    let spec = RigSpec::non_collinear(1).with_distortion(Distortion {
+        k1: -0.3,
+        k2: 0.08,
+        p1: 0.0,
+        p2: 0.0,
+        k3: 0.0,
+    });
+    let pose = Pose::from_position_yaw(nalgebra::Point3::from(STANDARD_RIG_POSITION), 0.0);
+    let rig = spec.build(&pose).expect("valid rig");
+    let scene = Scene::room(1);
+    let obs = observe(&scene, &rig, &Defects::clean(), 1);
+    let camera = &rig.cameras()[0];
+    let img = render_image(&scene, camera, &RenderParams::default(), 3);
+    let with = extract::extract(&img, Some(camera), &Params::default()).segments;
+    let without = extract::extract(&img, None, &Params::default()).segments;
+    // Long straight edges, whose images are curves: fitted after undistortion they come out
+    // whole with both ends right; fitted as they look, the bow breaks them or bends their ends.
+    let (found_with, total) = edge_recall(&with, &obs, 0, 80.0, 10.0, 1.5);
+    let (found_without, _) = edge_recall(&without, &obs, 0, 80.0, 10.0, 1.5);
+    println!("long edges found: {found_with} with the camera, {found_without} without, of {total}");
+    assert!(total >= 20, "{total}");
+    assert!(
+        found_with as f64 >= 0.4 * total as f64,
+        "{found_with} of {total}"
+    );
+    assert!(
+        found_with > found_without + total / 10,
+        "{found_with} vs {found_without}"
+    );
+    // And each found segment's line is the undistorted image of its edge: in undistorted
+    // pixels, its middle lies on the line through the edge's undistorted ends (the nearest
+    // such edge: thin boards have two edges a pixel apart).
+    let off_line = |s: &trinocular::segment::Segment2| {
+        let mid = nalgebra::center(&camera.undistort(s.start), &camera.undistort(s.end));
+        obs.lists[0]
+            .segments
+            .iter()
+            .filter(|g| (s.start - g.start).norm() <= 1.5 && (s.end - g.end).norm() <= 1.5)
+            .map(|g| {
+                let (a, b) = (camera.undistort(g.start), camera.undistort(g.end));
+                (mid - a).perp(&(b - a).normalize()).abs()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let offsets: Vec<f64> = with
+        .segments
+        .iter()
+        .filter(|s| s.length() >= 80.0)
+        .map(off_line)
+        .filter(|d| d.is_finite())
+        .collect();
+    assert!(offsets.len() >= 10, "{offsets:?}");
+    let mut sorted = offsets.clone();
+    sorted.sort_by(f64::total_cmp);
+    let within = offsets.iter().filter(|&&d| d < 0.5).count();
+    assert!(sorted[sorted.len() / 2] < 0.1, "{offsets:?}");
+    assert!(within * 10 >= offsets.len() * 9, "{offsets:?}");
+}
+
 /// Strict 3D scoring (shared/eval's criterion) of one rendered capture.
 fn end_to_end(seed: u64, params: &MatchParams) -> (f64, f64, usize) {
     let (scene, rig, obs) = standard_capture(seed, Defects::clean(), false);

@@ -135,7 +135,8 @@ pub fn refine_ends(
         let p = to_image(start + dir * t);
         let d = to_image(start + dir * (t + outward)) - p;
         let (w, h) = (g.width as f64 - 0.5, g.height as f64 - 0.5);
-        let mut best = t;
+        // The first border the line meets going outwards, if it is near.
+        let mut nearest = f64::INFINITY;
         for (coord, delta, lo, hi) in [(p.x, d.x, -0.5, w), (p.y, d.y, -0.5, h)] {
             let to_border = if delta < -0.3 {
                 (coord - lo) / -delta
@@ -144,11 +145,13 @@ pub fn refine_ends(
             } else {
                 continue;
             };
-            if (0.0..=FRAME_SNAP_PX).contains(&to_border) {
-                best = t + outward * to_border;
-            }
+            nearest = nearest.min(to_border);
         }
-        best
+        if (0.0..=FRAME_SNAP_PX).contains(&nearest) {
+            t + outward * nearest
+        } else {
+            t
+        }
     };
     if free.0 {
         t_start = frame(t_start, -1.0);

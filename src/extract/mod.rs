@@ -159,6 +159,39 @@ pub struct Extraction {
     pub stats: ExtractStats,
 }
 
+/// The part of segment `a`–`b` inside the image frame `[-0.5, size - 0.5]²` (Liang–Barsky);
+/// `None` when nothing of it is inside.
+fn clip_to_frame(
+    a: Point2<f64>,
+    b: Point2<f64>,
+    width: u32,
+    height: u32,
+) -> Option<(Point2<f64>, Point2<f64>)> {
+    let d = b - a;
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    let bounds = [
+        (-d.x, a.x + 0.5),
+        (d.x, f64::from(width) - 0.5 - a.x),
+        (-d.y, a.y + 0.5),
+        (d.y, f64::from(height) - 0.5 - a.y),
+    ];
+    for (p, q) in bounds {
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    (t0 < t1).then(|| (a + d * t0, a + d * t1))
+}
+
 fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
 }
@@ -297,10 +330,18 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
             if gu * d.y - gv * d.x < 0.0 {
                 std::mem::swap(&mut a, &mut b);
             }
+            // A corner intersection near the border can fall just outside the image.
+            let Some((a, b)) = clip_to_frame(distort(a), distort(b), image.width(), image.height())
+            else {
+                continue;
+            };
+            if (b - a).norm() < params.min_segment_px {
+                continue;
+            }
             let id = segments.len() as u32;
             segments.push(Segment2 {
-                start: distort(a),
-                end: distort(b),
+                start: a,
+                end: b,
                 gradient: Some(magnitude / count),
             });
             // Positions in the chain's own order (undo the loop's rotation).
@@ -360,5 +401,110 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
         },
         graph,
         stats,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// Any image, however small, flat, noisy or extreme, gives segments, never a panic; and
+        /// every segment is finite, inside the image's frame and at least the minimum length.
+        #[test]
+        fn any_image_gives_sane_segments(
+            width in 1u32..40,
+            height in 1u32..40,
+            seed in any::<u64>(),
+            style in 0u8..4,
+            sigma in 0.0f64..3.0,
+        ) {
+            let mut state = seed | 1;
+            let mut next = || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let n = (width * height) as usize;
+            let pixels: Vec<f32> = (0..n)
+                .map(|i| match style {
+                    0 => (next() % 256) as f32,                                  // noise
+                    1 => if (i % width as usize) < width as usize / 2 { 0.0 } else { 255.0 }, // a step
+                    2 => 77.0,                                                   // flat
+                    _ => if next() % 7 == 0 { 255.0 } else { 0.0 },              // speckle
+                })
+                .collect();
+            let image = GreyImage::new(width, height, pixels).unwrap();
+            let params = Params { smoothing_sigma_px: sigma, ..Params::default() };
+            let out = extract(&image, None, &params);
+            for s in &out.segments.segments {
+                for p in [s.start, s.end] {
+                    prop_assert!(p.x.is_finite() && p.y.is_finite());
+                    prop_assert!(p.x >= -0.5 - 1e-9 && p.x <= f64::from(width) - 0.5 + 1e-9, "{p:?}");
+                    prop_assert!(p.y >= -0.5 - 1e-9 && p.y <= f64::from(height) - 0.5 + 1e-9, "{p:?}");
+                }
+                prop_assert!(s.length() >= params.min_segment_px - 1e-9);
+                prop_assert!(s.gradient.is_some_and(|g| g.is_finite() && g >= 0.0));
+            }
+            for e in &out.graph {
+                prop_assert!(e.a < e.b && (e.b as usize) < out.segments.segments.len());
+            }
+        }
+    }
+
+    #[test]
+    fn params_are_checked_field_by_field() {
+        assert!(Params::default().check().is_ok());
+        let bad = [
+            (
+                Params {
+                    smoothing_sigma_px: -1.0,
+                    ..Params::default()
+                },
+                "smoothing_sigma_px",
+            ),
+            (
+                Params {
+                    smoothing_sigma_px: f64::NAN,
+                    ..Params::default()
+                },
+                "smoothing_sigma_px",
+            ),
+            (
+                Params {
+                    gradient_low: -0.5,
+                    ..Params::default()
+                },
+                "gradient_low",
+            ),
+            (
+                Params {
+                    gradient_high: 1.0,
+                    ..Params::default()
+                },
+                "gradient_high",
+            ),
+            (
+                Params {
+                    max_deviation_px: 0.0,
+                    ..Params::default()
+                },
+                "max_deviation_px",
+            ),
+            (
+                Params {
+                    min_segment_px: f64::INFINITY,
+                    ..Params::default()
+                },
+                "min_segment_px",
+            ),
+        ];
+        for (params, field) in bad {
+            assert_eq!(params.check().unwrap_err().field, field);
+        }
     }
 }

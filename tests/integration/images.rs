@@ -524,3 +524,55 @@ fn demo_runs_and_scores_itself() {
         assert_eq!(&png[1..4], b"PNG");
     }
 }
+
+mod any_images {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn small_calibration(size: u32) -> Value {
+        let mut calib = calibration_json();
+        for cam in calib["cameras"].as_array_mut().unwrap() {
+            cam["width"] = json!(size);
+            cam["height"] = json!(size);
+            let c = f64::from(size) / 2.0 - 0.5;
+            cam["intrinsics"] = json!([
+                f64::from(size),
+                0.0,
+                c,
+                0.0,
+                f64::from(size),
+                c,
+                0.0,
+                0.0,
+                1.0
+            ]);
+        }
+        calib
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(60))]
+
+        /// Any three raw images of the calibrated size give a response, never a panic.
+        #[test]
+        fn any_raw_triplet_gives_a_response(
+            size in 3u32..48,
+            bytes in proptest::collection::vec(any::<u8>(), 3 * 48 * 48),
+            returned in any::<bool>(),
+        ) {
+            let n = (size * size) as usize;
+            let images: Vec<Value> = (0..3)
+                .map(|v| json!({"raw": {"width": size, "height": size,
+                                        "data": b64(&bytes[v * n..(v + 1) * n])}}))
+                .collect();
+            let mut r = json!({"calibration": small_calibration(size), "images": {"images": images}});
+            r["options"] = json!({"returnExtracted": returned});
+            let resp = run(&r).map_err(|f| TestCaseError::fail(format!("rejected: {f}")))?;
+            prop_assert_eq!(resp.extracted.len(), if returned { 3 } else { 0 });
+            for s in &resp.segments_3d {
+                let (a, b) = (s.start.unwrap(), s.end.unwrap());
+                prop_assert!([a.x, a.y, a.z, b.x, b.y, b.z].iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+}

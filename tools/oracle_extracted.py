@@ -16,8 +16,8 @@ import numpy as np
 ap = argparse.ArgumentParser()
 ap.add_argument("--shared", default=os.path.join(os.path.dirname(__file__), "..", "..", "shared"))
 ap.add_argument("--bin", default="target/release/trinocular")
-a = ap.parse_args()
-data = os.path.join(a.shared, "data", "office")
+args = ap.parse_args()
+data = os.path.join(args.shared, "data", "office")
 req_path = os.path.join(tempfile.mkdtemp(), "request.json")
 E = np.asarray(json.load(open(os.path.join(data, 'gt_edges.json')))['edges'], float)
 tot = cov = 0.0
@@ -30,7 +30,7 @@ for cap in sorted(d[len('capture_'):] for d in os.listdir(data) if d.startswith(
     req = {"calibration": {"cameras": cams}, "options": {"returnExtracted": True},
            "images": {"images": [{"encoded": base64.b64encode(open(f'{cdir}/img{i}.png', 'rb').read()).decode()} for i in (1, 2, 3)]}}
     open(req_path, 'w').write(json.dumps(req))
-    out = json.loads(subprocess.run([a.bin, 'match', req_path], capture_output=True, text=True, check=True).stdout)
+    out = json.loads(subprocess.run([args.bin, "match", req_path], capture_output=True, text=True, check=True).stdout)
     lists = [[(s['u1'], s['v1'], s['u2'], s['v2']) for s in l.get('segments', [])] for l in out['extracted']]
     P = [np.asarray(c['P']) for c in calw['cameras']]
     for r in vis['edges']:

@@ -18,7 +18,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     tonic_prost_build::configure()
         .build_client(true)
         .build_server(true)
-        .build_transport(false)
+        .build_transport(true)
         .compile_fds(fds)?;
 
     let descriptors = fs::read(&descriptor_path)?;

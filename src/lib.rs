@@ -30,4 +30,5 @@ pub mod overlay;
 pub mod pipeline;
 pub mod reconstruct;
 pub mod segment;
+pub mod service;
 pub mod synth;

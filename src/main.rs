@@ -30,6 +30,30 @@ enum Command {
     /// Match three images or segment lists and reconstruct 3D segments; prints a
     /// MatchResponse (JSON).
     Match(MatchArgs),
+    /// Serve Match over gRPC and HTTP/JSON until SIGTERM or SIGINT.
+    Serve(ServeArgs),
+}
+
+#[derive(Args)]
+struct ServeArgs {
+    /// gRPC listen address.
+    #[arg(long, default_value = "0.0.0.0:50051")]
+    grpc_addr: std::net::SocketAddr,
+    /// HTTP listen address.
+    #[arg(long, default_value = "0.0.0.0:8080")]
+    http_addr: std::net::SocketAddr,
+    /// Compute threads (default: one per core).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Jobs queued or running at once; past it, 429 / RESOURCE_EXHAUSTED (default: 4 per thread).
+    #[arg(long)]
+    max_jobs: Option<usize>,
+    /// Largest request, MiB.
+    #[arg(long, default_value_t = 32)]
+    max_message_mib: usize,
+    /// Largest image, pixels.
+    #[arg(long, default_value_t = 40_000_000)]
+    max_image_pixels: u64,
 }
 
 #[derive(Args)]
@@ -231,9 +255,46 @@ fn run_demo(args: &DemoArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
+    use std::sync::Arc;
+    use trinocular::service::{server, Limits, Service};
+    let defaults = Limits::default();
+    let threads = args.threads.unwrap_or(defaults.threads).max(1);
+    let limits = Limits {
+        threads,
+        max_jobs: args.max_jobs.unwrap_or(4 * threads).max(1),
+        max_message_bytes: args.max_message_mib.max(1) << 20,
+        max_image_pixels: args.max_image_pixels.max(1),
+    };
+    let service = Arc::new(Service::new(limits.clone()).context("cannot start the compute pool")?);
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
+    runtime.block_on(async {
+        let running = server::start(Arc::clone(&service), args.grpc_addr, args.http_addr)
+            .await
+            .context("cannot listen")?;
+        eprintln!(
+            "trinocular serve: gRPC on {}, HTTP on {}; {limits:?}",
+            running.grpc_addr, running.http_addr
+        );
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+            .context("cannot handle SIGTERM")?;
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+        }
+        eprintln!("trinocular serve: stopping; finishing in-flight requests");
+        service.set_ready(false);
+        running.shutdown().await;
+        eprintln!("trinocular serve: stopped");
+        Ok::<(), anyhow::Error>(())
+    })?;
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::Serve(args) => run_serve(args),
         Command::Demo(args) => run_demo(args),
         Command::Extract(args) => run_extract(args),
         Command::Match(args) => run_match(args),

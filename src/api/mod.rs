@@ -6,6 +6,8 @@
 //! request (`calibration.cameras[2].projection`, `segments.lists[1].segments[17].u1`).
 
 mod convert;
+pub mod grpc;
+pub mod http;
 
 pub use convert::{
     extract_params, images, match_params, match_request, match_response, rig_from_calibration,

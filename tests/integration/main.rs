@@ -5,3 +5,4 @@ mod accuracy;
 mod bad_input;
 mod common;
 mod images;
+mod service;

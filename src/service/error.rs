@@ -1,0 +1,92 @@
+//! The service's one error type, mapped once to a gRPC code; the HTTP status derives from that
+//! code (the grpc-gateway table), so the two transports cannot disagree.
+
+use axum::http::StatusCode;
+use thiserror::Error;
+use tonic::Code;
+
+use super::pool::PoolError;
+use crate::api::InputError;
+
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ServiceError {
+    /// A request field that cannot be accepted; names the field.
+    #[error("{0}")]
+    Input(#[from] InputError),
+    /// Every compute slot is taken: retry after a moment.
+    #[error("the service is busy ({max_jobs} jobs queued or running); retry later")]
+    Busy { max_jobs: usize },
+    /// A bug: the detail is logged, the client gets a generic message.
+    #[error("internal error")]
+    Internal { detail: String },
+}
+
+impl From<PoolError> for ServiceError {
+    fn from(e: PoolError) -> ServiceError {
+        match e {
+            PoolError::Busy { max_jobs } => ServiceError::Busy { max_jobs },
+            PoolError::Panicked { message } => ServiceError::Internal { detail: message },
+        }
+    }
+}
+
+impl ServiceError {
+    pub fn code(&self) -> Code {
+        match self {
+            ServiceError::Input(_) => Code::InvalidArgument,
+            ServiceError::Busy { .. } => Code::ResourceExhausted,
+            ServiceError::Internal { .. } => Code::Internal,
+        }
+    }
+
+    /// The offending field, for input errors.
+    pub fn field(&self) -> Option<&str> {
+        match self {
+            ServiceError::Input(e) => Some(&e.field),
+            ServiceError::Busy { .. } | ServiceError::Internal { .. } => None,
+        }
+    }
+}
+
+/// The HTTP status of a gRPC code (grpc-gateway's `HTTPStatusFromCode`).
+pub fn http_status(code: Code) -> StatusCode {
+    match code {
+        Code::Ok => StatusCode::OK,
+        Code::Cancelled => StatusCode::from_u16(499).unwrap_or(StatusCode::BAD_REQUEST),
+        Code::Unknown | Code::Internal | Code::DataLoss => StatusCode::INTERNAL_SERVER_ERROR,
+        Code::InvalidArgument | Code::FailedPrecondition | Code::OutOfRange => {
+            StatusCode::BAD_REQUEST
+        }
+        Code::DeadlineExceeded => StatusCode::GATEWAY_TIMEOUT,
+        Code::NotFound => StatusCode::NOT_FOUND,
+        Code::AlreadyExists | Code::Aborted => StatusCode::CONFLICT,
+        Code::PermissionDenied => StatusCode::FORBIDDEN,
+        Code::Unauthenticated => StatusCode::UNAUTHORIZED,
+        Code::ResourceExhausted => StatusCode::TOO_MANY_REQUESTS,
+        Code::Unimplemented => StatusCode::NOT_IMPLEMENTED,
+        Code::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_error_has_one_code_and_status() {
+        let input = ServiceError::Input(InputError::new("options.tolerance_px", "bad"));
+        assert_eq!(input.code(), Code::InvalidArgument);
+        assert_eq!(http_status(input.code()), StatusCode::BAD_REQUEST);
+        assert_eq!(input.field(), Some("options.tolerance_px"));
+        let busy = ServiceError::from(PoolError::Busy { max_jobs: 3 });
+        assert_eq!(http_status(busy.code()), StatusCode::TOO_MANY_REQUESTS);
+        let panic = ServiceError::from(PoolError::Panicked {
+            message: "secret detail".into(),
+        });
+        assert_eq!(http_status(panic.code()), StatusCode::INTERNAL_SERVER_ERROR);
+        assert!(
+            !panic.to_string().contains("secret"),
+            "details stay in the log"
+        );
+    }
+}

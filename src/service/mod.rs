@@ -1,0 +1,109 @@
+//! The service: the use cases both transports call, the compute pool they run on, the one
+//! error type, and the servers. A thin shell over the core: it decodes, checks, hands the CPU
+//! work to the pool and maps errors; the core knows nothing of it.
+//!
+//! ```text
+//! gRPC (tonic) ─┐                     ┌─ rayon compute pool (admission, catch_unwind)
+//!               ├─▶ Service::match_request ─▶ api::match_request + pipeline
+//! HTTP (axum) ──┘
+//! ```
+
+pub mod error;
+pub mod pool;
+pub mod server;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::api::{self, pb, InputError};
+use crate::extract::DecodeLimits;
+
+pub use error::{http_status, ServiceError};
+pub use pool::{ComputePool, PoolError};
+
+/// What the service is allowed to do. Units in the names.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Limits {
+    /// Compute threads.
+    pub threads: usize,
+    /// Jobs queued or running at once; past it, RESOURCE_EXHAUSTED / 429 at once.
+    pub max_jobs: usize,
+    /// Largest request message or body, bytes (tonic's default of 4 MiB is too small for an
+    /// image triplet).
+    pub max_message_bytes: usize,
+    /// Largest image, pixels (checked from its header, before decoding).
+    pub max_image_pixels: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+        Limits {
+            threads,
+            max_jobs: 4 * threads,
+            max_message_bytes: 32 << 20,
+            max_image_pixels: DecodeLimits::default().max_pixels,
+        }
+    }
+}
+
+/// The use cases, shared by both transports.
+pub struct Service {
+    pool: ComputePool,
+    limits: Limits,
+    ready: AtomicBool,
+}
+
+impl Service {
+    pub fn new(limits: Limits) -> Result<Service, rayon::ThreadPoolBuildError> {
+        Ok(Service {
+            pool: ComputePool::new(limits.threads, limits.max_jobs)?,
+            limits,
+            ready: AtomicBool::new(true),
+        })
+    }
+
+    pub fn limits(&self) -> &Limits {
+        &self.limits
+    }
+
+    pub fn pool(&self) -> &ComputePool {
+        &self.pool
+    }
+
+    /// Ready to take work (false while shutting down).
+    pub fn is_ready(&self) -> bool {
+        self.ready.load(Ordering::Relaxed)
+    }
+
+    pub fn set_ready(&self, ready: bool) {
+        self.ready.store(ready, Ordering::Relaxed);
+    }
+
+    /// Match: checks and converts the request (decoding images) and runs the pipeline, all on
+    /// the compute pool.
+    pub async fn match_request(
+        &self,
+        request: pb::MatchRequest,
+    ) -> Result<pb::MatchResponse, ServiceError> {
+        let limits = DecodeLimits {
+            max_bytes: self.limits.max_message_bytes,
+            max_pixels: self.limits.max_image_pixels,
+        };
+        let result = self
+            .pool
+            .run(move || -> Result<pb::MatchResponse, InputError> {
+                api::match_request(&request, &limits)?.run()
+            })
+            .await;
+        match result {
+            Ok(response) => Ok(response?),
+            Err(e) => {
+                let e = ServiceError::from(e);
+                if let ServiceError::Internal { detail } = &e {
+                    eprintln!("match: internal error: {detail}");
+                }
+                Err(e)
+            }
+        }
+    }
+}

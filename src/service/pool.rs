@@ -1,0 +1,221 @@
+//! The compute pool: CPU work runs on a named rayon pool of its own, never on tokio's worker
+//! threads, behind an admission limit.
+//!
+//! [`ComputePool::run`] takes a permit — one per job queued or running — or fails at once with
+//! [`PoolError::Busy`], so past capacity the service answers "retry later" instead of letting
+//! latency grow without bound. The job runs under `catch_unwind`: a panic fails that job
+//! (`PoolError::Panicked`) and the process lives. A caller that stops waiting (its client went
+//! away) cancels the job if it has not started yet.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use thiserror::Error;
+use tokio::sync::{oneshot, Semaphore};
+
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum PoolError {
+    #[error("all {max_jobs} compute slots are taken")]
+    Busy { max_jobs: usize },
+    #[error("the job panicked: {message}")]
+    Panicked { message: String },
+}
+
+/// A rayon pool with an admission limit (see the module doc).
+pub struct ComputePool {
+    pool: rayon::ThreadPool,
+    permits: Arc<Semaphore>,
+    max_jobs: usize,
+}
+
+/// Sets the flag when dropped before [`CancelOnDrop::disarm`]: the waiting side went away.
+struct CancelOnDrop(Arc<AtomicBool>, bool);
+
+impl CancelOnDrop {
+    fn disarm(&mut self) {
+        self.1 = false;
+    }
+}
+
+impl Drop for CancelOnDrop {
+    fn drop(&mut self) {
+        if self.1 {
+            self.0.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".to_string())
+}
+
+impl ComputePool {
+    /// `threads` compute threads (named `trinocular-compute-N`), at most `max_jobs` jobs queued
+    /// or running at once.
+    pub fn new(
+        threads: usize,
+        max_jobs: usize,
+    ) -> Result<ComputePool, rayon::ThreadPoolBuildError> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads.max(1))
+            .thread_name(|i| format!("trinocular-compute-{i}"))
+            // Jobs catch their own panics; this catches a panic escaping rayon internals
+            // (which would otherwise abort the process).
+            .panic_handler(|payload| {
+                eprintln!("compute pool: {}", panic_message(payload.as_ref()));
+            })
+            .build()?;
+        let max_jobs = max_jobs.max(1);
+        Ok(ComputePool {
+            pool,
+            permits: Arc::new(Semaphore::new(max_jobs)),
+            max_jobs,
+        })
+    }
+
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+
+    /// Jobs queued or running now.
+    pub fn in_flight(&self) -> usize {
+        self.max_jobs - self.permits.available_permits()
+    }
+
+    pub fn max_jobs(&self) -> usize {
+        self.max_jobs
+    }
+
+    /// Runs `job` on the pool (its own `par_iter`s included) and awaits its result.
+    pub async fn run<T, F>(&self, job: F) -> Result<T, PoolError>
+    where
+        T: Send + 'static,
+        F: FnOnce() -> T + Send + 'static,
+    {
+        let permit =
+            Arc::clone(&self.permits)
+                .try_acquire_owned()
+                .map_err(|_| PoolError::Busy {
+                    max_jobs: self.max_jobs,
+                })?;
+        let cancelled = Arc::new(AtomicBool::new(false));
+        let mut guard = CancelOnDrop(Arc::clone(&cancelled), true);
+        let (tx, rx) = oneshot::channel();
+        self.pool.spawn(move || {
+            if cancelled.load(Ordering::Relaxed) {
+                return; // the permit goes with the closure
+            }
+            let result = catch_unwind(AssertUnwindSafe(job)).map_err(|p| PoolError::Panicked {
+                message: panic_message(p.as_ref()),
+            });
+            // Free the slot before answering, so a caller that got its answer sees it free.
+            drop(permit);
+            let _ = tx.send(result);
+        });
+        let result = rx.await.unwrap_or_else(|_| {
+            Err(PoolError::Panicked {
+                message: "the job was dropped".to_string(),
+            })
+        });
+        guard.disarm();
+        result
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    fn runtime() -> tokio::runtime::Runtime {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+    }
+
+    #[test]
+    fn runs_jobs_on_named_threads() {
+        let pool = ComputePool::new(2, 4).unwrap();
+        let name = runtime()
+            .block_on(pool.run(|| std::thread::current().name().map(str::to_string)))
+            .unwrap();
+        assert!(name.unwrap().starts_with("trinocular-compute-"));
+        assert_eq!(pool.threads(), 2);
+    }
+
+    #[test]
+    fn past_capacity_answers_busy_at_once() {
+        let pool = ComputePool::new(1, 1).unwrap();
+        let rt = runtime();
+        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
+        rt.block_on(async {
+            let first = pool.run(move || release_rx.recv().is_ok());
+            let second = async {
+                // The first job holds the only slot while it waits.
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                let busy = pool.run(|| 0).await;
+                release_tx.send(()).unwrap();
+                busy
+            };
+            let (first, second) = tokio::join!(first, second);
+            assert_eq!(first, Ok(true));
+            assert_eq!(second, Err(PoolError::Busy { max_jobs: 1 }));
+        });
+        assert_eq!(pool.in_flight(), 0, "slots come back");
+    }
+
+    #[test]
+    fn a_panic_fails_its_job_and_the_pool_lives() {
+        let pool = ComputePool::new(1, 2).unwrap();
+        let rt = runtime();
+        let err = rt
+            .block_on(pool.run(|| -> u32 { panic!("boom") }))
+            .unwrap_err();
+        assert_eq!(
+            err,
+            PoolError::Panicked {
+                message: "boom".to_string()
+            }
+        );
+        assert_eq!(rt.block_on(pool.run(|| 7)), Ok(7));
+    }
+
+    #[test]
+    fn a_job_whose_caller_went_away_does_not_start() {
+        let pool = ComputePool::new(1, 4).unwrap();
+        let rt = runtime();
+        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
+        let started = Arc::new(AtomicBool::new(false));
+        rt.block_on(async {
+            // Occupy the only thread, then queue a job and stop waiting for it.
+            let blocker = pool.run(move || release_rx.recv().is_ok());
+            let queued = {
+                let started = Arc::clone(&started);
+                pool.run(move || started.store(true, Ordering::Relaxed))
+            };
+            let abandon = async {
+                tokio::time::timeout(Duration::from_millis(20), queued)
+                    .await
+                    .ok();
+                release_tx.send(()).unwrap();
+            };
+            let (b, _) = tokio::join!(blocker, abandon);
+            assert_eq!(b, Ok(true));
+        });
+        // Let the pool drain: the cancelled job returns without running.
+        for _ in 0..100 {
+            if pool.in_flight() == 0 {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(pool.in_flight(), 0);
+        assert!(!started.load(Ordering::Relaxed));
+    }
+}

@@ -1,0 +1,78 @@
+//! Both servers on their listeners, stopped together: gRPC (tonic) and HTTP (axum) over the
+//! same [`Service`].
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+use tonic::transport::server::TcpIncoming;
+
+use super::Service;
+use crate::api::{grpc, http, pb};
+
+/// Two running servers.
+pub struct Running {
+    pub grpc_addr: SocketAddr,
+    pub http_addr: SocketAddr,
+    stop: watch::Sender<bool>,
+    grpc: JoinHandle<Result<(), tonic::transport::Error>>,
+    http: JoinHandle<std::io::Result<()>>,
+}
+
+/// Binds both addresses (port 0: any free port) and starts serving.
+pub async fn start(
+    service: Arc<Service>,
+    grpc_addr: SocketAddr,
+    http_addr: SocketAddr,
+) -> std::io::Result<Running> {
+    let grpc_listener = TcpListener::bind(grpc_addr).await?;
+    let http_listener = TcpListener::bind(http_addr).await?;
+    let (grpc_addr, http_addr) = (grpc_listener.local_addr()?, http_listener.local_addr()?);
+    let (stop, _) = watch::channel(false);
+
+    let max = service.limits().max_message_bytes;
+    let grpc_service =
+        pb::trinocular_server::TrinocularServer::new(grpc::GrpcApi::new(Arc::clone(&service)))
+            .max_decoding_message_size(max)
+            .max_encoding_message_size(max);
+    let mut grpc_stop = stop.subscribe();
+    let grpc = tokio::spawn(
+        tonic::transport::Server::builder()
+            .add_service(grpc_service)
+            .serve_with_incoming_shutdown(TcpIncoming::from(grpc_listener), async move {
+                let _ = grpc_stop.wait_for(|&s| s).await;
+            }),
+    );
+    let mut http_stop = stop.subscribe();
+    let app = http::router(Arc::clone(&service));
+    let http = tokio::spawn(async move {
+        axum::serve(http_listener, app)
+            .with_graceful_shutdown(async move {
+                let _ = http_stop.wait_for(|&s| s).await;
+            })
+            .await
+    });
+    Ok(Running {
+        grpc_addr,
+        http_addr,
+        stop,
+        grpc,
+        http,
+    })
+}
+
+impl Running {
+    /// Stops accepting connections, lets in-flight requests finish, and returns.
+    pub async fn shutdown(self) {
+        let _ = self.stop.send(true);
+        let (g, h) = tokio::join!(self.grpc, self.http);
+        if let Ok(Err(e)) = g {
+            eprintln!("gRPC server: {e}");
+        }
+        if let Ok(Err(e)) = h {
+            eprintln!("HTTP server: {e}");
+        }
+    }
+}

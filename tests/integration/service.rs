@@ -1,0 +1,233 @@
+//! The service over real sockets: a server on ephemeral ports, a tonic client and an HTTP
+//! client, the same requests through both.
+
+use std::sync::Arc;
+
+use prost::Message;
+use trinocular::api::{self, pb};
+use trinocular::service::{server, Limits, Service};
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("runtime")
+}
+
+async fn start(limits: Limits) -> server::Running {
+    let service = Arc::new(Service::new(limits).expect("pool"));
+    let any = "127.0.0.1:0".parse().unwrap();
+    server::start(service, any, any).await.expect("listen")
+}
+
+fn small_limits() -> Limits {
+    Limits {
+        threads: 2,
+        max_jobs: 8,
+        ..Limits::default()
+    }
+}
+
+fn example_request() -> pb::MatchRequest {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/examples/request.json"
+    ))
+    .expect("example request");
+    api::from_json("request", &text).expect("valid JSON")
+}
+
+/// What must agree between transports: everything but the timings.
+fn essence(r: &pb::MatchResponse) -> (Vec<pb::Triplet>, Vec<pb::Segment3>, u32) {
+    (
+        r.triplets.clone(),
+        r.segments_3d.clone(),
+        r.stats.as_ref().map_or(0, |s| s.hypotheses),
+    )
+}
+
+#[test]
+fn grpc_json_and_protobuf_over_http_give_the_same_match() {
+    runtime().block_on(async {
+        let running = start(small_limits()).await;
+        let request = example_request();
+
+        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            running.grpc_addr
+        ))
+        .await
+        .expect("connect");
+        let by_grpc = grpc
+            .r#match(request.clone())
+            .await
+            .expect("ok")
+            .into_inner();
+        assert!(by_grpc.segments_3d.len() > 10);
+
+        let http = reqwest::Client::new();
+        let url = format!("http://{}/v1/match", running.http_addr);
+        let json = http
+            .post(&url)
+            .header("content-type", "application/json")
+            .body(api::to_json(&request))
+            .send()
+            .await
+            .expect("sent");
+        assert_eq!(json.status(), 200);
+        let by_json: pb::MatchResponse =
+            serde_json::from_str(&json.text().await.unwrap()).expect("a MatchResponse");
+
+        let proto = http
+            .post(&url)
+            .header("content-type", "application/x-protobuf")
+            .body(request.encode_to_vec())
+            .send()
+            .await
+            .expect("sent");
+        assert_eq!(proto.status(), 200);
+        assert_eq!(
+            proto.headers()["content-type"].to_str().unwrap(),
+            "application/x-protobuf"
+        );
+        let by_proto = pb::MatchResponse::decode(proto.bytes().await.unwrap()).expect("protobuf");
+
+        // The library itself, for reference.
+        let direct = api::match_request(&request, &Default::default())
+            .unwrap()
+            .run()
+            .unwrap();
+        assert_eq!(essence(&by_grpc), essence(&direct));
+        assert_eq!(essence(&by_json), essence(&direct));
+        assert_eq!(essence(&by_proto), essence(&direct));
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn bad_input_is_invalid_argument_naming_the_field_on_both_transports() {
+    runtime().block_on(async {
+        let running = start(small_limits()).await;
+        let mut request = example_request();
+        request.calibration.as_mut().unwrap().cameras[2].projection[0] = f64::NAN;
+
+        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            running.grpc_addr
+        ))
+        .await
+        .unwrap();
+        let status = grpc.r#match(request.clone()).await.unwrap_err();
+        assert_eq!(status.code(), tonic::Code::InvalidArgument);
+        assert!(
+            status
+                .message()
+                .starts_with("calibration.cameras[2].projection"),
+            "{}",
+            status.message()
+        );
+
+        let http = reqwest::Client::new();
+        let url = format!("http://{}/v1/match", running.http_addr);
+        // proto3 JSON spells NaN "NaN" (pbjson writes repeated NaNs as null: set it by hand).
+        let mut json: serde_json::Value = serde_json::from_str(&api::to_json(&request)).unwrap();
+        json["calibration"]["cameras"][2]["projection"][0] = "NaN".into();
+        let reply = http
+            .post(&url)
+            .header("content-type", "application/json")
+            .body(json.to_string())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        let body: serde_json::Value = reply.json_body().await;
+        assert_eq!(body["error"]["code"], "INVALID_ARGUMENT");
+        assert_eq!(body["error"]["field"], "calibration.cameras[2].projection");
+
+        for (content_type, bytes) in [
+            ("application/json", b"{\"calibration\": [1, 2".to_vec()),
+            ("application/x-protobuf", vec![0x0a, 0xff, 0xff, 0xff]),
+            ("application/json", vec![0xff, 0xfe]),
+        ] {
+            let reply = http
+                .post(&url)
+                .header("content-type", content_type)
+                .body(bytes)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(reply.status(), 400, "{content_type}");
+            let body: serde_json::Value = reply.json_body().await;
+            assert_eq!(body["error"]["field"], "request");
+        }
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn oversized_requests_are_refused() {
+    runtime().block_on(async {
+        let running = start(Limits {
+            max_message_bytes: 4096,
+            ..small_limits()
+        })
+        .await;
+        let request = example_request();
+        assert!(request.encoded_len() > 4096);
+        let reply = reqwest::Client::new()
+            .post(format!("http://{}/v1/match", running.http_addr))
+            .header("content-type", "application/x-protobuf")
+            .body(request.encode_to_vec())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 413);
+        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            running.grpc_addr
+        ))
+        .await
+        .unwrap();
+        let status = grpc.r#match(request).await.unwrap_err();
+        assert!(
+            matches!(
+                status.code(),
+                tonic::Code::OutOfRange | tonic::Code::ResourceExhausted
+            ),
+            "{status:?}"
+        );
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn health_and_readiness() {
+    runtime().block_on(async {
+        let service = Arc::new(Service::new(small_limits()).unwrap());
+        let any = "127.0.0.1:0".parse().unwrap();
+        let running = server::start(Arc::clone(&service), any, any).await.unwrap();
+        let http = reqwest::Client::new();
+        let get = |path: &str| {
+            http.get(format!("http://{}{path}", running.http_addr))
+                .send()
+        };
+        assert_eq!(get("/healthz").await.unwrap().status(), 200);
+        assert_eq!(get("/readyz").await.unwrap().status(), 200);
+        service.set_ready(false);
+        assert_eq!(get("/readyz").await.unwrap().status(), 503);
+        assert_eq!(get("/healthz").await.unwrap().status(), 200);
+        running.shutdown().await;
+    });
+}
+
+/// `reqwest` without its `json` feature: parse the body with serde_json.
+trait JsonBody {
+    async fn json_body(self) -> serde_json::Value;
+}
+
+impl JsonBody for reqwest::Response {
+    async fn json_body(self) -> serde_json::Value {
+        serde_json::from_str(&self.text().await.expect("body")).expect("JSON body")
+    }
+}

@@ -14,6 +14,10 @@ pub use convert::{
     segment_list_to_pb, segment_lists, Executed, MatchInput, MatchSource,
 };
 
+/// The schema as an encoded `FileDescriptorSet`, for gRPC server reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/trinocular_descriptor.bin"));
+
 #[allow(clippy::all, missing_docs)]
 pub mod pb {
     tonic::include_proto!("trinocular.v1");

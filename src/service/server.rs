@@ -16,6 +16,7 @@ use crate::api::{grpc, http, pb};
 pub struct Running {
     pub grpc_addr: SocketAddr,
     pub http_addr: SocketAddr,
+    health: tonic_health::server::HealthReporter,
     stop: watch::Sender<bool>,
     grpc: JoinHandle<Result<(), tonic::transport::Error>>,
     http: JoinHandle<std::io::Result<()>>,
@@ -37,9 +38,21 @@ pub async fn start(
         pb::trinocular_server::TrinocularServer::new(grpc::GrpcApi::new(Arc::clone(&service)))
             .max_decoding_message_size(max)
             .max_encoding_message_size(max);
+    // Standard health checking (overall "" and the service) and reflection, so grpcurl and
+    // load balancers work without the .proto.
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health
+        .set_serving::<pb::trinocular_server::TrinocularServer<grpc::GrpcApi>>()
+        .await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(crate::api::FILE_DESCRIPTOR_SET)
+        .build_v1()
+        .map_err(std::io::Error::other)?;
     let mut grpc_stop = stop.subscribe();
     let grpc = tokio::spawn(
         tonic::transport::Server::builder()
+            .add_service(health_service)
+            .add_service(reflection)
             .add_service(grpc_service)
             .serve_with_incoming_shutdown(TcpIncoming::from(grpc_listener), async move {
                 let _ = grpc_stop.wait_for(|&s| s).await;
@@ -57,6 +70,7 @@ pub async fn start(
     Ok(Running {
         grpc_addr,
         http_addr,
+        health,
         stop,
         grpc,
         http,
@@ -64,8 +78,15 @@ pub async fn start(
 }
 
 impl Running {
-    /// Stops accepting connections, lets in-flight requests finish, and returns.
+    /// Reports NOT_SERVING, stops accepting connections, lets in-flight requests finish, and
+    /// returns.
     pub async fn shutdown(self) {
+        self.health
+            .set_not_serving::<pb::trinocular_server::TrinocularServer<grpc::GrpcApi>>()
+            .await;
+        self.health
+            .set_service_status("", tonic_health::ServingStatus::NotServing)
+            .await;
         let _ = self.stop.send(true);
         let (g, h) = tokio::join!(self.grpc, self.http);
         if let Ok(Err(e)) = g {

@@ -1,7 +1,8 @@
 //! The HTTP transport (axum): the same messages as gRPC, as canonical proto3 JSON or as
 //! protobuf (`Content-Type: application/x-protobuf`); answers in the request's format.
 //!
-//! - `POST /v1/match`: a `MatchRequest` → a `MatchResponse`;
+//! - `POST /v1/match[?timeout_ms=N]`: a `MatchRequest` → a `MatchResponse` (504
+//!   DEADLINE_EXCEEDED past the timeout);
 //! - `GET /healthz`: the process is up; `GET /readyz`: it takes work (503 while stopping).
 //!
 //! Errors are `{"error": {"code": "INVALID_ARGUMENT", "field": "...", "message": "..."}}` with
@@ -11,7 +12,9 @@ use std::sync::Arc;
 
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, State};
-use axum::http::{header, HeaderMap, StatusCode};
+use std::time::Duration;
+
+use axum::http::{header, HeaderMap, StatusCode, Uri};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
@@ -89,12 +92,39 @@ impl UpperSnake for String {
     }
 }
 
+/// Longest `timeout_ms` accepted: an hour.
+const MAX_TIMEOUT_MS: u64 = 3_600_000;
+
+/// The `timeout_ms` query parameter, if any.
+fn timeout_of(uri: &Uri) -> Result<Option<Duration>, InputError> {
+    let Some(query) = uri.query() else {
+        return Ok(None);
+    };
+    for pair in query.split('&') {
+        if let Some(value) = pair.strip_prefix("timeout_ms=") {
+            return match value.parse::<u64>() {
+                Ok(ms) if (1..=MAX_TIMEOUT_MS).contains(&ms) => Ok(Some(Duration::from_millis(ms))),
+                _ => Err(InputError::new(
+                    "timeout_ms",
+                    format!("must be a whole number of milliseconds from 1 to {MAX_TIMEOUT_MS}, got {value:?}"),
+                )),
+            };
+        }
+    }
+    Ok(None)
+}
+
 async fn match_handler(
     State(service): State<Arc<Service>>,
+    uri: Uri,
     headers: HeaderMap,
     body: Bytes,
 ) -> Response {
     let protobuf = is_protobuf(&headers);
+    let timeout = match timeout_of(&uri) {
+        Ok(t) => t,
+        Err(e) => return error_response(&ServiceError::Input(e)),
+    };
     let request: Result<pb::MatchRequest, InputError> = if protobuf {
         pb::MatchRequest::decode(body)
             .map_err(|e| InputError::new("request", format!("invalid protobuf: {e}")))
@@ -104,7 +134,7 @@ async fn match_handler(
             .and_then(|text| from_json("request", text))
     };
     let response = match request {
-        Ok(request) => service.match_request(request).await,
+        Ok(request) => service.match_within(request, timeout).await,
         Err(e) => Err(ServiceError::Input(e)),
     };
     match response {

@@ -16,6 +16,9 @@ pub enum ServiceError {
     /// Every compute slot is taken: retry after a moment.
     #[error("the service is busy ({max_jobs} jobs queued or running); retry later")]
     Busy { max_jobs: usize },
+    /// The caller's deadline passed before the answer was ready.
+    #[error("the deadline of {timeout_ms} ms passed before the answer was ready")]
+    DeadlineExceeded { timeout_ms: u64 },
     /// A bug: the detail is logged, the client gets a generic message.
     #[error("internal error")]
     Internal { detail: String },
@@ -35,6 +38,7 @@ impl ServiceError {
         match self {
             ServiceError::Input(_) => Code::InvalidArgument,
             ServiceError::Busy { .. } => Code::ResourceExhausted,
+            ServiceError::DeadlineExceeded { .. } => Code::DeadlineExceeded,
             ServiceError::Internal { .. } => Code::Internal,
         }
     }
@@ -43,7 +47,9 @@ impl ServiceError {
     pub fn field(&self) -> Option<&str> {
         match self {
             ServiceError::Input(e) => Some(&e.field),
-            ServiceError::Busy { .. } | ServiceError::Internal { .. } => None,
+            ServiceError::Busy { .. }
+            | ServiceError::DeadlineExceeded { .. }
+            | ServiceError::Internal { .. } => None,
         }
     }
 }

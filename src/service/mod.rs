@@ -79,6 +79,23 @@ impl Service {
         self.ready.store(ready, Ordering::Relaxed);
     }
 
+    /// [`Service::match_request`] within `timeout` (none: no deadline). Past it the answer is
+    /// DEADLINE_EXCEEDED and the job, if still queued, never runs.
+    pub async fn match_within(
+        &self,
+        request: pb::MatchRequest,
+        timeout: Option<std::time::Duration>,
+    ) -> Result<pb::MatchResponse, ServiceError> {
+        match timeout {
+            None => self.match_request(request).await,
+            Some(t) => tokio::time::timeout(t, self.match_request(request))
+                .await
+                .unwrap_or(Err(ServiceError::DeadlineExceeded {
+                    timeout_ms: t.as_millis() as u64,
+                })),
+        }
+    }
+
     /// Match: checks and converts the request (decoding images) and runs the pipeline, all on
     /// the compute pool.
     pub async fn match_request(

@@ -297,3 +297,104 @@ fn futures_once<T>(item: T) -> impl futures_core::Stream<Item = T> {
     }
     Once(Some(item))
 }
+
+/// A request that takes a while (about 100 ms): 10,000 segments per image to match.
+fn slow_request() -> pb::MatchRequest {
+    let (rig, lists) = trinocular::synth::scattered_capture(10_000, 0.3, 0.2, 1);
+    let cameras = rig
+        .cameras()
+        .iter()
+        .map(|c| {
+            let p = c.projection();
+            pb::Camera {
+                width: c.width(),
+                height: c.height(),
+                projection: (0..12).map(|i| p[(i / 4, i % 4)]).collect(),
+                ..Default::default()
+            }
+        })
+        .collect();
+    pb::MatchRequest {
+        calibration: Some(pb::Calibration { cameras }),
+        options: None,
+        input: Some(pb::match_request::Input::Segments(pb::SegmentTriplet {
+            lists: lists.iter().map(api::segment_list_to_pb).collect(),
+        })),
+    }
+}
+
+#[test]
+fn deadlines_are_honoured_on_both_transports() {
+    runtime().block_on(async {
+        // One compute thread, kept busy by a slow request: small requests with a deadline
+        // wait in the queue, and the deadline passes there, whatever the machine's speed.
+        let running = start(Limits {
+            threads: 1,
+            ..small_limits()
+        })
+        .await;
+        let http = reqwest::Client::new();
+        let url = format!("http://{}/v1/match", running.http_addr);
+        let slow = tokio::spawn(
+            http.post(url.clone())
+                .header("content-type", "application/x-protobuf")
+                .body(slow_request().encode_to_vec())
+                .send(),
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(30)).await;
+        let small = example_request();
+
+        let reply = http
+            .post(format!("{url}?timeout_ms=10"))
+            .header("content-type", "application/x-protobuf")
+            .body(small.encode_to_vec())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 504);
+        let body: serde_json::Value = reply.json_body().await;
+        assert_eq!(body["error"]["code"], "DEADLINE_EXCEEDED");
+
+        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            running.grpc_addr
+        ))
+        .await
+        .unwrap();
+        let mut call = tonic::Request::new(small.clone());
+        call.set_timeout(std::time::Duration::from_millis(40));
+        let t0 = std::time::Instant::now();
+        let status = grpc.r#match(call).await.unwrap_err();
+        // The server answers DEADLINE_EXCEEDED just before the deadline; a tonic client,
+        // though, reports a call whose deadline it set as CANCELLED "Timeout expired" (its own
+        // timeout layer), where other gRPC clients report DEADLINE_EXCEEDED. Either way the call
+        // ends at its deadline, long before the queue ahead of it drains.
+        assert!(
+            status.code() == tonic::Code::DeadlineExceeded
+                || (status.code() == tonic::Code::Cancelled
+                    && status.message() == "Timeout expired"),
+            "{status:?}"
+        );
+        assert!(
+            t0.elapsed() < std::time::Duration::from_millis(60),
+            "{:?}",
+            t0.elapsed()
+        );
+
+        let bad = http
+            .post(format!("{url}?timeout_ms=soon"))
+            .header("content-type", "application/x-protobuf")
+            .body(small.encode_to_vec())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(bad.status(), 400);
+        assert_eq!(bad.json_body().await["error"]["field"], "timeout_ms");
+
+        // The slow one completes, and the service is fine afterwards.
+        assert_eq!(slow.await.unwrap().unwrap().status(), 200);
+        let ok = grpc.r#match(small).await.unwrap().into_inner();
+        assert!(!ok.segments_3d.is_empty());
+        running.shutdown().await;
+    });
+}

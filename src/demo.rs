@@ -26,6 +26,9 @@ pub struct Demo {
     pub overlay_png: Vec<u8>,
     pub top_png: Vec<u8>,
     pub response: pb::MatchResponse,
+    /// The rig's `Calibration` (projection matrices), to replay the capture through the CLI
+    /// or the service.
+    pub calibration: pb::Calibration,
     /// A few lines for people: counts, time, accuracy against the ground truth.
     pub summary: String,
     /// Share of wrong 3D segments and of eligible edge length covered (`synth::score`).
@@ -106,7 +109,24 @@ pub fn run(seed: u64) -> Result<Demo, String> {
         100.0 * completeness,
         s.acc_median_mm.unwrap_or(f64::NAN),
     );
+    let calibration = pb::Calibration {
+        cameras: rig
+            .cameras()
+            .iter()
+            .map(|c| {
+                let p = c.projection();
+                pb::Camera {
+                    name: c.name().to_string(),
+                    width: c.width(),
+                    height: c.height(),
+                    projection: (0..12).map(|i| p[(i / 4, i % 4)]).collect(),
+                    ..Default::default()
+                }
+            })
+            .collect(),
+    };
     Ok(Demo {
+        calibration,
         images_png: [png(0)?, png(1)?, png(2)?],
         overlay_png: picture.to_png().map_err(|e| e.to_string())?,
         top_png: top.to_png().map_err(|e| e.to_string())?,

@@ -247,9 +247,13 @@ fn run_demo(args: &DemoArgs) -> Result<(), Failure> {
         &args.out.join("response.json"),
         (api::to_json(&demo.response) + "\n").as_bytes(),
     )?;
+    write(
+        &args.out.join("calibration.json"),
+        (api::to_json(&demo.calibration) + "\n").as_bytes(),
+    )?;
     println!("{}", demo.summary);
     println!(
-        "wrote {0}/img1.png img2.png img3.png overlay.png top.png response.json",
+        "wrote {0}/img1.png img2.png img3.png overlay.png top.png response.json calibration.json",
         args.out.display()
     );
     Ok(())

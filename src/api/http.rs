@@ -2,7 +2,8 @@
 //! protobuf (`Content-Type: application/x-protobuf`); answers in the request's format.
 //!
 //! - `POST /v1/match[?timeout_ms=N]`: a `MatchRequest` → a `MatchResponse` (504
-//!   DEADLINE_EXCEEDED past the timeout);
+//!   DEADLINE_EXCEEDED past the timeout); or a `multipart/form-data` upload (parts
+//!   `calibration`, `options`, and `segments` or `image1` `image2` `image3`), answered in JSON;
 //! - `GET /healthz`: the process is up; `GET /readyz`: it takes work (503 while stopping).
 //!
 //! Errors are `{"error": {"code": "INVALID_ARGUMENT", "field": "...", "message": "..."}}` with
@@ -11,7 +12,7 @@
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, State};
+use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, State};
 use std::time::Duration;
 
 use axum::http::{header, HeaderMap, StatusCode, Uri};
@@ -117,25 +118,35 @@ fn timeout_of(uri: &Uri) -> Result<Option<Duration>, InputError> {
 async fn match_handler(
     State(service): State<Arc<Service>>,
     uri: Uri,
-    headers: HeaderMap,
-    body: Bytes,
+    request: axum::extract::Request,
 ) -> Response {
-    let protobuf = is_protobuf(&headers);
+    let protobuf = is_protobuf(request.headers());
+    let multipart = request
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("multipart/form-data"));
     let timeout = match timeout_of(&uri) {
         Ok(t) => t,
         Err(e) => return error_response(&ServiceError::Input(e)),
     };
-    let request: Result<pb::MatchRequest, InputError> = if protobuf {
-        pb::MatchRequest::decode(body)
-            .map_err(|e| InputError::new("request", format!("invalid protobuf: {e}")))
+    let parsed: Result<pb::MatchRequest, ServiceError> = if multipart {
+        match Multipart::from_request(request, &()).await {
+            Ok(parts) => request_from_multipart(parts).await,
+            Err(e) => Err(ServiceError::Input(InputError::new(
+                "request",
+                e.body_text(),
+            ))),
+        }
     } else {
-        std::str::from_utf8(&body)
-            .map_err(|_| InputError::new("request", "the body is not UTF-8 JSON"))
-            .and_then(|text| from_json("request", text))
+        match Bytes::from_request(request, &()).await {
+            Ok(body) => decode_body(&body, protobuf).map_err(ServiceError::Input),
+            Err(e) => return e.into_response(), // 413 past the body limit, with axum's message
+        }
     };
-    let response = match request {
+    let response = match parsed {
         Ok(request) => service.match_within(request, timeout).await,
-        Err(e) => Err(ServiceError::Input(e)),
+        Err(e) => Err(e),
     };
     match response {
         Ok(r) if protobuf => {
@@ -144,4 +155,76 @@ async fn match_handler(
         Ok(r) => ([(header::CONTENT_TYPE, JSON)], to_json(&r) + "\n").into_response(),
         Err(e) => error_response(&e),
     }
+}
+
+fn decode_body(body: &[u8], protobuf: bool) -> Result<pb::MatchRequest, InputError> {
+    if protobuf {
+        pb::MatchRequest::decode(body)
+            .map_err(|e| InputError::new("request", format!("invalid protobuf: {e}")))
+    } else {
+        std::str::from_utf8(body)
+            .map_err(|_| InputError::new("request", "the body is not UTF-8 JSON"))
+            .and_then(|text| from_json("request", text))
+    }
+}
+
+/// A `MatchRequest` from a `multipart/form-data` upload, for curl: parts `calibration` (JSON),
+/// `options` (JSON, optional), and either `segments` (a `SegmentTriplet`, JSON) or `image1`,
+/// `image2`, `image3` (image files).
+async fn request_from_multipart(mut parts: Multipart) -> Result<pb::MatchRequest, ServiceError> {
+    let bad = |field: &str, message: String| ServiceError::Input(InputError::new(field, message));
+    let text = |field: &str, bytes: &[u8]| -> Result<String, ServiceError> {
+        String::from_utf8(bytes.to_vec()).map_err(|_| bad(field, "is not UTF-8 JSON".into()))
+    };
+    let (mut calibration, mut options, mut segments) = (None, None, None);
+    let mut images: [Option<Vec<u8>>; 3] = Default::default();
+    loop {
+        let field = match parts.next_field().await {
+            Ok(Some(field)) => field,
+            Ok(None) => break,
+            Err(e) => return Err(bad("request", e.body_text())),
+        };
+        let name = field.name().unwrap_or_default().to_string();
+        let bytes = field.bytes().await.map_err(|e| bad(&name, e.body_text()))?;
+        match name.as_str() {
+            "calibration" => calibration = Some(from_json("calibration", &text(&name, &bytes)?)?),
+            "options" => options = Some(from_json("options", &text(&name, &bytes)?)?),
+            "segments" => segments = Some(from_json("segments", &text(&name, &bytes)?)?),
+            "image1" | "image2" | "image3" => {
+                let i = usize::from(name.as_bytes()[5] - b'1');
+                images[i] = Some(bytes.to_vec());
+            }
+            other => {
+                return Err(bad(
+                    other,
+                    "unknown part: expected calibration, options, segments or image1..image3"
+                        .into(),
+                ))
+            }
+        }
+    }
+    let given = images.iter().filter(|i| i.is_some()).count();
+    let input = match (segments, given) {
+        (Some(s), 0) => pb::match_request::Input::Segments(s),
+        (None, 3) => pb::match_request::Input::Images(pb::ImageTriplet {
+            images: images
+                .into_iter()
+                .map(|bytes| pb::Image {
+                    source: bytes.map(pb::image::Source::Encoded),
+                })
+                .collect(),
+        }),
+        (Some(_), _) => return Err(bad("segments", "give segments or images, not both".into())),
+        (None, n) => {
+            return Err(bad(
+                "images",
+                format!("needs the three parts image1, image2, image3 (or segments), got {n}"),
+            ))
+        }
+    };
+    Ok(pb::MatchRequest {
+        calibration,
+        options,
+        input: Some(input),
+    })
 }

@@ -398,3 +398,81 @@ fn deadlines_are_honoured_on_both_transports() {
         running.shutdown().await;
     });
 }
+
+#[test]
+fn curl_style_multipart_uploads_match_images() {
+    use reqwest::multipart::{Form, Part};
+    use trinocular::synth::{render_triplet, standard_capture, Defects, RenderParams};
+    let (scene, rig, _) = standard_capture(1, Defects::clean(), false);
+    let images = render_triplet(&scene, &rig, &RenderParams::default(), 1);
+    let png = |i: usize| {
+        let img = &images[i];
+        let mut out = std::io::Cursor::new(Vec::new());
+        image::GrayImage::from_raw(img.width(), img.height(), img.to_u8())
+            .unwrap()
+            .write_to(&mut out, image::ImageFormat::Png)
+            .unwrap();
+        out.into_inner()
+    };
+    let cameras: Vec<serde_json::Value> = rig
+        .cameras()
+        .iter()
+        .map(|c| {
+            let p = c.projection();
+            serde_json::json!({"width": c.width(), "height": c.height(),
+                "projection": (0..12).map(|i| p[(i / 4, i % 4)]).collect::<Vec<f64>>()})
+        })
+        .collect();
+    let calibration = serde_json::json!({ "cameras": cameras }).to_string();
+    runtime().block_on(async {
+        let running = start(small_limits()).await;
+        let url = format!("http://{}/v1/match", running.http_addr);
+        let http = reqwest::Client::new();
+        let form = |parts: &[usize], extra: Option<(&str, String)>| {
+            let mut f = Form::new().text("calibration", calibration.clone());
+            for &i in parts {
+                let name = format!("image{}", i + 1);
+                f = f.part(
+                    name.clone(),
+                    Part::bytes(png(i)).file_name(format!("{name}.png")),
+                );
+            }
+            if let Some((name, value)) = extra {
+                f = f.text(name.to_string(), value);
+            }
+            f
+        };
+        let reply = http
+            .post(&url)
+            .multipart(form(
+                &[0, 1, 2],
+                Some(("options", "{\"returnExtracted\": true}".into())),
+            ))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 200);
+        let response: pb::MatchResponse =
+            serde_json::from_str(&reply.text().await.unwrap()).unwrap();
+        assert!(response.segments_3d.len() > 100);
+        assert_eq!(response.extracted.len(), 3);
+
+        let missing = http
+            .post(&url)
+            .multipart(form(&[0, 1], None))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(missing.status(), 400);
+        assert_eq!(missing.json_body().await["error"]["field"], "images");
+        let unknown = http
+            .post(&url)
+            .multipart(form(&[0, 1, 2], Some(("picture", "x".into()))))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(unknown.status(), 400);
+        assert_eq!(unknown.json_body().await["error"]["field"], "picture");
+        running.shutdown().await;
+    });
+}

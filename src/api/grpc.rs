@@ -61,7 +61,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
             .and_then(grpc_timeout)
             .map(with_margin);
         self.service
-            .match_within(request.into_inner(), timeout)
+            .match_within(request.into_inner(), timeout, "grpc")
             .await
             .map(Response::new)
             .map_err(|e| status(&e))

@@ -4,7 +4,8 @@
 //! - `POST /v1/match[?timeout_ms=N]`: a `MatchRequest` → a `MatchResponse` (504
 //!   DEADLINE_EXCEEDED past the timeout); or a `multipart/form-data` upload (parts
 //!   `calibration`, `options`, and `segments` or `image1` `image2` `image3`), answered in JSON;
-//! - `GET /healthz`: the process is up; `GET /readyz`: it takes work (503 while stopping).
+//! - `GET /healthz`: the process is up; `GET /readyz`: it takes work (503 while stopping);
+//! - `GET /metrics`: Prometheus text format.
 //!
 //! Errors are `{"error": {"code": "INVALID_ARGUMENT", "field": "...", "message": "..."}}` with
 //! the HTTP status of the gRPC code.
@@ -34,6 +35,15 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/v1/match", post(match_handler))
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/readyz", get(ready))
+        .route(
+            "/metrics",
+            get(|State(service): State<Arc<Service>>| async move {
+                (
+                    [(header::CONTENT_TYPE, "text/plain; version=0.0.4")],
+                    service.metrics_text(),
+                )
+            }),
+        )
         .layer(DefaultBodyLimit::max(max))
         .with_state(service)
 }
@@ -126,9 +136,14 @@ async fn match_handler(
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.starts_with("multipart/form-data"));
+    let start = std::time::Instant::now();
+    let refuse = |e: ServiceError| {
+        service.record_refused("http", &e, start.elapsed().as_secs_f64());
+        error_response(&e)
+    };
     let timeout = match timeout_of(&uri) {
         Ok(t) => t,
-        Err(e) => return error_response(&ServiceError::Input(e)),
+        Err(e) => return refuse(ServiceError::Input(e)),
     };
     let parsed: Result<pb::MatchRequest, ServiceError> = if multipart {
         match Multipart::from_request(request, &()).await {
@@ -145,8 +160,8 @@ async fn match_handler(
         }
     };
     let response = match parsed {
-        Ok(request) => service.match_within(request, timeout).await,
-        Err(e) => Err(e),
+        Ok(request) => service.match_within(request, timeout, "http").await,
+        Err(e) => return refuse(e),
     };
     match response {
         Ok(r) if protobuf => {

@@ -9,6 +9,7 @@
 //! ```
 
 pub mod error;
+pub mod metrics;
 pub mod pool;
 pub mod server;
 
@@ -51,15 +52,38 @@ pub struct Service {
     pool: ComputePool,
     limits: Limits,
     ready: AtomicBool,
+    metrics: metrics::Metrics,
+}
+
+/// Why a service could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    #[error("cannot start the compute pool: {0}")]
+    Pool(#[from] rayon::ThreadPoolBuildError),
+    #[error("cannot set up the metrics: {0}")]
+    Metrics(#[from] prometheus::Error),
 }
 
 impl Service {
-    pub fn new(limits: Limits) -> Result<Service, rayon::ThreadPoolBuildError> {
+    pub fn new(limits: Limits) -> Result<Service, StartError> {
         Ok(Service {
             pool: ComputePool::new(limits.threads, limits.max_jobs)?,
             limits,
             ready: AtomicBool::new(true),
+            metrics: metrics::Metrics::new()?,
         })
+    }
+
+    /// Counts a request refused before it reached [`Service::match_within`] (unreadable body).
+    pub fn record_refused(&self, transport: &str, error: &ServiceError, seconds: f64) {
+        self.metrics
+            .record(transport, "match", error.code(), seconds, None);
+    }
+
+    /// The Prometheus text exposition of this service's metrics.
+    pub fn metrics_text(&self) -> String {
+        self.metrics
+            .render(self.pool.in_flight(), self.pool.max_jobs())
     }
 
     pub fn limits(&self) -> &Limits {
@@ -81,7 +105,29 @@ impl Service {
 
     /// [`Service::match_request`] within `timeout` (none: no deadline). Past it the answer is
     /// DEADLINE_EXCEEDED and the job, if still queued, never runs.
+    /// Recorded in the metrics under `transport`.
     pub async fn match_within(
+        &self,
+        request: pb::MatchRequest,
+        timeout: Option<std::time::Duration>,
+        transport: &str,
+    ) -> Result<pb::MatchResponse, ServiceError> {
+        let start = std::time::Instant::now();
+        let result = self.match_deadline(request, timeout).await;
+        let code = result
+            .as_ref()
+            .map_or_else(|e| e.code(), |_| tonic::Code::Ok);
+        self.metrics.record(
+            transport,
+            "match",
+            code,
+            start.elapsed().as_secs_f64(),
+            result.as_ref().ok(),
+        );
+        result
+    }
+
+    async fn match_deadline(
         &self,
         request: pb::MatchRequest,
         timeout: Option<std::time::Duration>,

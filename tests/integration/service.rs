@@ -476,3 +476,48 @@ fn curl_style_multipart_uploads_match_images() {
         running.shutdown().await;
     });
 }
+
+#[test]
+fn metrics_count_requests_by_transport_and_code() {
+    runtime().block_on(async {
+        let running = start(small_limits()).await;
+        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            running.grpc_addr
+        ))
+        .await
+        .unwrap();
+        grpc.r#match(example_request()).await.unwrap();
+        let http = reqwest::Client::new();
+        let reply = http
+            .post(format!("http://{}/v1/match", running.http_addr))
+            .body("{not json")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        let text = http
+            .get(format!("http://{}/metrics", running.http_addr))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        let has = |line: &str| text.lines().any(|l| l == line);
+        assert!(
+            has(r#"trinocular_requests_total{code="Ok",route="match",transport="grpc"} 1"#),
+            "{text}"
+        );
+        assert!(
+            has(r#"trinocular_requests_total{code="InvalidArgument",route="match",transport="http"} 1"#),
+            "{text}"
+        );
+        assert!(has(r#"trinocular_request_duration_seconds_count{route="match",transport="grpc"} 1"#));
+        assert!(text.contains(r#"trinocular_stage_duration_seconds_count{stage="predict"} 1"#));
+        assert!(has("trinocular_jobs_in_flight 0"));
+        assert!(has("trinocular_jobs_max 8"));
+        assert!(has("trinocular_rejections_total 0"));
+        running.shutdown().await;
+    });
+}

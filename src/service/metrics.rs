@@ -1,0 +1,129 @@
+//! Prometheus metrics: requests by transport, route and code; latency histograms; per-stage
+//! durations of the pipeline; jobs in flight and rejections. One registry per [`Service`],
+//! so servers in one process (tests) do not mix their counts.
+//!
+//! [`Service`]: super::Service
+
+use prometheus::{
+    Encoder, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, Opts, Registry,
+    TextEncoder,
+};
+
+use crate::api::pb;
+
+/// Latency buckets, seconds: 1 ms to 10 s.
+const LATENCY_BUCKETS: &[f64] = &[
+    0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0,
+];
+
+pub struct Metrics {
+    registry: Registry,
+    requests: IntCounterVec,
+    latency: HistogramVec,
+    stages: HistogramVec,
+    in_flight: IntGauge,
+    max_jobs: IntGauge,
+    rejections: IntCounter,
+}
+
+impl Metrics {
+    pub fn new() -> Result<Metrics, prometheus::Error> {
+        let registry = Registry::new();
+        let requests = IntCounterVec::new(
+            Opts::new(
+                "trinocular_requests_total",
+                "Requests by transport, route and gRPC code",
+            ),
+            &["transport", "route", "code"],
+        )?;
+        let latency = HistogramVec::new(
+            HistogramOpts::new(
+                "trinocular_request_duration_seconds",
+                "Time from request to answer, by transport and route",
+            )
+            .buckets(LATENCY_BUCKETS.to_vec()),
+            &["transport", "route"],
+        )?;
+        let stages = HistogramVec::new(
+            HistogramOpts::new(
+                "trinocular_stage_duration_seconds",
+                "Pipeline stage wall time per request (extract: per image)",
+            )
+            .buckets(LATENCY_BUCKETS.to_vec()),
+            &["stage"],
+        )?;
+        let in_flight = IntGauge::new(
+            "trinocular_jobs_in_flight",
+            "Compute jobs queued or running",
+        )?;
+        let max_jobs = IntGauge::new(
+            "trinocular_jobs_max",
+            "Compute jobs allowed queued or running at once",
+        )?;
+        let rejections = IntCounter::new(
+            "trinocular_rejections_total",
+            "Requests refused at once because every compute slot was taken",
+        )?;
+        registry.register(Box::new(requests.clone()))?;
+        registry.register(Box::new(latency.clone()))?;
+        registry.register(Box::new(stages.clone()))?;
+        registry.register(Box::new(in_flight.clone()))?;
+        registry.register(Box::new(max_jobs.clone()))?;
+        registry.register(Box::new(rejections.clone()))?;
+        Ok(Metrics {
+            registry,
+            requests,
+            latency,
+            stages,
+            in_flight,
+            max_jobs,
+            rejections,
+        })
+    }
+
+    /// One answered request.
+    pub fn record(
+        &self,
+        transport: &str,
+        route: &str,
+        code: tonic::Code,
+        seconds: f64,
+        response: Option<&pb::MatchResponse>,
+    ) {
+        let code = format!("{code:?}");
+        self.requests
+            .with_label_values(&[transport, route, code.as_str()])
+            .inc();
+        self.latency
+            .with_label_values(&[transport, route])
+            .observe(seconds);
+        if code == "ResourceExhausted" {
+            self.rejections.inc();
+        }
+        if let Some(stats) = response.and_then(|r| r.stats.as_ref()) {
+            for (stage, ms) in [
+                ("rectify", stats.rectify_ms),
+                ("predict", stats.predict_ms),
+                ("validate", stats.validate_ms),
+                ("reconstruct", stats.reconstruct_ms),
+            ] {
+                self.stages.with_label_values(&[stage]).observe(ms / 1e3);
+            }
+            for ms in &stats.extract_ms {
+                self.stages
+                    .with_label_values(&["extract"])
+                    .observe(ms / 1e3);
+            }
+        }
+    }
+
+    /// The text exposition format, with the pool's current load.
+    pub fn render(&self, in_flight: usize, max_jobs: usize) -> String {
+        self.in_flight.set(in_flight as i64);
+        self.max_jobs.set(max_jobs as i64);
+        let mut out = Vec::new();
+        // Encoding into a Vec cannot fail for well-formed metrics; an error gives what we have.
+        let _ = TextEncoder::new().encode(&self.registry.gather(), &mut out);
+        String::from_utf8_lossy(&out).into_owned()
+    }
+}

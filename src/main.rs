@@ -36,24 +36,28 @@ enum Command {
 
 #[derive(Args)]
 struct ServeArgs {
-    /// gRPC listen address.
-    #[arg(long, default_value = "0.0.0.0:50051")]
-    grpc_addr: std::net::SocketAddr,
-    /// HTTP listen address.
-    #[arg(long, default_value = "0.0.0.0:8080")]
-    http_addr: std::net::SocketAddr,
+    /// A TOML configuration file (see README); the environment (TRINOCULAR__SECTION__KEY)
+    /// overrides it, and these flags override both.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// gRPC listen address (default 0.0.0.0:50051).
+    #[arg(long)]
+    grpc_addr: Option<std::net::SocketAddr>,
+    /// HTTP listen address (default 0.0.0.0:8080).
+    #[arg(long)]
+    http_addr: Option<std::net::SocketAddr>,
     /// Compute threads (default: one per core).
     #[arg(long)]
     threads: Option<usize>,
     /// Jobs queued or running at once; past it, 429 / RESOURCE_EXHAUSTED (default: 4 per thread).
     #[arg(long)]
     max_jobs: Option<usize>,
-    /// Largest request, MiB.
-    #[arg(long, default_value_t = 32)]
-    max_message_mib: usize,
-    /// Largest image, pixels.
-    #[arg(long, default_value_t = 40_000_000)]
-    max_image_pixels: u64,
+    /// Largest request, MiB (default 32).
+    #[arg(long)]
+    max_message_mib: Option<usize>,
+    /// Largest image, pixels (default 40,000,000).
+    #[arg(long)]
+    max_image_pixels: Option<u64>,
 }
 
 #[derive(Args)]
@@ -261,23 +265,52 @@ fn run_demo(args: &DemoArgs) -> Result<(), Failure> {
 
 fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     use std::sync::Arc;
-    use trinocular::service::{server, Limits, Service};
-    let defaults = Limits::default();
-    let threads = args.threads.unwrap_or(defaults.threads).max(1);
-    let limits = Limits {
-        threads,
-        max_jobs: args.max_jobs.unwrap_or(4 * threads).max(1),
-        max_message_bytes: args.max_message_mib.max(1) << 20,
-        max_image_pixels: args.max_image_pixels.max(1),
+    use trinocular::service::{config::Config, server, Service};
+    let file = match &args.config {
+        Some(path) => Some(read(path)?),
+        None => None,
     };
-    let service = Arc::new(Service::new(limits.clone()).context("cannot start the compute pool")?);
+    let mut config =
+        Config::load(file.as_deref(), std::env::vars()).map_err(|e| anyhow::anyhow!(e))?;
+    // Flags last.
+    if let Some(a) = args.grpc_addr {
+        config.server.grpc_addr = a;
+    }
+    if let Some(a) = args.http_addr {
+        config.server.http_addr = a;
+    }
+    if let Some(n) = args.threads {
+        config.compute.threads = n;
+    }
+    if let Some(n) = args.max_jobs {
+        config.compute.max_jobs = n;
+    }
+    if let Some(n) = args.max_message_mib {
+        config.limits.max_message_mib = n;
+    }
+    if let Some(n) = args.max_image_pixels {
+        config.limits.max_image_pixels = n;
+    }
+    config
+        .validate()
+        .map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))?;
+    let limits = config.limits();
+    eprintln!(
+        "trinocular serve: effective configuration:\n{}{limits:?}",
+        toml::to_string(&config).unwrap_or_default()
+    );
+    let service = Arc::new(Service::new(limits.clone()).context("cannot start the service")?);
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     runtime.block_on(async {
-        let running = server::start(Arc::clone(&service), args.grpc_addr, args.http_addr)
-            .await
-            .context("cannot listen")?;
+        let running = server::start(
+            Arc::clone(&service),
+            config.server.grpc_addr,
+            config.server.http_addr,
+        )
+        .await
+        .context("cannot listen")?;
         eprintln!(
-            "trinocular serve: gRPC on {}, HTTP on {}; {limits:?}",
+            "trinocular serve: gRPC on {}, HTTP on {}",
             running.grpc_addr, running.http_addr
         );
         let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())

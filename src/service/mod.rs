@@ -8,6 +8,7 @@
 //! HTTP (axum) ──┘
 //! ```
 
+pub mod config;
 pub mod error;
 pub mod metrics;
 pub mod pool;

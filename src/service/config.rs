@@ -1,0 +1,230 @@
+//! Service configuration, in layers: defaults → an optional TOML file → environment variables
+//! `TRINOCULAR__SECTION__KEY` → command-line flags (applied by the caller). Unknown keys are
+//! errors wherever they come from; [`Config::validate`] reports every problem at once.
+//!
+//! ```toml
+//! [server]
+//! grpc_addr = "0.0.0.0:50051"
+//! http_addr = "0.0.0.0:8080"
+//! [compute]
+//! threads = 2          # 0: one per core
+//! max_jobs = 8         # 0: four per thread
+//! [limits]
+//! max_message_mib = 32
+//! max_image_pixels = 40000000
+//! ```
+
+use std::net::SocketAddr;
+
+use serde::{Deserialize, Serialize};
+
+use super::Limits;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    pub server: ServerConfig,
+    pub compute: ComputeConfig,
+    pub limits: LimitsConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServerConfig {
+    pub grpc_addr: SocketAddr,
+    pub http_addr: SocketAddr,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct ComputeConfig {
+    /// Compute threads; 0: one per core.
+    pub threads: usize,
+    /// Jobs queued or running at once; 0: four per thread.
+    pub max_jobs: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LimitsConfig {
+    pub max_message_mib: usize,
+    pub max_image_pixels: u64,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        ServerConfig {
+            grpc_addr: SocketAddr::from(([0, 0, 0, 0], 50051)),
+            http_addr: SocketAddr::from(([0, 0, 0, 0], 8080)),
+        }
+    }
+}
+
+impl Default for LimitsConfig {
+    fn default() -> Self {
+        LimitsConfig {
+            max_message_mib: 32,
+            max_image_pixels: 40_000_000,
+        }
+    }
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            server: ServerConfig::default(),
+            compute: ComputeConfig::default(),
+            limits: LimitsConfig::default(),
+        }
+    }
+}
+
+/// Largest request accepted by configuration, MiB.
+const MAX_MESSAGE_MIB: usize = 1024;
+
+/// Environment variables read, with this prefix and `__` between section and key.
+pub const ENV_PREFIX: &str = "TRINOCULAR__";
+
+impl Config {
+    /// Defaults, overlaid by `file` (TOML text) and then by `env` (name, value) pairs with the
+    /// [`ENV_PREFIX`]; values are read as TOML (`8`, `"0.0.0.0:1"`, or bare strings).
+    pub fn load(
+        file: Option<&str>,
+        env: impl IntoIterator<Item = (String, String)>,
+    ) -> Result<Config, String> {
+        let mut tree: toml::Table = match file {
+            Some(text) => text.parse().map_err(|e| format!("config file: {e}"))?,
+            None => toml::Table::new(),
+        };
+        for (name, value) in env {
+            let Some(path) = name.strip_prefix(ENV_PREFIX) else {
+                continue;
+            };
+            let keys: Vec<String> = path.split("__").map(str::to_lowercase).collect();
+            let [section, key] = keys.as_slice() else {
+                return Err(format!(
+                    "{name}: expected {ENV_PREFIX}SECTION__KEY, e.g. {ENV_PREFIX}COMPUTE__THREADS"
+                ));
+            };
+            let parsed = format!("v = {value}")
+                .parse::<toml::Table>()
+                .ok()
+                .and_then(|mut t| t.remove("v"))
+                .unwrap_or_else(|| toml::Value::String(value.clone()));
+            let table = tree
+                .entry(section.clone())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            match table {
+                toml::Value::Table(t) => {
+                    t.insert(key.clone(), parsed);
+                }
+                _ => return Err(format!("{name}: [{section}] is not a section")),
+            }
+        }
+        toml::Value::Table(tree)
+            .try_into()
+            .map_err(|e: toml::de::Error| format!("config: {}", e.message()))
+    }
+
+    /// Every problem, one per line.
+    pub fn validate(&self) -> Result<(), String> {
+        let mut problems = Vec::new();
+        if self.server.grpc_addr == self.server.http_addr && self.server.grpc_addr.port() != 0 {
+            problems.push("server.grpc_addr and server.http_addr must differ".to_string());
+        }
+        if !(1..=MAX_MESSAGE_MIB).contains(&self.limits.max_message_mib) {
+            problems.push(format!(
+                "limits.max_message_mib must be 1 to {MAX_MESSAGE_MIB}, got {}",
+                self.limits.max_message_mib
+            ));
+        }
+        if self.limits.max_image_pixels == 0 {
+            problems.push("limits.max_image_pixels must be at least 1".to_string());
+        }
+        if problems.is_empty() {
+            Ok(())
+        } else {
+            Err(problems.join("\n"))
+        }
+    }
+
+    /// The service limits this configuration gives on this machine.
+    pub fn limits(&self) -> Limits {
+        let defaults = Limits::default();
+        let threads = if self.compute.threads == 0 {
+            defaults.threads
+        } else {
+            self.compute.threads
+        };
+        Limits {
+            threads,
+            max_jobs: if self.compute.max_jobs == 0 {
+                4 * threads
+            } else {
+                self.compute.max_jobs
+            },
+            max_message_bytes: self.limits.max_message_mib << 20,
+            max_image_pixels: self.limits.max_image_pixels,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn env(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
+        pairs
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect()
+    }
+
+    #[test]
+    fn layers_apply_in_order() {
+        let file =
+            "[compute]\nthreads = 3\nmax_jobs = 5\n[server]\nhttp_addr = \"127.0.0.1:9000\"\n";
+        let c = Config::load(
+            Some(file),
+            env(&[("TRINOCULAR__COMPUTE__MAX_JOBS", "7"), ("HOME", "/root")]),
+        )
+        .unwrap();
+        assert_eq!(c.compute.threads, 3, "from the file");
+        assert_eq!(c.compute.max_jobs, 7, "the environment beats the file");
+        assert_eq!(c.server.http_addr, "127.0.0.1:9000".parse().unwrap());
+        assert_eq!(
+            c.server.grpc_addr,
+            ServerConfig::default().grpc_addr,
+            "default"
+        );
+        let env_addr = Config::load(
+            None,
+            env(&[("TRINOCULAR__SERVER__GRPC_ADDR", "127.0.0.1:1")]),
+        );
+        assert_eq!(
+            env_addr.unwrap().server.grpc_addr,
+            "127.0.0.1:1".parse().unwrap()
+        );
+        assert_eq!(c.limits().max_jobs, 7);
+        assert_eq!(
+            Config::default().limits().max_jobs,
+            4 * Limits::default().threads
+        );
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_refused() {
+        let e = Config::load(Some("[compute]\nthread = 3\n"), env(&[])).unwrap_err();
+        assert!(e.contains("thread"), "{e}");
+        let e = Config::load(None, env(&[("TRINOCULAR__COMPUTE__SPEED", "9")])).unwrap_err();
+        assert!(e.contains("speed"), "{e}");
+        let e = Config::load(None, env(&[("TRINOCULAR__THREADS", "9")])).unwrap_err();
+        assert!(e.contains("SECTION__KEY"), "{e}");
+        assert!(Config::load(Some("[limits]\nmax_message_mib = \"big\"\n"), env(&[])).is_err());
+        let mut c = Config::default();
+        c.limits.max_message_mib = 0;
+        c.limits.max_image_pixels = 0;
+        let problems = c.validate().unwrap_err();
+        assert_eq!(problems.lines().count(), 2, "{problems}");
+    }
+}

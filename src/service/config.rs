@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 
 use super::Limits;
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
     pub server: ServerConfig,
@@ -65,16 +65,6 @@ impl Default for LimitsConfig {
         LimitsConfig {
             max_message_mib: 32,
             max_image_pixels: 40_000_000,
-        }
-    }
-}
-
-impl Default for Config {
-    fn default() -> Self {
-        Config {
-            server: ServerConfig::default(),
-            compute: ComputeConfig::default(),
-            limits: LimitsConfig::default(),
         }
     }
 }

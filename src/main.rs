@@ -58,6 +58,9 @@ struct ServeArgs {
     /// Largest image, pixels (default 40,000,000).
     #[arg(long)]
     max_image_pixels: Option<u64>,
+    /// Log one JSON object per line.
+    #[arg(long)]
+    log_json: bool,
 }
 
 #[derive(Args)]
@@ -291,13 +294,28 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     if let Some(n) = args.max_image_pixels {
         config.limits.max_image_pixels = n;
     }
+    if args.log_json {
+        config.log.json = true;
+    }
     config
         .validate()
         .map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))?;
+    let filter = tracing_subscriber::EnvFilter::try_new(&config.log.level)
+        .map_err(|e| anyhow::anyhow!("log.level: {e}"))?;
+    let logs = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_writer(std::io::stderr);
+    if config.log.json {
+        logs.json().init();
+    } else {
+        logs.init();
+    }
     let limits = config.limits();
-    eprintln!(
-        "trinocular serve: effective configuration:\n{}{limits:?}",
-        toml::to_string(&config).unwrap_or_default()
+    tracing::info!(
+        config = %toml::to_string(&config).unwrap_or_default(),
+        limits = ?limits,
+        "effective configuration"
     );
     let service = Arc::new(Service::new(limits.clone()).context("cannot start the service")?);
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
@@ -309,20 +327,17 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
         )
         .await
         .context("cannot listen")?;
-        eprintln!(
-            "trinocular serve: gRPC on {}, HTTP on {}",
-            running.grpc_addr, running.http_addr
-        );
+        tracing::info!(grpc = %running.grpc_addr, http = %running.http_addr, "listening");
         let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
             .context("cannot handle SIGTERM")?;
         tokio::select! {
             _ = tokio::signal::ctrl_c() => {}
             _ = term.recv() => {}
         }
-        eprintln!("trinocular serve: stopping; finishing in-flight requests");
+        tracing::info!("stopping: readiness false, finishing in-flight requests");
         service.set_ready(false);
         running.shutdown().await;
-        eprintln!("trinocular serve: stopped");
+        tracing::info!("stopped");
         Ok::<(), anyhow::Error>(())
     })?;
     Ok(())

@@ -4,10 +4,12 @@ use std::sync::Arc;
 
 use std::time::Duration;
 
+use tonic::metadata::MetadataValue;
 use tonic::{Request, Response, Status};
+use tracing::Instrument;
 
 use super::pb;
-use crate::service::{Service, ServiceError};
+use crate::service::{request_id, Service, ServiceError};
 
 pub struct GrpcApi {
     service: Arc<Service>,
@@ -60,11 +62,34 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
             .and_then(|v| v.to_str().ok())
             .and_then(grpc_timeout)
             .map(with_margin);
-        self.service
+        let id = request_id::request_id(
+            request
+                .metadata()
+                .get(request_id::HEADER)
+                .and_then(|v| v.to_str().ok()),
+        );
+        let answer = self
+            .service
             .match_within(request.into_inner(), timeout, "grpc")
-            .await
-            .map(Response::new)
-            .map_err(|e| status(&e))
+            .instrument(tracing::info_span!("grpc", request_id = %id))
+            .await;
+        let value = MetadataValue::try_from(id.as_str()).ok();
+        match answer {
+            Ok(r) => {
+                let mut response = Response::new(r);
+                if let Some(v) = value {
+                    response.metadata_mut().insert(request_id::HEADER, v);
+                }
+                Ok(response)
+            }
+            Err(e) => {
+                let mut s = status(&e);
+                if let Some(v) = value {
+                    s.metadata_mut().insert(request_id::HEADER, v);
+                }
+                Err(s)
+            }
+        }
     }
 }
 

@@ -23,7 +23,7 @@ use axum::Router;
 use prost::Message;
 
 use super::{from_json, pb, to_json, InputError};
-use crate::service::{http_status, Service, ServiceError};
+use crate::service::{http_status, request_id, Service, ServiceError};
 
 const PROTOBUF: &str = "application/x-protobuf";
 const JSON: &str = "application/json";
@@ -45,7 +45,29 @@ pub fn router(service: Arc<Service>) -> Router {
             }),
         )
         .layer(DefaultBodyLimit::max(max))
+        .layer(axum::middleware::from_fn(with_request_id))
         .with_state(service)
+}
+
+/// Gives every request an id (the client's `x-request-id`, or a new one), runs it inside a
+/// span carrying it, and echoes it in the response.
+async fn with_request_id(
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    use tracing::Instrument;
+    let id = request_id::request_id(
+        request
+            .headers()
+            .get(request_id::HEADER)
+            .and_then(|v| v.to_str().ok()),
+    );
+    let span = tracing::info_span!("http", request_id = %id, path = %request.uri().path());
+    let mut response = next.run(request).instrument(span).await;
+    if let Ok(value) = header::HeaderValue::from_str(&id) {
+        response.headers_mut().insert(request_id::HEADER, value);
+    }
+    response
 }
 
 async fn ready(State(service): State<Arc<Service>>) -> Response {

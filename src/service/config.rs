@@ -12,6 +12,9 @@
 //! [limits]
 //! max_message_mib = 32
 //! max_image_pixels = 40000000
+//! [log]
+//! json = false
+//! level = "info"
 //! ```
 
 use std::net::SocketAddr;
@@ -26,6 +29,25 @@ pub struct Config {
     pub server: ServerConfig,
     pub compute: ComputeConfig,
     pub limits: LimitsConfig,
+    pub log: LogConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogConfig {
+    /// One JSON object per line instead of text.
+    pub json: bool,
+    /// A `tracing` filter: `info`, `debug`, `trinocular=debug,info`, ...
+    pub level: String,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        LogConfig {
+            json: false,
+            level: "info".to_string(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -126,6 +148,12 @@ impl Config {
             problems.push(format!(
                 "limits.max_message_mib must be 1 to {MAX_MESSAGE_MIB}, got {}",
                 self.limits.max_message_mib
+            ));
+        }
+        if tracing_subscriber::EnvFilter::try_new(&self.log.level).is_err() {
+            problems.push(format!(
+                "log.level: {:?} is not a log filter",
+                self.log.level
             ));
         }
         if self.limits.max_image_pixels == 0 {

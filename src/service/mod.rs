@@ -12,6 +12,7 @@ pub mod config;
 pub mod error;
 pub mod metrics;
 pub mod pool;
+pub mod request_id;
 pub mod server;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -77,6 +78,7 @@ impl Service {
 
     /// Counts a request refused before it reached [`Service::match_within`] (unreadable body).
     pub fn record_refused(&self, transport: &str, error: &ServiceError, seconds: f64) {
+        self.log_refused(transport, error, seconds);
         self.metrics
             .record(transport, "match", error.code(), seconds, None);
     }
@@ -118,14 +120,28 @@ impl Service {
         let code = result
             .as_ref()
             .map_or_else(|e| e.code(), |_| tonic::Code::Ok);
-        self.metrics.record(
-            transport,
-            "match",
-            code,
-            start.elapsed().as_secs_f64(),
-            result.as_ref().ok(),
-        );
+        let seconds = start.elapsed().as_secs_f64();
+        // One line per request, inside the transport's span (which carries the request id).
+        match &result {
+            Ok(r) => tracing::info!(
+                transport,
+                code = ?code,
+                ms = seconds * 1e3,
+                segments_3d = r.segments_3d.len(),
+                "match"
+            ),
+            Err(e) => {
+                tracing::info!(transport, code = ?code, ms = seconds * 1e3, error = %e, "match")
+            }
+        }
+        self.metrics
+            .record(transport, "match", code, seconds, result.as_ref().ok());
         result
+    }
+
+    /// Logs and counts a request refused before it reached [`Service::match_within`].
+    fn log_refused(&self, transport: &str, error: &ServiceError, seconds: f64) {
+        tracing::info!(transport, code = ?error.code(), ms = seconds * 1e3, error = %error, "match");
     }
 
     async fn match_deadline(
@@ -164,7 +180,7 @@ impl Service {
             Err(e) => {
                 let e = ServiceError::from(e);
                 if let ServiceError::Internal { detail } = &e {
-                    eprintln!("match: internal error: {detail}");
+                    tracing::error!(detail = %detail, "match: internal error");
                 }
                 Err(e)
             }

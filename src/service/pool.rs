@@ -67,7 +67,7 @@ impl ComputePool {
             // Jobs catch their own panics; this catches a panic escaping rayon internals
             // (which would otherwise abort the process).
             .panic_handler(|payload| {
-                eprintln!("compute pool: {}", panic_message(payload.as_ref()));
+                tracing::error!(panic = %panic_message(payload.as_ref()), "compute pool");
             })
             .build()?;
         let max_jobs = max_jobs.max(1);

@@ -90,10 +90,10 @@ impl Running {
         let _ = self.stop.send(true);
         let (g, h) = tokio::join!(self.grpc, self.http);
         if let Ok(Err(e)) = g {
-            eprintln!("gRPC server: {e}");
+            tracing::error!(error = %e, "gRPC server");
         }
         if let Ok(Err(e)) = h {
-            eprintln!("HTTP server: {e}");
+            tracing::error!(error = %e, "HTTP server");
         }
     }
 }

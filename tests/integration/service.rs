@@ -521,3 +521,41 @@ fn metrics_count_requests_by_transport_and_code() {
         running.shutdown().await;
     });
 }
+
+#[test]
+fn request_ids_are_echoed_on_both_transports() {
+    runtime().block_on(async {
+        let running = start(small_limits()).await;
+        let http = reqwest::Client::new();
+        let url = format!("http://{}/v1/match", running.http_addr);
+        let given = http
+            .post(&url)
+            .header("x-request-id", "robot-42")
+            .body(api::to_json(&example_request()))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(given.headers()["x-request-id"], "robot-42");
+        let made = http.post(&url).body("{").send().await.unwrap();
+        assert_eq!(made.status(), 400);
+        let id = made.headers()["x-request-id"].to_str().unwrap().to_string();
+        assert!(!id.is_empty() && id != "robot-42");
+
+        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            running.grpc_addr
+        ))
+        .await
+        .unwrap();
+        let mut call = tonic::Request::new(example_request());
+        call.metadata_mut()
+            .insert("x-request-id", "robot-43".parse().unwrap());
+        let reply = grpc.r#match(call).await.unwrap();
+        assert_eq!(reply.metadata().get("x-request-id").unwrap(), "robot-43");
+        let mut bad = example_request();
+        bad.calibration = None;
+        let status = grpc.r#match(bad).await.unwrap_err();
+        assert!(status.metadata().get("x-request-id").is_some());
+        running.shutdown().await;
+    });
+}

@@ -54,9 +54,13 @@ pub async fn start(
             .add_service(health_service)
             .add_service(reflection)
             .add_service(grpc_service)
-            .serve_with_incoming_shutdown(TcpIncoming::from(grpc_listener), async move {
-                let _ = grpc_stop.wait_for(|&s| s).await;
-            }),
+            .serve_with_incoming_shutdown(
+                // Nagle and delayed ACKs would hold small answers for 40 ms.
+                TcpIncoming::from(grpc_listener).with_nodelay(Some(true)),
+                async move {
+                    let _ = grpc_stop.wait_for(|&s| s).await;
+                },
+            ),
     );
     let mut http_stop = stop.subscribe();
     let app = http::router(Arc::clone(&service));

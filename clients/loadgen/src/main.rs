@@ -1,0 +1,230 @@
+//! `trinocular-loadgen`: sends one `MatchRequest` again and again to a Trinocular service and
+//! reports throughput, latency percentiles and errors by code.
+//!
+//! - closed loop (`--concurrency N`): N clients, each sending its next request when the last
+//!   one is answered — the service's capacity at that concurrency;
+//! - open loop (`--rate R`): requests sent at R per second whatever happens, latency measured
+//!   from each request's *intended* send time, so a stalled server cannot hide its queue
+//!   (coordinated omission).
+//!
+//! ```text
+//! trinocular-loadgen --target grpc://127.0.0.1:50051 --request examples/request.json \
+//!     --concurrency 4 --duration-s 10 [--json]
+//! trinocular-loadgen --target http://127.0.0.1:8080 --request examples/request.json \
+//!     --rate 200 --duration-s 10
+//! ```
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use clap::Parser;
+use prost::Message;
+use trinocular::api::{self, pb};
+
+#[derive(Parser)]
+#[command(
+    name = "trinocular-loadgen",
+    about = "Load generator for the Trinocular service"
+)]
+struct Args {
+    /// grpc://HOST:PORT or http://HOST:PORT.
+    #[arg(long)]
+    target: String,
+    /// A MatchRequest in proto3 JSON.
+    #[arg(long)]
+    request: std::path::PathBuf,
+    /// Closed loop: this many clients in parallel.
+    #[arg(long, conflicts_with = "rate")]
+    concurrency: Option<usize>,
+    /// Open loop: requests per second.
+    #[arg(long)]
+    rate: Option<f64>,
+    /// How long to send, seconds.
+    #[arg(long, default_value_t = 10.0)]
+    duration_s: f64,
+    /// HTTP: send JSON instead of protobuf.
+    #[arg(long)]
+    http_json: bool,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+/// What one request came to: its latency and its outcome ("OK" or a gRPC code / HTTP status).
+type Outcome = (Duration, String);
+
+#[derive(Clone)]
+enum Client {
+    Grpc(pb::trinocular_client::TrinocularClient<tonic::transport::Channel>),
+    Http {
+        client: reqwest::Client,
+        url: String,
+        body: Vec<u8>,
+        content_type: &'static str,
+    },
+}
+
+impl Client {
+    async fn send(&mut self, request: &pb::MatchRequest) -> String {
+        match self {
+            Client::Grpc(c) => match c.r#match(request.clone()).await {
+                Ok(_) => "OK".to_string(),
+                Err(s) => format!("{:?}", s.code()),
+            },
+            Client::Http {
+                client,
+                url,
+                body,
+                content_type,
+            } => match client
+                .post(url.as_str())
+                .header("content-type", *content_type)
+                .body(body.clone())
+                .send()
+                .await
+            {
+                Ok(r) if r.status().is_success() => match r.bytes().await {
+                    Ok(_) => "OK".to_string(),
+                    Err(e) => format!("body: {e}"),
+                },
+                Ok(r) => format!("HTTP {}", r.status().as_u16()),
+                Err(e) => format!(
+                    "transport: {}",
+                    if e.is_connect() { "connect" } else { "error" }
+                ),
+            },
+        }
+    }
+}
+
+fn percentile(sorted: &[Duration], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i].as_secs_f64() * 1e3
+}
+
+#[tokio::main]
+async fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    let text = std::fs::read_to_string(&args.request)
+        .with_context(|| format!("cannot read {}", args.request.display()))?;
+    let request: pb::MatchRequest = api::from_json("request", &text)?;
+    let client = if let Some(addr) = args.target.strip_prefix("grpc://") {
+        let channel = tonic::transport::Channel::from_shared(format!("http://{addr}"))?
+            .connect()
+            .await
+            .context("cannot connect")?;
+        Client::Grpc(
+            pb::trinocular_client::TrinocularClient::new(channel)
+                .max_decoding_message_size(64 << 20)
+                .max_encoding_message_size(64 << 20),
+        )
+    } else if args.target.starts_with("http://") {
+        let (body, content_type) = if args.http_json {
+            (api::to_json(&request).into_bytes(), "application/json")
+        } else {
+            (request.encode_to_vec(), "application/x-protobuf")
+        };
+        Client::Http {
+            client: reqwest::Client::new(),
+            url: format!("{}/v1/match", args.target.trim_end_matches('/')),
+            body,
+            content_type,
+        }
+    } else {
+        bail!("--target must start with grpc:// or http://");
+    };
+    let duration = Duration::from_secs_f64(args.duration_s.max(0.1));
+    let outcomes: Arc<Mutex<Vec<Outcome>>> = Arc::default();
+    let request = Arc::new(request);
+    let start = Instant::now();
+    let mode;
+    match (args.concurrency, args.rate) {
+        (_, Some(rate)) if rate > 0.0 => {
+            mode = format!("open loop, {rate} requests/s");
+            let interval = Duration::from_secs_f64(1.0 / rate);
+            let mut tasks = Vec::new();
+            let mut k = 0u64;
+            loop {
+                let intended = start + interval.mul_f64(k as f64);
+                if intended - start >= duration {
+                    break;
+                }
+                tokio::time::sleep_until(intended.into()).await;
+                let (mut c, r, out) = (client.clone(), Arc::clone(&request), Arc::clone(&outcomes));
+                tasks.push(tokio::spawn(async move {
+                    let result = c.send(&r).await;
+                    out.lock().unwrap().push((intended.elapsed(), result));
+                }));
+                k += 1;
+            }
+            for t in tasks {
+                t.await?;
+            }
+        }
+        (Some(n), None) if n > 0 => {
+            mode = format!("closed loop, concurrency {n}");
+            let mut tasks = Vec::new();
+            for _ in 0..n {
+                let (mut c, r, out) = (client.clone(), Arc::clone(&request), Arc::clone(&outcomes));
+                tasks.push(tokio::spawn(async move {
+                    while start.elapsed() < duration {
+                        let t0 = Instant::now();
+                        let result = c.send(&r).await;
+                        out.lock().unwrap().push((t0.elapsed(), result));
+                    }
+                }));
+            }
+            for t in tasks {
+                t.await?;
+            }
+        }
+        _ => bail!("give --concurrency N (> 0) or --rate R (> 0)"),
+    }
+    let elapsed = start.elapsed().as_secs_f64();
+    let outcomes = std::mem::take(&mut *outcomes.lock().unwrap());
+    let mut by_code: BTreeMap<String, usize> = BTreeMap::new();
+    let mut ok: Vec<Duration> = Vec::new();
+    for (latency, code) in &outcomes {
+        *by_code.entry(code.clone()).or_default() += 1;
+        if code == "OK" {
+            ok.push(*latency);
+        }
+    }
+    ok.sort();
+    let summary = serde_json::json!({
+        "target": args.target,
+        "mode": mode,
+        "seconds": elapsed,
+        "requests": outcomes.len(),
+        "ok": ok.len(),
+        "throughput_per_s": ok.len() as f64 / elapsed,
+        "latency_ms": {
+            "p50": percentile(&ok, 0.5), "p90": percentile(&ok, 0.9),
+            "p99": percentile(&ok, 0.99), "max": percentile(&ok, 1.0),
+        },
+        "by_code": by_code,
+    });
+    if args.json {
+        println!("{summary}");
+    } else {
+        println!(
+            "{} ({mode}): {} requests in {elapsed:.1} s, {} ok, {:.1}/s\n\
+             latency of ok requests, ms: p50 {:.2}  p90 {:.2}  p99 {:.2}  max {:.2}\n\
+             by code: {by_code:?}",
+            args.target,
+            outcomes.len(),
+            ok.len(),
+            ok.len() as f64 / elapsed,
+            percentile(&ok, 0.5),
+            percentile(&ok, 0.9),
+            percentile(&ok, 0.99),
+            percentile(&ok, 1.0),
+        );
+    }
+    Ok(())
+}

@@ -24,10 +24,10 @@ fn pool(threads: usize) -> rayon::ThreadPool {
         .expect("thread pool")
 }
 
-fn bench_sizes(c: &mut Criterion) {
-    let params = MatchParams::default();
+/// One group: the 600- and 10,000-segment triplets on one thread with `params`.
+fn bench_size_group(c: &mut Criterion, name: &str, params: &MatchParams) {
     let one = pool(1);
-    let mut group = c.benchmark_group("match");
+    let mut group = c.benchmark_group(name);
     for n in [600usize, 10_000] {
         let (rig, lists) = scattered_capture(n, 0.3, 0.2, 1);
         group.throughput(Throughput::Elements(n as u64));
@@ -35,10 +35,14 @@ fn bench_sizes(c: &mut Criterion) {
             group.sample_size(20);
         }
         group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
-            one.install(|| b.iter(|| match_segments(&rig, &lists, &params).expect("valid")))
+            one.install(|| b.iter(|| match_segments(&rig, &lists, params).expect("valid")))
         });
     }
     group.finish();
+}
+
+fn bench_sizes(c: &mut Criterion) {
+    bench_size_group(c, "match", &MatchParams::default());
 }
 
 fn bench_window(c: &mut Criterion) {
@@ -46,19 +50,7 @@ fn bench_window(c: &mut Criterion) {
         depth_min_m: 1.4,
         ..MatchParams::default()
     };
-    let one = pool(1);
-    let mut group = c.benchmark_group("window");
-    for n in [600usize, 10_000] {
-        let (rig, lists) = scattered_capture(n, 0.3, 0.2, 1);
-        group.throughput(Throughput::Elements(n as u64));
-        if n > 1000 {
-            group.sample_size(20);
-        }
-        group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
-            one.install(|| b.iter(|| match_segments(&rig, &lists, &params).expect("valid")))
-        });
-    }
-    group.finish();
+    bench_size_group(c, "window", &params);
 }
 
 fn bench_threads(c: &mut Criterion) {

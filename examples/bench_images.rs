@@ -14,9 +14,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let images = render_triplet(&scene, &rig, &RenderParams::default(), 1);
         let img = &images[0];
         let path = dir.join(format!("room_{}.png", img.width()));
-        image::GrayImage::from_raw(img.width(), img.height(), img.to_u8())
-            .ok_or("image size")?
-            .save(&path)?;
+        std::fs::write(&path, trinocular::overlay::grey_png(img)?)?;
         println!("{}", path.display());
     }
     Ok(())

@@ -41,14 +41,7 @@ pub fn run(seed: u64) -> Result<Demo, String> {
     let (scene, rig, observation) = standard_capture(seed, Defects::clean(), false);
     let images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
     let png = |i: usize| -> Result<Vec<u8>, String> {
-        let img = &images[i];
-        overlay::Picture {
-            width: img.width(),
-            height: img.height(),
-            rgb: img.to_u8().iter().flat_map(|&g| [g, g, g]).collect(),
-        }
-        .to_png()
-        .map_err(|e| format!("cannot encode image {}: {e}", i + 1))
+        overlay::grey_png(&images[i]).map_err(|e| format!("cannot encode image {}: {e}", i + 1))
     };
     let result = match_images(
         &rig,
@@ -109,22 +102,7 @@ pub fn run(seed: u64) -> Result<Demo, String> {
         100.0 * completeness,
         s.acc_median_mm.unwrap_or(f64::NAN),
     );
-    let calibration = pb::Calibration {
-        cameras: rig
-            .cameras()
-            .iter()
-            .map(|c| {
-                let p = c.projection();
-                pb::Camera {
-                    name: c.name().to_string(),
-                    width: c.width(),
-                    height: c.height(),
-                    projection: (0..12).map(|i| p[(i / 4, i % 4)]).collect(),
-                    ..Default::default()
-                }
-            })
-            .collect(),
-    };
+    let calibration = api::calibration_to_pb(&rig);
     Ok(Demo {
         calibration,
         images_png: [png(0)?, png(1)?, png(2)?],

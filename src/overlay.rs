@@ -77,6 +77,20 @@ impl Picture {
     }
 }
 
+/// PNG bytes of a grey image, rounded to 8 bits.
+pub fn grey_png(image: &GreyImage) -> Result<Vec<u8>, image::ImageError> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    image::write_buffer_with_format(
+        &mut out,
+        &image.to_u8(),
+        image.width(),
+        image.height(),
+        image::ExtendedColorType::L8,
+        image::ImageFormat::Png,
+    )?;
+    Ok(out.into_inner())
+}
+
 /// A well-spread colour for index `i` (golden-angle hue steps), bright enough on grey.
 pub fn colour(i: usize) -> [u8; 3] {
     let hue = (i as f64 * 137.507_764) % 360.0;

@@ -106,6 +106,27 @@ pub fn rig_from_calibration(calibration: Option<&pb::Calibration>) -> Result<Rig
     })
 }
 
+/// The `Calibration` of a rig, as projection matrices (what a user replays through the CLI or
+/// the service).
+pub fn calibration_to_pb(rig: &Rig) -> pb::Calibration {
+    pb::Calibration {
+        cameras: rig
+            .cameras()
+            .iter()
+            .map(|c| {
+                let p = c.projection();
+                pb::Camera {
+                    name: c.name().to_string(),
+                    width: c.width(),
+                    height: c.height(),
+                    projection: (0..12).map(|i| p[(i / 4, i % 4)]).collect(),
+                    ..Default::default()
+                }
+            })
+            .collect(),
+    }
+}
+
 /// Matching parameters: each absent option takes its default.
 pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
     let d = MatchParams::default();

@@ -68,14 +68,15 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
                 .get(request_id::HEADER)
                 .and_then(|v| v.to_str().ok()),
         );
+        let request = request.into_inner();
         let answer = self
             .service
-            .match_within(request.into_inner(), timeout, "grpc")
+            .match_within(move || Ok(request), |_| (), timeout, "grpc")
             .instrument(tracing::info_span!("grpc", request_id = %id))
             .await;
         let value = MetadataValue::try_from(id.as_str()).ok();
         match answer {
-            Ok(r) => {
+            Ok((r, ())) => {
                 let mut response = Response::new(r);
                 if let Some(v) = value {
                     response.metadata_mut().insert(request_id::HEADER, v);

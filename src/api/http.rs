@@ -88,7 +88,7 @@ fn is_protobuf(headers: &HeaderMap) -> bool {
 /// An error response, in JSON whatever the request's format (clients read it as text).
 pub fn error_response(e: &ServiceError) -> Response {
     let mut body = serde_json::json!({
-        "error": {"code": format!("{:?}", e.code()).to_uppercase_snake(), "message": e.to_string()}
+        "error": {"code": code_name(e.code()), "message": e.to_string()}
     });
     if let Some(field) = e.field() {
         body["error"]["field"] = serde_json::Value::String(field.to_string());
@@ -107,22 +107,16 @@ pub fn error_response(e: &ServiceError) -> Response {
     response
 }
 
-trait UpperSnake {
-    fn to_uppercase_snake(&self) -> String;
-}
-
-impl UpperSnake for String {
-    /// `InvalidArgument` → `INVALID_ARGUMENT` (the gRPC code names).
-    fn to_uppercase_snake(&self) -> String {
-        let mut out = String::with_capacity(self.len() + 4);
-        for (i, c) in self.chars().enumerate() {
-            if c.is_uppercase() && i > 0 {
-                out.push('_');
-            }
-            out.push(c.to_ascii_uppercase());
+/// The gRPC name of a code: `InvalidArgument` → `INVALID_ARGUMENT`.
+fn code_name(code: tonic::Code) -> String {
+    let mut out = String::new();
+    for (i, c) in format!("{code:?}").chars().enumerate() {
+        if c.is_uppercase() && i > 0 {
+            out.push('_');
         }
-        out
+        out.push(c.to_ascii_uppercase());
     }
+    out
 }
 
 /// Longest `timeout_ms` accepted: an hour.
@@ -167,29 +161,41 @@ async fn match_handler(
         Ok(t) => t,
         Err(e) => return refuse(ServiceError::Input(e)),
     };
-    let parsed: Result<pb::MatchRequest, ServiceError> = if multipart {
-        match Multipart::from_request(request, &()).await {
-            Ok(parts) => request_from_multipart(parts).await,
-            Err(e) => Err(ServiceError::Input(InputError::new(
-                "request",
-                e.body_text(),
-            ))),
+    // The body is parsed on the compute pool with the rest of the work; a multipart upload is
+    // read part by part here (that is I/O), its small JSON parts parsed as they come.
+    type Read = Box<dyn FnOnce() -> Result<pb::MatchRequest, InputError> + Send>;
+    let read: Read = if multipart {
+        let parts = match Multipart::from_request(request, &()).await {
+            Ok(parts) => parts,
+            Err(e) => {
+                return refuse(ServiceError::Input(InputError::new(
+                    "request",
+                    e.body_text(),
+                )))
+            }
+        };
+        match request_from_multipart(parts).await {
+            Ok(request) => Box::new(move || Ok(request)),
+            Err(e) => return refuse(e),
         }
     } else {
         match Bytes::from_request(request, &()).await {
-            Ok(body) => decode_body(&body, protobuf).map_err(ServiceError::Input),
+            Ok(body) => Box::new(move || decode_body(&body, protobuf)),
             Err(e) => return e.into_response(), // 413 past the body limit, with axum's message
         }
     };
-    let response = match parsed {
-        Ok(request) => service.match_within(request, timeout, "http").await,
-        Err(e) => return refuse(e),
-    };
-    match response {
-        Ok(r) if protobuf => {
-            ([(header::CONTENT_TYPE, PROTOBUF)], r.encode_to_vec()).into_response()
+    let encode = move |r: &pb::MatchResponse| {
+        if protobuf {
+            r.encode_to_vec()
+        } else {
+            (to_json(r) + "\n").into_bytes()
         }
-        Ok(r) => ([(header::CONTENT_TYPE, JSON)], to_json(&r) + "\n").into_response(),
+    };
+    match service.match_within(read, encode, timeout, "http").await {
+        Ok((_, body)) => {
+            let content_type = if protobuf { PROTOBUF } else { JSON };
+            ([(header::CONTENT_TYPE, content_type)], body).into_response()
+        }
         Err(e) => error_response(&e),
     }
 }

@@ -10,8 +10,8 @@ pub mod grpc;
 pub mod http;
 
 pub use convert::{
-    extract_params, images, match_params, match_request, match_response, rig_from_calibration,
-    segment_list_to_pb, segment_lists, Executed, MatchInput, MatchSource,
+    calibration_to_pb, extract_params, images, match_params, match_request, match_response,
+    rig_from_calibration, segment_list_to_pb, segment_lists, Executed, MatchInput, MatchSource,
 };
 
 /// The schema as an encoded `FileDescriptorSet`, for gRPC server reflection.

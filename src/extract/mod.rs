@@ -203,6 +203,23 @@ fn corner_trim(params: &Params) -> usize {
     params.smoothing_sigma_px.round() as usize
 }
 
+/// Where to start a closed chain: the point farthest from its centroid, a corner of any
+/// convex outline. Returns its position in `chain`.
+fn loop_corner(chain: &[u32], map: &edges::EdgeMap) -> usize {
+    let n = chain.len() as f32;
+    let (cu, cv) = chain.iter().fold((0.0, 0.0), |(su, sv), &i| {
+        let p = &map.points[i as usize];
+        (su + p.u / n, sv + p.v / n)
+    });
+    let distance = |i: usize| {
+        let p = &map.points[chain[i] as usize];
+        (p.u - cu).powi(2) + (p.v - cv).powi(2)
+    };
+    (0..chain.len())
+        .max_by(|&a, &b| distance(a).total_cmp(&distance(b)))
+        .unwrap_or(0)
+}
+
 /// Extracts the oriented segments of `image` and their graph. `camera` (if given) supplies
 /// the lens distortion removed from edge points before the polygon fit. Parameters must
 /// have passed [`Params::check`].
@@ -239,31 +256,14 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
     // Per chain: (first point position, last point position, segment index) of its kept pieces.
     let mut kept: Vec<Vec<(usize, usize, u32)>> = Vec::with_capacity(chains.chains.len());
     for c in &chains.chains {
-        let mut ids = c.points.clone();
-        if c.closed {
-            // Start a loop at a corner: the point farthest from its centroid is one for any
-            // convex outline, so no side is cut in two at an arbitrary start.
-            let n = ids.len() as f32;
-            let (cu, cv) = ids.iter().fold((0.0, 0.0), |(su, sv), &i| {
-                let p = &map.points[i as usize];
-                (su + p.u / n, sv + p.v / n)
-            });
-            let far = (0..ids.len())
-                .max_by(|&a, &b| {
-                    let d = |i: usize| {
-                        let p = &map.points[ids[i] as usize];
-                        (p.u - cu).powi(2) + (p.v - cv).powi(2)
-                    };
-                    d(a).total_cmp(&d(b))
-                })
-                .unwrap_or(0);
-            ids.rotate_left(far);
-        }
+        // Start a loop at a corner, so no side is cut in two at an arbitrary start.
         let rotation = if c.closed {
-            c.points.iter().position(|&p| p == ids[0]).unwrap_or(0)
+            loop_corner(&c.points, &map)
         } else {
             0
         };
+        let mut ids = c.points.clone();
+        ids.rotate_left(rotation);
         let points: Vec<Point2<f64>> = ids
             .iter()
             .map(|&i| {

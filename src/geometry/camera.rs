@@ -354,11 +354,20 @@ impl Camera {
     /// Removes lens distortion from a pixel: the pixel where the ideal pinhole would image
     /// the same ray. Identity for a camera without distortion.
     pub fn undistort(&self, pixel: Point2<f64>) -> Point2<f64> {
+        self.in_normalised(pixel, Distortion::remove)
+    }
+
+    /// `f` applied to a pixel's normalised image coordinates (identity without distortion).
+    fn in_normalised(
+        &self,
+        pixel: Point2<f64>,
+        f: impl Fn(&Distortion, f64, f64) -> (f64, f64),
+    ) -> Point2<f64> {
         match &self.distortion {
             None => pixel,
             Some(d) => {
                 let n = self.intrinsics_inv * Vector3::new(pixel.x, pixel.y, 1.0);
-                let (x, y) = d.remove(n.x / n.z, n.y / n.z);
+                let (x, y) = f(d, n.x / n.z, n.y / n.z);
                 let p = self.intrinsics * Vector3::new(x, y, 1.0);
                 Point2::new(p.x, p.y)
             }
@@ -368,15 +377,7 @@ impl Camera {
     /// Applies lens distortion to an ideal (undistorted) pixel: the inverse of
     /// [`Camera::undistort`]. Identity for a camera without distortion.
     pub fn distort(&self, pixel: Point2<f64>) -> Point2<f64> {
-        match &self.distortion {
-            None => pixel,
-            Some(d) => {
-                let n = self.intrinsics_inv * Vector3::new(pixel.x, pixel.y, 1.0);
-                let (x, y) = d.apply(n.x / n.z, n.y / n.z);
-                let p = self.intrinsics * Vector3::new(x, y, 1.0);
-                Point2::new(p.x, p.y)
-            }
-        }
+        self.in_normalised(pixel, Distortion::apply)
     }
 
     /// Direction (rig frame, not normalised) of the ray through an *undistorted* pixel.

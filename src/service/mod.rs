@@ -76,9 +76,13 @@ impl Service {
         })
     }
 
-    /// Counts a request refused before it reached [`Service::match_within`] (unreadable body).
+    /// Logs and counts a request that failed, in [`Service::match_within`] or before it (a
+    /// transport could not read it).
     pub fn record_refused(&self, transport: &str, error: &ServiceError, seconds: f64) {
-        self.log_refused(transport, error, seconds);
+        if let ServiceError::Internal { detail } = error {
+            tracing::error!(detail = %detail, "match: internal error");
+        }
+        tracing::info!(transport, code = ?error.code(), ms = seconds * 1e3, error = %error, "match");
         self.metrics
             .record(transport, "match", error.code(), seconds, None);
     }
@@ -106,84 +110,56 @@ impl Service {
         self.ready.store(ready, Ordering::Relaxed);
     }
 
-    /// [`Service::match_request`] within `timeout` (none: no deadline). Past it the answer is
-    /// DEADLINE_EXCEEDED and the job, if still queued, never runs.
-    /// Recorded in the metrics under `transport`.
-    pub async fn match_within(
+    /// Match, recorded in the metrics and the log under `transport`. On the compute pool, not
+    /// the async runtime: `read` produces the request (so an HTTP body is parsed there), the
+    /// request is checked and converted (images decoded) and the pipeline run, and `encode`
+    /// turns the response into what the transport sends. Past `timeout` (none: no deadline)
+    /// the answer is DEADLINE_EXCEEDED and the job, if still queued, never runs.
+    pub async fn match_within<T: Send + 'static>(
         &self,
-        request: pb::MatchRequest,
+        read: impl FnOnce() -> Result<pb::MatchRequest, InputError> + Send + 'static,
+        encode: impl FnOnce(&pb::MatchResponse) -> T + Send + 'static,
         timeout: Option<std::time::Duration>,
         transport: &str,
-    ) -> Result<pb::MatchResponse, ServiceError> {
+    ) -> Result<(pb::MatchResponse, T), ServiceError> {
         let start = std::time::Instant::now();
-        let result = self.match_deadline(request, timeout).await;
-        let code = result
-            .as_ref()
-            .map_or_else(|e| e.code(), |_| tonic::Code::Ok);
-        let seconds = start.elapsed().as_secs_f64();
-        // One line per request, inside the transport's span (which carries the request id).
-        match &result {
-            Ok(r) => tracing::info!(
-                transport,
-                code = ?code,
-                ms = seconds * 1e3,
-                segments_3d = r.segments_3d.len(),
-                "match"
-            ),
-            Err(e) => {
-                tracing::info!(transport, code = ?code, ms = seconds * 1e3, error = %e, "match")
-            }
-        }
-        self.metrics
-            .record(transport, "match", code, seconds, result.as_ref().ok());
-        result
-    }
-
-    /// Logs and counts a request refused before it reached [`Service::match_within`].
-    fn log_refused(&self, transport: &str, error: &ServiceError, seconds: f64) {
-        tracing::info!(transport, code = ?error.code(), ms = seconds * 1e3, error = %error, "match");
-    }
-
-    async fn match_deadline(
-        &self,
-        request: pb::MatchRequest,
-        timeout: Option<std::time::Duration>,
-    ) -> Result<pb::MatchResponse, ServiceError> {
-        match timeout {
-            None => self.match_request(request).await,
-            Some(t) => tokio::time::timeout(t, self.match_request(request))
-                .await
-                .unwrap_or(Err(ServiceError::DeadlineExceeded {
-                    timeout_ms: t.as_millis() as u64,
-                })),
-        }
-    }
-
-    /// Match: checks and converts the request (decoding images) and runs the pipeline, all on
-    /// the compute pool.
-    pub async fn match_request(
-        &self,
-        request: pb::MatchRequest,
-    ) -> Result<pb::MatchResponse, ServiceError> {
         let limits = DecodeLimits {
             max_bytes: self.limits.max_message_bytes,
             max_pixels: self.limits.max_image_pixels,
         };
-        let result = self
-            .pool
-            .run(move || -> Result<pb::MatchResponse, InputError> {
-                api::match_request(&request, &limits)?.run()
-            })
-            .await;
-        match result {
-            Ok(response) => Ok(response?),
-            Err(e) => {
-                let e = ServiceError::from(e);
-                if let ServiceError::Internal { detail } = &e {
-                    tracing::error!(detail = %detail, "match: internal error");
-                }
-                Err(e)
+        let job = self.pool.run(move || -> Result<_, InputError> {
+            let response = api::match_request(&read()?, &limits)?.run()?;
+            let encoded = encode(&response);
+            Ok((response, encoded))
+        });
+        let finished = |done: Result<Result<_, InputError>, PoolError>| {
+            done.map_err(ServiceError::from)
+                .and_then(|r| r.map_err(ServiceError::Input))
+        };
+        let result = match timeout {
+            None => finished(job.await),
+            Some(t) => match tokio::time::timeout(t, job).await {
+                Ok(done) => finished(done),
+                Err(_) => Err(ServiceError::DeadlineExceeded {
+                    timeout_ms: t.as_millis() as u64,
+                }),
+            },
+        };
+        let seconds = start.elapsed().as_secs_f64();
+        match &result {
+            Ok((r, _)) => {
+                tracing::info!(
+                    transport,
+                    code = ?tonic::Code::Ok,
+                    ms = seconds * 1e3,
+                    segments_3d = r.segments_3d.len(),
+                    "match"
+                );
+                self.metrics
+                    .record(transport, "match", tonic::Code::Ok, seconds, Some(r));
             }
+            Err(e) => self.record_refused(transport, e, seconds),
         }
+        result
     }
 }

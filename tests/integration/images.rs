@@ -429,24 +429,12 @@ fn cli_extracts_matches_images_and_draws_the_overlay() {
     let mut paths = Vec::new();
     for (i, img) in images.iter().enumerate() {
         let p = dir.join(format!("img{}.png", i + 1));
-        image::GrayImage::from_raw(img.width(), img.height(), img.to_u8())
-            .unwrap()
-            .save(&p)
-            .unwrap();
+        std::fs::write(&p, trinocular::overlay::grey_png(img).unwrap()).unwrap();
         paths.push(p.to_str().unwrap().to_string());
     }
     // The rig's calibration as a user would write it (projection matrices).
-    let cams: Vec<Value> = rig
-        .cameras()
-        .iter()
-        .map(|c| {
-            let p = c.projection();
-            json!({"width": c.width(), "height": c.height(),
-                   "projection": (0..12).map(|i| p[(i / 4, i % 4)]).collect::<Vec<f64>>()})
-        })
-        .collect();
     let calib = dir.join("calib.json");
-    std::fs::write(&calib, json!({"cameras": cams}).to_string()).unwrap();
+    std::fs::write(&calib, api::to_json(&api::calibration_to_pb(&rig))).unwrap();
 
     let out = cli(&["extract", &paths[0]]);
     assert!(

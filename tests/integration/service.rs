@@ -21,6 +21,14 @@ async fn start(limits: Limits) -> server::Running {
     server::start(service, any, any).await.expect("listen")
 }
 
+async fn grpc_client(
+    running: &server::Running,
+) -> pb::trinocular_client::TrinocularClient<tonic::transport::Channel> {
+    pb::trinocular_client::TrinocularClient::connect(format!("http://{}", running.grpc_addr))
+        .await
+        .expect("connect")
+}
+
 fn small_limits() -> Limits {
     Limits {
         threads: 2,
@@ -53,12 +61,7 @@ fn grpc_json_and_protobuf_over_http_give_the_same_match() {
         let running = start(small_limits()).await;
         let request = example_request();
 
-        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            running.grpc_addr
-        ))
-        .await
-        .expect("connect");
+        let mut grpc = grpc_client(&running).await;
         let by_grpc = grpc
             .r#match(request.clone())
             .await
@@ -112,12 +115,7 @@ fn bad_input_is_invalid_argument_naming_the_field_on_both_transports() {
         let mut request = example_request();
         request.calibration.as_mut().unwrap().cameras[2].projection[0] = f64::NAN;
 
-        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            running.grpc_addr
-        ))
-        .await
-        .unwrap();
+        let mut grpc = grpc_client(&running).await;
         let status = grpc.r#match(request.clone()).await.unwrap_err();
         assert_eq!(status.code(), tonic::Code::InvalidArgument);
         assert!(
@@ -183,12 +181,7 @@ fn oversized_requests_are_refused() {
             .await
             .unwrap();
         assert_eq!(reply.status(), 413);
-        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            running.grpc_addr
-        ))
-        .await
-        .unwrap();
+        let mut grpc = grpc_client(&running).await;
         let status = grpc.r#match(request).await.unwrap_err();
         assert_eq!(status.code(), tonic::Code::OutOfRange, "{status:?}");
         running.shutdown().await;
@@ -301,21 +294,8 @@ fn futures_once<T>(item: T) -> impl futures_core::Stream<Item = T> {
 /// A request that takes a while (about 100 ms): 10,000 segments per image to match.
 fn slow_request() -> pb::MatchRequest {
     let (rig, lists) = trinocular::synth::scattered_capture(10_000, 0.3, 0.2, 1);
-    let cameras = rig
-        .cameras()
-        .iter()
-        .map(|c| {
-            let p = c.projection();
-            pb::Camera {
-                width: c.width(),
-                height: c.height(),
-                projection: (0..12).map(|i| p[(i / 4, i % 4)]).collect(),
-                ..Default::default()
-            }
-        })
-        .collect();
     pb::MatchRequest {
-        calibration: Some(pb::Calibration { cameras }),
+        calibration: Some(api::calibration_to_pb(&rig)),
         options: None,
         input: Some(pb::match_request::Input::Segments(pb::SegmentTriplet {
             lists: lists.iter().map(api::segment_list_to_pb).collect(),
@@ -355,12 +335,7 @@ fn deadlines_are_honoured_on_both_transports() {
         let body: serde_json::Value = reply.json_body().await;
         assert_eq!(body["error"]["code"], "DEADLINE_EXCEEDED");
 
-        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            running.grpc_addr
-        ))
-        .await
-        .unwrap();
+        let mut grpc = grpc_client(&running).await;
         let mut call = tonic::Request::new(small.clone());
         call.set_timeout(std::time::Duration::from_millis(40));
         let t0 = std::time::Instant::now();
@@ -405,25 +380,8 @@ fn curl_style_multipart_uploads_match_images() {
     use trinocular::synth::{render_triplet, standard_capture, Defects, RenderParams};
     let (scene, rig, _) = standard_capture(1, Defects::clean(), false);
     let images = render_triplet(&scene, &rig, &RenderParams::default(), 1);
-    let png = |i: usize| {
-        let img = &images[i];
-        let mut out = std::io::Cursor::new(Vec::new());
-        image::GrayImage::from_raw(img.width(), img.height(), img.to_u8())
-            .unwrap()
-            .write_to(&mut out, image::ImageFormat::Png)
-            .unwrap();
-        out.into_inner()
-    };
-    let cameras: Vec<serde_json::Value> = rig
-        .cameras()
-        .iter()
-        .map(|c| {
-            let p = c.projection();
-            serde_json::json!({"width": c.width(), "height": c.height(),
-                "projection": (0..12).map(|i| p[(i / 4, i % 4)]).collect::<Vec<f64>>()})
-        })
-        .collect();
-    let calibration = serde_json::json!({ "cameras": cameras }).to_string();
+    let png = |i: usize| trinocular::overlay::grey_png(&images[i]).unwrap();
+    let calibration = api::to_json(&api::calibration_to_pb(&rig));
     runtime().block_on(async {
         let running = start(small_limits()).await;
         let url = format!("http://{}/v1/match", running.http_addr);
@@ -481,12 +439,7 @@ fn curl_style_multipart_uploads_match_images() {
 fn metrics_count_requests_by_transport_and_code() {
     runtime().block_on(async {
         let running = start(small_limits()).await;
-        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            running.grpc_addr
-        ))
-        .await
-        .unwrap();
+        let mut grpc = grpc_client(&running).await;
         grpc.r#match(example_request()).await.unwrap();
         let http = reqwest::Client::new();
         let reply = http
@@ -541,12 +494,7 @@ fn request_ids_are_echoed_on_both_transports() {
         let id = made.headers()["x-request-id"].to_str().unwrap().to_string();
         assert!(!id.is_empty() && id != "robot-42");
 
-        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            running.grpc_addr
-        ))
-        .await
-        .unwrap();
+        let mut grpc = grpc_client(&running).await;
         let mut call = tonic::Request::new(example_request());
         call.metadata_mut()
             .insert("x-request-id", "robot-43".parse().unwrap());

@@ -58,6 +58,9 @@ struct ServeArgs {
     /// Largest image, pixels (default 40,000,000).
     #[arg(long)]
     max_image_pixels: Option<u64>,
+    /// Most segments in one list of a request (default 100,000).
+    #[arg(long)]
+    max_segments_per_list: Option<usize>,
     /// Log one JSON object per line.
     #[arg(long)]
     log_json: bool,
@@ -134,6 +137,14 @@ impl From<InputError> for Failure {
         Failure::Input(e)
     }
 }
+impl From<api::RunError> for Failure {
+    fn from(e: api::RunError) -> Self {
+        match e {
+            api::RunError::Input(e) => Failure::Input(e),
+            stopped @ api::RunError::Stopped { .. } => Failure::Other(stopped.into()),
+        }
+    }
+}
 impl From<anyhow::Error> for Failure {
     fn from(e: anyhow::Error) -> Self {
         Failure::Other(e)
@@ -207,7 +218,7 @@ fn draw_overlay(input: &MatchInput, executed: &Executed, path: &Path) -> Result<
 
 fn run_match(args: &MatchArgs) -> Result<(), Failure> {
     let request = build_request(args)?;
-    let input = api::match_request(&request, &DecodeLimits::default())?;
+    let input = api::match_request(&request, &api::RequestLimits::default())?;
     let executed = input.execute()?;
     if let Some(path) = &args.overlay {
         draw_overlay(&input, &executed, path)?;
@@ -293,6 +304,9 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     }
     if let Some(n) = args.max_image_pixels {
         config.limits.max_image_pixels = n;
+    }
+    if let Some(n) = args.max_segments_per_list {
+        config.limits.max_segments_per_list = n;
     }
     if args.log_json {
         config.log.json = true;

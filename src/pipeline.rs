@@ -27,6 +27,41 @@ const OUT_OF_IMAGE_MARGIN: f64 = 1.0;
 /// Validation rounds at most (each after reconstruction rejected some winners); one or two
 /// suffice in practice.
 const MAX_VALIDATION_ROUNDS: usize = 4;
+
+/// Asked between stages whether the result is still wanted (a service's caller may have gone
+/// or its deadline passed); when it answers yes the pipeline returns
+/// [`MatchError::Stopped`] instead of running the next stage. An explicit argument rather
+/// than a global flag, so each call says who may stop it.
+#[derive(Clone, Copy)]
+pub struct Checkpoint<'a>(Option<&'a (dyn Fn() -> bool + Sync)>);
+
+impl<'a> Checkpoint<'a> {
+    /// Never stops.
+    pub const NEVER: Checkpoint<'static> = Checkpoint(None);
+
+    /// Stops once `stop` returns true.
+    pub fn new(stop: &'a (dyn Fn() -> bool + Sync)) -> Checkpoint<'a> {
+        Checkpoint(Some(stop))
+    }
+
+    /// `Err(Stopped)` before `stage` when the result is no longer wanted.
+    pub fn before(&self, stage: &'static str) -> Result<(), MatchError> {
+        match self.0 {
+            Some(stop) if stop() => Err(MatchError::Stopped { stage }),
+            _ => Ok(()),
+        }
+    }
+}
+
+impl std::fmt::Debug for Checkpoint<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "Checkpoint(..)"
+        } else {
+            "Checkpoint::NEVER"
+        })
+    }
+}
 /// Matching three images: what was extracted from each, and the match of those lists.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ImageMatch {
@@ -41,6 +76,17 @@ pub fn match_images(
     images: [&GreyImage; 3],
     extract_params: &extract::Params,
     params: &MatchParams,
+) -> Result<ImageMatch, MatchError> {
+    match_images_until(rig, images, extract_params, params, Checkpoint::NEVER)
+}
+
+/// [`match_images`], stopping between stages when `checkpoint` says so.
+pub fn match_images_until(
+    rig: &Rig,
+    images: [&GreyImage; 3],
+    extract_params: &extract::Params,
+    params: &MatchParams,
+    checkpoint: Checkpoint,
 ) -> Result<ImageMatch, MatchError> {
     let start = Instant::now();
     params.check()?;
@@ -57,6 +103,7 @@ pub fn match_images(
             });
         }
     }
+    checkpoint.before("extract")?;
     let one = |v: usize| extract::extract(images[v], Some(rig.camera(v)), extract_params);
     let (first, (second, third)) = rayon::join(|| one(0), || rayon::join(|| one(1), || one(2)));
     let lists = [
@@ -64,7 +111,7 @@ pub fn match_images(
         second.segments.clone(),
         third.segments.clone(),
     ];
-    let mut output = match_segments_with_graph(rig, &lists, &first.graph, params)?;
+    let mut output = match_segments_until(rig, &lists, &first.graph, params, checkpoint)?;
     output.stats.extract_ms = Some([
         first.stats.total_ms,
         second.stats.total_ms,
@@ -193,6 +240,9 @@ pub enum MatchError {
         index: usize,
         value: f64,
     },
+    /// The [`Checkpoint`] said the result was no longer wanted.
+    #[error("stopped before {stage}: the result is no longer wanted")]
+    Stopped { stage: &'static str },
 }
 
 /// Segments of one view after checking: kept for matching, with their undistorted endpoints.
@@ -309,8 +359,20 @@ pub fn match_segments_with_graph(
     graph: &[Adjacent],
     params: &MatchParams,
 ) -> Result<MatchOutput, MatchError> {
+    match_segments_until(rig, lists, graph, params, Checkpoint::NEVER)
+}
+
+/// [`match_segments_with_graph`], stopping between stages when `checkpoint` says so.
+pub fn match_segments_until(
+    rig: &Rig,
+    lists: &[SegmentList; 3],
+    graph: &[Adjacent],
+    params: &MatchParams,
+    checkpoint: Checkpoint,
+) -> Result<MatchOutput, MatchError> {
     let start = Instant::now();
     params.check()?;
+    checkpoint.before("rectify")?;
     let mut zero = [0u32; 3];
     for (i, list) in lists.iter().enumerate() {
         zero[i] = check_list(rig, i, list)?;
@@ -332,6 +394,7 @@ pub fn match_segments_with_graph(
         oriented: lists.iter().all(|l| l.oriented),
     };
 
+    checkpoint.before("predict")?;
     let t = Instant::now();
     let hypotheses = matching::predict(&rect, &views, params);
     stats.predict_ms = ms(t);
@@ -345,9 +408,11 @@ pub fn match_segments_with_graph(
         &hypotheses,
         graph,
         params,
+        checkpoint,
         &mut stats,
-    );
+    )?;
 
+    checkpoint.before("assemble")?;
     let t = Instant::now();
     let output = assemble(rig, &rect, &views, &prepared, &hypotheses, &kept, params);
     stats.reconstruct_ms += ms(t);
@@ -380,8 +445,9 @@ fn validate_and_reconstruct(
     hypotheses: &[Hypothesis],
     graph: &[Adjacent],
     params: &MatchParams,
+    checkpoint: Checkpoint,
     stats: &mut MatchStats,
-) -> Vec<(usize, Line3Fit, f64)> {
+) -> Result<Vec<(usize, Line3Fit, f64)>, MatchError> {
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
     let undistorted = [
@@ -389,6 +455,7 @@ fn validate_and_reconstruct(
         &prepared[1].undistorted[..],
         &prepared[2].undistorted[..],
     ];
+    checkpoint.before("validate")?;
     let t = Instant::now();
     let ranking = if params.validate {
         let mut adjacency = matching::adjacency(views.segments[0], params.neighbour_radius_px);
@@ -408,6 +475,7 @@ fn validate_and_reconstruct(
         };
         stats.validate_ms += ms(t);
 
+        checkpoint.before("reconstruct")?;
         let t = Instant::now();
         let todo: Vec<usize> = kept
             .iter()
@@ -430,9 +498,10 @@ fn validate_and_reconstruct(
             break;
         }
     }
-    kept.into_iter()
+    Ok(kept
+        .into_iter()
         .filter_map(|h| fits[h].flatten().map(|(fit, sigma)| (h, fit, sigma)))
-        .collect()
+        .collect())
 }
 
 /// Adds the pairs of `graph` (indices into the caller's list of view 1) that `adjacency`
@@ -615,5 +684,33 @@ mod tests {
         let (a, b, vertex) = adjacency[1];
         assert_eq!((a, b), (0, 1));
         assert!((vertex - p(200.0, 150.0)).norm() < 1e-9);
+    }
+
+    #[test]
+    fn a_checkpoint_stops_the_pipeline_before_each_stage_in_turn() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
+        let full = match_segments(&rig, &lists, &MatchParams::default()).unwrap();
+        assert!(!full.triplets.is_empty());
+        let mut stages = Vec::new();
+        for allowed in 0.. {
+            let asked = AtomicUsize::new(0);
+            let stop = || asked.fetch_add(1, Ordering::Relaxed) >= allowed;
+            let checkpoint = Checkpoint::new(&stop);
+            match match_segments_until(&rig, &lists, &[], &MatchParams::default(), checkpoint) {
+                Err(MatchError::Stopped { stage }) => stages.push(stage),
+                Ok(output) => {
+                    // Let through every checkpoint, it gives what an unstoppable call gives.
+                    assert_eq!(output.triplets, full.triplets);
+                    break;
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        assert_eq!(
+            stages[..4],
+            ["rectify", "predict", "validate", "reconstruct"]
+        );
+        assert_eq!(stages.last(), Some(&"assemble"));
     }
 }

@@ -8,7 +8,7 @@ use crate::extract::decode::{self, DecodeLimits};
 use crate::extract::{self, Extraction, GreyImage};
 use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
 use crate::matching::MatchParams;
-use crate::pipeline::{self, MatchError, MatchOutput};
+use crate::pipeline::{self, Checkpoint, MatchError, MatchOutput};
 use crate::segment::{Segment2, SegmentList};
 
 fn exactly<const N: usize>(field: String, values: &[f64]) -> Result<[f64; N], InputError> {
@@ -224,13 +224,51 @@ pub fn images(
     Ok([one(0)?, one(1)?, one(2)?])
 }
 
-/// The three segment lists of a `SegmentTriplet`.
-pub fn segment_lists(triplet: &pb::SegmentTriplet) -> Result<[SegmentList; 3], InputError> {
+/// How much one request may ask of the service.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RequestLimits {
+    /// Bytes and pixels of each image.
+    pub decode: DecodeLimits,
+    /// Segments in each list.
+    pub max_segments_per_list: usize,
+}
+
+/// Segments per list accepted by default: ten times the densest real scene we have seen.
+pub const MAX_SEGMENTS_PER_LIST: usize = 100_000;
+
+impl Default for RequestLimits {
+    fn default() -> Self {
+        RequestLimits {
+            decode: DecodeLimits::default(),
+            max_segments_per_list: MAX_SEGMENTS_PER_LIST,
+        }
+    }
+}
+
+/// The three segment lists of a `SegmentTriplet`, each within `max_segments`.
+pub fn segment_lists(
+    triplet: &pb::SegmentTriplet,
+    max_segments: usize,
+) -> Result<[SegmentList; 3], InputError> {
     let pb::SegmentTriplet { lists } = triplet;
     if lists.len() != 3 {
         return Err(InputError::new(
             "segments.lists",
             format!("needs exactly 3 segment lists, got {}", lists.len()),
+        ));
+    }
+    if let Some((i, list)) = lists
+        .iter()
+        .enumerate()
+        .find(|(_, l)| l.segments.len() > max_segments)
+    {
+        return Err(InputError::new(
+            format!("segments.lists[{i}].segments"),
+            format!(
+                "{} segments, more than the limit of {max_segments} per list \
+                 (limits.max_segments_per_list)",
+                list.segments.len()
+            ),
         ));
     }
     Ok(std::array::from_fn(|i| {
@@ -275,11 +313,10 @@ pub struct MatchInput {
     pub source: MatchSource,
 }
 
-/// Converts a `MatchRequest`, checking what the schema cannot express; images are decoded
-/// within `limits`.
+/// Converts a `MatchRequest`, checking what the schema cannot express, within `limits`.
 pub fn match_request(
     request: &pb::MatchRequest,
-    limits: &DecodeLimits,
+    limits: &RequestLimits,
 ) -> Result<MatchInput, InputError> {
     let pb::MatchRequest {
         calibration,
@@ -301,10 +338,10 @@ pub fn match_request(
         .unwrap_or(false);
     let source = match input {
         Some(pb::match_request::Input::Segments(triplet)) => {
-            MatchSource::Segments(segment_lists(triplet)?)
+            MatchSource::Segments(segment_lists(triplet, limits.max_segments_per_list)?)
         }
         Some(pb::match_request::Input::Images(triplet)) => {
-            MatchSource::Images(images(triplet, limits)?)
+            MatchSource::Images(images(triplet, &limits.decode)?)
         }
         None => return Err(InputError::new("input", "missing: give segments or images")),
     };
@@ -327,16 +364,32 @@ pub struct Executed {
 
 impl MatchInput {
     /// Runs the pipeline on this input, or reports an input error naming the field.
-    pub fn execute(&self) -> Result<Executed, InputError> {
+    pub fn execute(&self) -> Result<Executed, RunError> {
+        self.execute_until(Checkpoint::NEVER)
+    }
+
+    /// [`MatchInput::execute`], stopping between stages when `checkpoint` says so.
+    pub fn execute_until(&self, checkpoint: Checkpoint) -> Result<Executed, RunError> {
         Ok(match &self.source {
             MatchSource::Segments(lists) => Executed {
-                output: pipeline::match_segments(&self.rig, lists, &self.params)?,
+                output: pipeline::match_segments_until(
+                    &self.rig,
+                    lists,
+                    &[],
+                    &self.params,
+                    checkpoint,
+                )?,
                 extracted: None,
             },
             MatchSource::Images(images) => {
                 let [a, b, c] = images;
-                let result =
-                    pipeline::match_images(&self.rig, [a, b, c], &self.extract, &self.params)?;
+                let result = pipeline::match_images_until(
+                    &self.rig,
+                    [a, b, c],
+                    &self.extract,
+                    &self.params,
+                    checkpoint,
+                )?;
                 Executed {
                     output: result.output,
                     extracted: Some(result.extracted),
@@ -356,8 +409,13 @@ impl MatchInput {
     }
 
     /// [`MatchInput::execute`], then [`MatchInput::response`].
-    pub fn run(&self) -> Result<pb::MatchResponse, InputError> {
-        Ok(self.response(&self.execute()?))
+    pub fn run(&self) -> Result<pb::MatchResponse, RunError> {
+        self.run_until(Checkpoint::NEVER)
+    }
+
+    /// [`MatchInput::execute_until`], then [`MatchInput::response`].
+    pub fn run_until(&self, checkpoint: Checkpoint) -> Result<pb::MatchResponse, RunError> {
+        Ok(self.response(&self.execute_until(checkpoint)?))
     }
 }
 
@@ -379,10 +437,21 @@ pub fn segment_list_to_pb(list: &SegmentList) -> pb::SegmentList {
     }
 }
 
-impl From<MatchError> for InputError {
-    fn from(e: MatchError) -> InputError {
-        let message = e.to_string();
+/// Why running a [`MatchInput`] produced no answer.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RunError {
+    /// The input cannot be matched; names the field.
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// The checkpoint stopped the pipeline: nobody wants the answer any more.
+    #[error("stopped before {stage}: the result is no longer wanted")]
+    Stopped { stage: &'static str },
+}
+
+impl From<MatchError> for RunError {
+    fn from(e: MatchError) -> RunError {
         let field = match &e {
+            MatchError::Stopped { stage } => return RunError::Stopped { stage },
             MatchError::Params(p) => format!("options.{}", p.field()),
             MatchError::Rectify(_) => "calibration".to_string(),
             MatchError::NonFiniteCoordinate {
@@ -405,7 +474,10 @@ impl From<MatchError> for InputError {
             MatchError::Extract(p) => format!("options.extract.{}", p.field),
             MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),
         };
-        InputError { field, message }
+        RunError::Input(InputError {
+            field,
+            message: e.to_string(),
+        })
     }
 }
 

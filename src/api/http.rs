@@ -23,7 +23,7 @@ use axum::Router;
 use prost::Message;
 
 use super::{from_json, pb, to_json, InputError};
-use crate::service::{http_status, request_id, Service, ServiceError};
+use crate::service::{request_id, Service, ServiceError};
 
 const PROTOBUF: &str = "application/x-protobuf";
 const JSON: &str = "application/json";
@@ -94,7 +94,7 @@ pub fn error_response(e: &ServiceError) -> Response {
         body["error"]["field"] = serde_json::Value::String(field.to_string());
     }
     let mut response = (
-        http_status(e.code()),
+        e.http_status(),
         [(header::CONTENT_TYPE, JSON)],
         body.to_string() + "\n",
     )
@@ -153,6 +153,7 @@ async fn match_handler(
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.starts_with("multipart/form-data"));
     let start = std::time::Instant::now();
+    let max_bytes = service.limits().max_message_bytes;
     let refuse = |e: ServiceError| {
         service.record_refused("http", &e, start.elapsed().as_secs_f64());
         error_response(&e)
@@ -174,14 +175,14 @@ async fn match_handler(
                 )))
             }
         };
-        match request_from_multipart(parts).await {
+        match request_from_multipart(parts, max_bytes).await {
             Ok(request) => Box::new(move || Ok(request)),
             Err(e) => return refuse(e),
         }
     } else {
         match Bytes::from_request(request, &()).await {
             Ok(body) => Box::new(move || decode_body(&body, protobuf)),
-            Err(e) => return e.into_response(), // 413 past the body limit, with axum's message
+            Err(e) => return refuse(body_error(e.status(), e.body_text(), max_bytes)),
         }
     };
     let encode = move |r: &pb::MatchResponse| {
@@ -200,6 +201,17 @@ async fn match_handler(
     }
 }
 
+/// A body that could not be read: too large (413, naming the limit), or malformed.
+fn body_error(status: StatusCode, text: String, max_bytes: usize) -> ServiceError {
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        ServiceError::TooLarge {
+            limit_bytes: max_bytes,
+        }
+    } else {
+        ServiceError::Input(InputError::new("request", text))
+    }
+}
+
 fn decode_body(body: &[u8], protobuf: bool) -> Result<pb::MatchRequest, InputError> {
     if protobuf {
         pb::MatchRequest::decode(body)
@@ -214,7 +226,10 @@ fn decode_body(body: &[u8], protobuf: bool) -> Result<pb::MatchRequest, InputErr
 /// A `MatchRequest` from a `multipart/form-data` upload, for curl: parts `calibration` (JSON),
 /// `options` (JSON, optional), and either `segments` (a `SegmentTriplet`, JSON) or `image1`,
 /// `image2`, `image3` (image files).
-async fn request_from_multipart(mut parts: Multipart) -> Result<pb::MatchRequest, ServiceError> {
+async fn request_from_multipart(
+    mut parts: Multipart,
+    max_bytes: usize,
+) -> Result<pb::MatchRequest, ServiceError> {
     let bad = |field: &str, message: String| ServiceError::Input(InputError::new(field, message));
     let text = |field: &str, bytes: &[u8]| -> Result<String, ServiceError> {
         String::from_utf8(bytes.to_vec()).map_err(|_| bad(field, "is not UTF-8 JSON".into()))
@@ -225,10 +240,13 @@ async fn request_from_multipart(mut parts: Multipart) -> Result<pb::MatchRequest
         let field = match parts.next_field().await {
             Ok(Some(field)) => field,
             Ok(None) => break,
-            Err(e) => return Err(bad("request", e.body_text())),
+            Err(e) => return Err(body_error(e.status(), e.body_text(), max_bytes)),
         };
         let name = field.name().unwrap_or_default().to_string();
-        let bytes = field.bytes().await.map_err(|e| bad(&name, e.body_text()))?;
+        let bytes = field
+            .bytes()
+            .await
+            .map_err(|e| body_error(e.status(), e.body_text(), max_bytes))?;
         match name.as_str() {
             "calibration" => calibration = Some(from_json("calibration", &text(&name, &bytes)?)?),
             "options" => options = Some(from_json("options", &text(&name, &bytes)?)?),

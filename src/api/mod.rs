@@ -12,6 +12,7 @@ pub mod http;
 pub use convert::{
     calibration_to_pb, extract_params, images, match_params, match_request, match_response,
     rig_from_calibration, segment_list_to_pb, segment_lists, Executed, MatchInput, MatchSource,
+    RequestLimits, RunError, MAX_SEGMENTS_PER_LIST,
 };
 
 /// The schema as an encoded `FileDescriptorSet`, for gRPC server reflection.

@@ -12,6 +12,7 @@
 //! [limits]
 //! max_message_mib = 32
 //! max_image_pixels = 40000000
+//! max_segments_per_list = 100000
 //! [log]
 //! json = false
 //! level = "info"
@@ -71,6 +72,7 @@ pub struct ComputeConfig {
 pub struct LimitsConfig {
     pub max_message_mib: usize,
     pub max_image_pixels: u64,
+    pub max_segments_per_list: usize,
 }
 
 impl Default for ServerConfig {
@@ -87,6 +89,7 @@ impl Default for LimitsConfig {
         LimitsConfig {
             max_message_mib: 32,
             max_image_pixels: 40_000_000,
+            max_segments_per_list: crate::api::MAX_SEGMENTS_PER_LIST,
         }
     }
 }
@@ -159,6 +162,9 @@ impl Config {
         if self.limits.max_image_pixels == 0 {
             problems.push("limits.max_image_pixels must be at least 1".to_string());
         }
+        if self.limits.max_segments_per_list == 0 {
+            problems.push("limits.max_segments_per_list must be at least 1".to_string());
+        }
         if problems.is_empty() {
             Ok(())
         } else {
@@ -183,6 +189,7 @@ impl Config {
             },
             max_message_bytes: self.limits.max_message_mib << 20,
             max_image_pixels: self.limits.max_image_pixels,
+            max_segments_per_list: self.limits.max_segments_per_list,
         }
     }
 }
@@ -242,7 +249,8 @@ mod tests {
         let mut c = Config::default();
         c.limits.max_message_mib = 0;
         c.limits.max_image_pixels = 0;
+        c.limits.max_segments_per_list = 0;
         let problems = c.validate().unwrap_err();
-        assert_eq!(problems.lines().count(), 2, "{problems}");
+        assert_eq!(problems.lines().count(), 3, "{problems}");
     }
 }

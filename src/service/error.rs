@@ -6,7 +6,7 @@ use thiserror::Error;
 use tonic::Code;
 
 use super::pool::PoolError;
-use crate::api::InputError;
+use crate::api::{InputError, RunError};
 
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum ServiceError {
@@ -16,9 +16,18 @@ pub enum ServiceError {
     /// Every compute slot is taken: retry after a moment.
     #[error("the service is busy ({max_jobs} jobs queued or running); retry later")]
     Busy { max_jobs: usize },
+    /// The request is larger than the configured limit.
+    #[error(
+        "the request is larger than the limit of {limit_bytes} bytes (limits.max_message_mib)"
+    )]
+    TooLarge { limit_bytes: usize },
     /// The caller's deadline passed before the answer was ready.
     #[error("the deadline of {timeout_ms} ms passed before the answer was ready")]
     DeadlineExceeded { timeout_ms: u64 },
+    /// The job stopped early because nobody waited for its answer; no client normally sees
+    /// this (it has gone, or got DEADLINE_EXCEEDED already).
+    #[error("stopped before {stage}: the caller went away")]
+    Stopped { stage: &'static str },
     /// A bug: the detail is logged, the client gets a generic message.
     #[error("internal error")]
     Internal { detail: String },
@@ -33,12 +42,24 @@ impl From<PoolError> for ServiceError {
     }
 }
 
+impl From<RunError> for ServiceError {
+    fn from(e: RunError) -> ServiceError {
+        match e {
+            RunError::Input(e) => ServiceError::Input(e),
+            RunError::Stopped { stage } => ServiceError::Stopped { stage },
+        }
+    }
+}
+
 impl ServiceError {
     pub fn code(&self) -> Code {
         match self {
             ServiceError::Input(_) => Code::InvalidArgument,
             ServiceError::Busy { .. } => Code::ResourceExhausted,
+            // As tonic answers a message past its decoding limit.
+            ServiceError::TooLarge { .. } => Code::OutOfRange,
             ServiceError::DeadlineExceeded { .. } => Code::DeadlineExceeded,
+            ServiceError::Stopped { .. } => Code::Cancelled,
             ServiceError::Internal { .. } => Code::Internal,
         }
     }
@@ -48,8 +69,21 @@ impl ServiceError {
         match self {
             ServiceError::Input(e) => Some(&e.field),
             ServiceError::Busy { .. }
+            | ServiceError::TooLarge { .. }
             | ServiceError::DeadlineExceeded { .. }
+            | ServiceError::Stopped { .. }
             | ServiceError::Internal { .. } => None,
+        }
+    }
+}
+
+impl ServiceError {
+    /// The HTTP status: that of the gRPC code, except that HTTP has its own status for a body
+    /// that is too large.
+    pub fn http_status(&self) -> StatusCode {
+        match self {
+            ServiceError::TooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
+            other => http_status(other.code()),
         }
     }
 }

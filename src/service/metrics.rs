@@ -24,6 +24,7 @@ pub struct Metrics {
     in_flight: IntGauge,
     max_jobs: IntGauge,
     rejections: IntCounter,
+    stopped: IntCounterVec,
 }
 
 impl Metrics {
@@ -64,6 +65,14 @@ impl Metrics {
             "trinocular_rejections_total",
             "Requests refused at once because every compute slot was taken",
         )?;
+        let stopped = IntCounterVec::new(
+            Opts::new(
+                "trinocular_jobs_stopped_total",
+                "Running jobs stopped early (caller gone or deadline passed), by the stage they stopped before",
+            ),
+            &["stage"],
+        )?;
+        registry.register(Box::new(stopped.clone()))?;
         registry.register(Box::new(requests.clone()))?;
         registry.register(Box::new(latency.clone()))?;
         registry.register(Box::new(stages.clone()))?;
@@ -78,7 +87,13 @@ impl Metrics {
             in_flight,
             max_jobs,
             rejections,
+            stopped,
         })
+    }
+
+    /// A running job stopped before `stage` because nobody wanted its answer any more.
+    pub fn record_stopped(&self, stage: &str) {
+        self.stopped.with_label_values(&[stage]).inc();
     }
 
     /// One answered request.

@@ -16,9 +16,11 @@ pub mod request_id;
 pub mod server;
 
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
-use crate::api::{self, pb, InputError};
+use crate::api::{self, pb, InputError, RunError};
 use crate::extract::DecodeLimits;
+use crate::pipeline::Checkpoint;
 
 pub use error::{http_status, ServiceError};
 pub use pool::{ComputePool, PoolError};
@@ -35,6 +37,8 @@ pub struct Limits {
     pub max_message_bytes: usize,
     /// Largest image, pixels (checked from its header, before decoding).
     pub max_image_pixels: u64,
+    /// Most segments in one list of a request.
+    pub max_segments_per_list: usize,
 }
 
 impl Default for Limits {
@@ -45,6 +49,7 @@ impl Default for Limits {
             max_jobs: 4 * threads,
             max_message_bytes: 32 << 20,
             max_image_pixels: DecodeLimits::default().max_pixels,
+            max_segments_per_list: api::MAX_SEGMENTS_PER_LIST,
         }
     }
 }
@@ -54,7 +59,7 @@ pub struct Service {
     pool: ComputePool,
     limits: Limits,
     ready: AtomicBool,
-    metrics: metrics::Metrics,
+    metrics: Arc<metrics::Metrics>,
 }
 
 /// Why a service could not start.
@@ -72,7 +77,7 @@ impl Service {
             pool: ComputePool::new(limits.threads, limits.max_jobs)?,
             limits,
             ready: AtomicBool::new(true),
-            metrics: metrics::Metrics::new()?,
+            metrics: Arc::new(metrics::Metrics::new()?),
         })
     }
 
@@ -114,7 +119,8 @@ impl Service {
     /// the async runtime: `read` produces the request (so an HTTP body is parsed there), the
     /// request is checked and converted (images decoded) and the pipeline run, and `encode`
     /// turns the response into what the transport sends. Past `timeout` (none: no deadline)
-    /// the answer is DEADLINE_EXCEEDED and the job, if still queued, never runs.
+    /// the answer is DEADLINE_EXCEEDED and the job, if still queued, never runs; if running, it
+    /// stops before its next stage (as it does when the caller goes away).
     pub async fn match_within<T: Send + 'static>(
         &self,
         read: impl FnOnce() -> Result<pb::MatchRequest, InputError> + Send + 'static,
@@ -123,18 +129,28 @@ impl Service {
         transport: &str,
     ) -> Result<(pb::MatchResponse, T), ServiceError> {
         let start = std::time::Instant::now();
-        let limits = DecodeLimits {
-            max_bytes: self.limits.max_message_bytes,
-            max_pixels: self.limits.max_image_pixels,
+        let limits = api::RequestLimits {
+            decode: DecodeLimits {
+                max_bytes: self.limits.max_message_bytes,
+                max_pixels: self.limits.max_image_pixels,
+            },
+            max_segments_per_list: self.limits.max_segments_per_list,
         };
-        let job = self.pool.run(move || -> Result<_, InputError> {
-            let response = api::match_request(&read()?, &limits)?.run()?;
+        let stopped = Arc::clone(&self.metrics);
+        let job = self.pool.run(move |abandoned| -> Result<_, RunError> {
+            let input = api::match_request(&read()?, &limits)?;
+            let stop = || abandoned.is_set();
+            let response = input.run_until(Checkpoint::new(&stop)).inspect_err(|e| {
+                if let RunError::Stopped { stage } = e {
+                    stopped.record_stopped(stage);
+                }
+            })?;
             let encoded = encode(&response);
             Ok((response, encoded))
         });
-        let finished = |done: Result<Result<_, InputError>, PoolError>| {
+        let finished = |done: Result<Result<_, RunError>, PoolError>| {
             done.map_err(ServiceError::from)
-                .and_then(|r| r.map_err(ServiceError::Input))
+                .and_then(|r| r.map_err(ServiceError::from))
         };
         let result = match timeout {
             None => finished(job.await),

@@ -5,7 +5,8 @@
 //! [`PoolError::Busy`], so past capacity the service answers "retry later" instead of letting
 //! latency grow without bound. The job runs under `catch_unwind`: a panic fails that job
 //! (`PoolError::Panicked`) and the process lives. A caller that stops waiting (its client went
-//! away) cancels the job if it has not started yet.
+//! away, its deadline passed) cancels the job: a queued job never starts, and a running one is
+//! handed the [`Abandoned`] flag to look at between its stages.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -20,6 +21,15 @@ pub enum PoolError {
     Busy { max_jobs: usize },
     #[error("the job panicked: {message}")]
     Panicked { message: String },
+}
+
+/// Set once nobody waits for a job's result any more; a running job reads it between stages.
+pub struct Abandoned(Arc<AtomicBool>);
+
+impl Abandoned {
+    pub fn is_set(&self) -> bool {
+        self.0.load(Ordering::Relaxed)
+    }
 }
 
 /// A rayon pool with an admission limit (see the module doc).
@@ -91,11 +101,12 @@ impl ComputePool {
         self.max_jobs
     }
 
-    /// Runs `job` on the pool (its own `par_iter`s included) and awaits its result.
+    /// Runs `job` on the pool (its own `par_iter`s included) and awaits its result. The job
+    /// may stop early once its [`Abandoned`] flag is set: its result goes nowhere.
     pub async fn run<T, F>(&self, job: F) -> Result<T, PoolError>
     where
         T: Send + 'static,
-        F: FnOnce() -> T + Send + 'static,
+        F: FnOnce(&Abandoned) -> T + Send + 'static,
     {
         let permit =
             Arc::clone(&self.permits)
@@ -107,11 +118,14 @@ impl ComputePool {
         let mut guard = CancelOnDrop(Arc::clone(&cancelled), true);
         let (tx, rx) = oneshot::channel();
         self.pool.spawn(move || {
-            if cancelled.load(Ordering::Relaxed) {
+            let abandoned = Abandoned(cancelled);
+            if abandoned.is_set() {
                 return; // the permit goes with the closure
             }
-            let result = catch_unwind(AssertUnwindSafe(job)).map_err(|p| PoolError::Panicked {
-                message: panic_message(p.as_ref()),
+            let result = catch_unwind(AssertUnwindSafe(|| job(&abandoned))).map_err(|p| {
+                PoolError::Panicked {
+                    message: panic_message(p.as_ref()),
+                }
             });
             // Free the slot before answering, so a caller that got its answer sees it free.
             drop(permit);
@@ -143,7 +157,7 @@ mod tests {
     fn runs_jobs_on_named_threads() {
         let pool = ComputePool::new(2, 4).unwrap();
         let name = runtime()
-            .block_on(pool.run(|| std::thread::current().name().map(str::to_string)))
+            .block_on(pool.run(|_| std::thread::current().name().map(str::to_string)))
             .unwrap();
         assert!(name.unwrap().starts_with("trinocular-compute-"));
         assert_eq!(pool.threads(), 2);
@@ -155,11 +169,11 @@ mod tests {
         let rt = runtime();
         let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
         rt.block_on(async {
-            let first = pool.run(move || release_rx.recv().is_ok());
+            let first = pool.run(move |_| release_rx.recv().is_ok());
             let second = async {
                 // The first job holds the only slot while it waits.
                 tokio::time::sleep(Duration::from_millis(20)).await;
-                let busy = pool.run(|| 0).await;
+                let busy = pool.run(|_| 0).await;
                 release_tx.send(()).unwrap();
                 busy
             };
@@ -175,7 +189,7 @@ mod tests {
         let pool = ComputePool::new(1, 2).unwrap();
         let rt = runtime();
         let err = rt
-            .block_on(pool.run(|| -> u32 { panic!("boom") }))
+            .block_on(pool.run(|_| -> u32 { panic!("boom") }))
             .unwrap_err();
         assert_eq!(
             err,
@@ -183,7 +197,7 @@ mod tests {
                 message: "boom".to_string()
             }
         );
-        assert_eq!(rt.block_on(pool.run(|| 7)), Ok(7));
+        assert_eq!(rt.block_on(pool.run(|_| 7)), Ok(7));
     }
 
     #[test]
@@ -194,10 +208,10 @@ mod tests {
         let started = Arc::new(AtomicBool::new(false));
         rt.block_on(async {
             // Occupy the only thread, then queue a job and stop waiting for it.
-            let blocker = pool.run(move || release_rx.recv().is_ok());
+            let blocker = pool.run(move |_| release_rx.recv().is_ok());
             let queued = {
                 let started = Arc::clone(&started);
-                pool.run(move || started.store(true, Ordering::Relaxed))
+                pool.run(move |_| started.store(true, Ordering::Relaxed))
             };
             let abandon = async {
                 tokio::time::timeout(Duration::from_millis(20), queued)
@@ -217,5 +231,42 @@ mod tests {
         }
         assert_eq!(pool.in_flight(), 0);
         assert!(!started.load(Ordering::Relaxed));
+    }
+
+    #[test]
+    fn a_running_job_sees_that_its_caller_went_away() {
+        let pool = ComputePool::new(1, 4).unwrap();
+        let rt = runtime();
+        let (saw_tx, saw_rx) = std::sync::mpsc::channel::<bool>();
+        rt.block_on(async {
+            let (started_tx, started_rx) = tokio::sync::oneshot::channel::<()>();
+            let job = pool.run(move |abandoned| {
+                let _ = started_tx.send(());
+                // A long job that looks at the flag between its "stages".
+                for _ in 0..2000 {
+                    if abandoned.is_set() {
+                        let _ = saw_tx.send(true);
+                        return;
+                    }
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+                let _ = saw_tx.send(false);
+            });
+            let abandon = async {
+                started_rx.await.unwrap();
+                // Dropping the future while the job runs is what a gone client does.
+            };
+            tokio::select! {
+                _ = job => panic!("the job should not finish first"),
+                _ = abandon => {}
+            }
+        });
+        let saw = saw_rx
+            .recv_timeout(Duration::from_secs(5))
+            .expect("job ended");
+        assert!(
+            saw,
+            "the running job stopped early because its caller went away"
+        );
     }
 }

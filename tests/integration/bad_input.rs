@@ -5,17 +5,8 @@ use std::process::Command;
 
 use serde_json::{json, Value};
 use trinocular::api::{self, pb};
-use trinocular::extract::decode::DecodeLimits;
 
-use crate::common::{calibration_json, request_json, segment};
-
-/// Runs a JSON request through the API; returns the failing field, or the response.
-fn run(request: &Value) -> Result<pb::MatchResponse, String> {
-    let req: pb::MatchRequest =
-        api::from_json("request", &request.to_string()).map_err(|e| e.field)?;
-    let input = api::match_request(&req, &DecodeLimits::default()).map_err(|e| e.field)?;
-    input.run().map_err(|e| e.field)
-}
+use crate::common::{calibration_json, request_json, run_json as run, segment};
 
 fn field_of(request: &Value) -> String {
     match run(request) {

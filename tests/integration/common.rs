@@ -38,3 +38,16 @@ pub fn request_json() -> Value {
         "segments": {"lists": [list.clone(), list.clone(), list]},
     })
 }
+
+/// Runs a JSON request through the API, as the CLI and the service do; returns the failing
+/// field, or the response.
+pub fn run_json(request: &serde_json::Value) -> Result<trinocular::api::pb::MatchResponse, String> {
+    use trinocular::api::{self, RunError};
+    let req: api::pb::MatchRequest =
+        api::from_json("request", &request.to_string()).map_err(|e| e.field)?;
+    let input = api::match_request(&req, &Default::default()).map_err(|e| e.field)?;
+    input.run().map_err(|e| match e {
+        RunError::Input(e) => e.field,
+        stopped => panic!("nothing asked to stop, yet: {stopped}"),
+    })
+}

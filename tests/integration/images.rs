@@ -8,7 +8,7 @@ use std::process::Command;
 use base64::Engine;
 use serde_json::{json, Value};
 use trinocular::api::{self, pb};
-use trinocular::extract::{self, decode::DecodeLimits, edges, gradient, GreyImage, Params};
+use trinocular::extract::{self, edges, gradient, GreyImage, Params};
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::match_images;
 use trinocular::segment::Segment3;
@@ -17,7 +17,7 @@ use trinocular::synth::{
     standard_capture, Defects, RenderParams,
 };
 
-use crate::common::calibration_json;
+use crate::common::{calibration_json, run_json as run};
 
 /// Share of ground-truth image segments (≥ 20 px, ≥ 10 grey levels of contrast) found with
 /// both endpoints within 1.5 px, in order; measured 0.73 on seeds 1–3 (README).
@@ -296,13 +296,6 @@ fn image_request(images: Vec<Value>) -> Value {
     json!({"calibration": calibration_json(), "images": {"images": images}})
 }
 
-fn run(request: &Value) -> Result<pb::MatchResponse, String> {
-    let req: pb::MatchRequest =
-        api::from_json("request", &request.to_string()).map_err(|e| e.field)?;
-    let input = api::match_request(&req, &DecodeLimits::default()).map_err(|e| e.field)?;
-    input.run().map_err(|e| e.field)
-}
-
 #[test]
 fn valid_images_are_matched_and_extracted_lists_returned_on_request() {
     let good = json!({"encoded": b64(&png(512, 512))});
@@ -393,7 +386,7 @@ fn a_decompression_bomb_is_refused_before_decoding() {
     let good = json!({"encoded": b64(&png(512, 512))});
     let r = image_request(vec![good.clone(), good, json!({"encoded": b64(&bomb)})]);
     let req: pb::MatchRequest = api::from_json("request", &r.to_string()).unwrap();
-    let err = api::match_request(&req, &DecodeLimits::default()).unwrap_err();
+    let err = api::match_request(&req, &Default::default()).unwrap_err();
     assert_eq!(err.field, "images.images[2].encoded");
     assert!(err.message.contains("100000"), "{}", err.message);
 }

@@ -108,6 +108,69 @@ fn grpc_json_and_protobuf_over_http_give_the_same_match() {
     });
 }
 
+/// `text` with the value of every `"…Ms": number` (timings, which differ from run to run)
+/// replaced by 0; everything else kept byte for byte.
+fn without_timings(text: &str) -> String {
+    let mut out = String::new();
+    for line in text.lines() {
+        let is_timing = line
+            .trim_start()
+            .split_once("Ms\": ")
+            .is_some_and(|(key, _)| key.starts_with('"') && !key.contains(' '));
+        if is_timing {
+            let (key, value) = line.split_once(": ").unwrap();
+            let comma = if value.ends_with(',') { "," } else { "" };
+            out.push_str(&format!("{key}: 0{comma}"));
+        } else {
+            out.push_str(line);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+#[test]
+fn http_json_is_the_clis_json_byte_for_byte_but_for_timings() {
+    let dir = std::env::temp_dir().join(format!("trinocular-cli-json-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("request.json");
+    let request = api::to_json(&example_request());
+    std::fs::write(&path, &request).unwrap();
+    let cli = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
+        .arg("match")
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(
+        cli.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cli.stderr)
+    );
+    let cli = String::from_utf8(cli.stdout).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+
+    let http = runtime().block_on(async {
+        let running = start(small_limits()).await;
+        let text = reqwest::Client::new()
+            .post(format!("http://{}/v1/match", running.http_addr))
+            .header("content-type", "application/json")
+            .body(request)
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        running.shutdown().await;
+        text
+    });
+    assert!(
+        cli.contains("\"totalMs\": "),
+        "the comparison must see the timings to blank them"
+    );
+    assert_eq!(without_timings(&http), without_timings(&cli));
+}
+
 #[test]
 fn bad_input_is_invalid_argument_naming_the_field_on_both_transports() {
     runtime().block_on(async {
@@ -181,9 +244,65 @@ fn oversized_requests_are_refused() {
             .await
             .unwrap();
         assert_eq!(reply.status(), 413);
+        let body = reply.json_body().await;
+        assert_eq!(body["error"]["code"], "OUT_OF_RANGE");
+        let message = body["error"]["message"].as_str().unwrap();
+        assert!(
+            message.contains("4096 bytes (limits.max_message_mib)"),
+            "{message}"
+        );
+
+        // The same through a curl-style upload.
+        let form = reqwest::multipart::Form::new()
+            .text("calibration", "{}")
+            .part("image1", reqwest::multipart::Part::bytes(vec![0u8; 8000]));
+        let reply = reqwest::Client::new()
+            .post(format!("http://{}/v1/match", running.http_addr))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 413);
+
         let mut grpc = grpc_client(&running).await;
         let status = grpc.r#match(request).await.unwrap_err();
         assert_eq!(status.code(), tonic::Code::OutOfRange, "{status:?}");
+        assert!(status.message().contains("4096"), "{status:?}");
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn too_many_segments_in_a_list_is_refused_naming_the_list_and_the_limit() {
+    runtime().block_on(async {
+        let running = start(Limits {
+            max_segments_per_list: 10,
+            ..small_limits()
+        })
+        .await;
+        let request = example_request();
+        let mut grpc = grpc_client(&running).await;
+        let status = grpc.r#match(request.clone()).await.unwrap_err();
+        assert_eq!(status.code(), tonic::Code::InvalidArgument, "{status:?}");
+        assert!(
+            status.message().starts_with("segments.lists[0].segments: ")
+                && status
+                    .message()
+                    .contains("limit of 10 per list (limits.max_segments_per_list)"),
+            "{status:?}"
+        );
+        let reply = reqwest::Client::new()
+            .post(format!("http://{}/v1/match", running.http_addr))
+            .header("content-type", "application/x-protobuf")
+            .body(request.encode_to_vec())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        assert_eq!(
+            reply.json_body().await["error"]["field"],
+            "segments.lists[0].segments"
+        );
         running.shutdown().await;
     });
 }
@@ -217,6 +336,78 @@ impl JsonBody for reqwest::Response {
     async fn json_body(self) -> serde_json::Value {
         serde_json::from_str(&self.text().await.expect("body")).expect("JSON body")
     }
+}
+
+/// The grpcurl binary: `$GRPCURL`, or `grpcurl` on the PATH (`.ci/run` installs one).
+fn grpcurl() -> Option<std::path::PathBuf> {
+    if let Some(path) = std::env::var_os("GRPCURL") {
+        return Some(path.into());
+    }
+    std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|dir| dir.join("grpcurl"))
+            .find(|p| p.is_file())
+    })
+}
+
+#[test]
+fn the_readmes_grpcurl_commands_work() {
+    let Some(grpcurl) = grpcurl() else {
+        eprintln!("SKIPPED the_readmes_grpcurl_commands_work: no grpcurl (set GRPCURL or put it on the PATH; .ci/run installs one)");
+        return;
+    };
+    let rt = runtime();
+    let running = rt.block_on(start(small_limits()));
+    let addr = running.grpc_addr.to_string();
+    let run = |args: &[&str], stdin: Option<&str>| -> String {
+        use std::io::Write;
+        let mut child = std::process::Command::new(&grpcurl)
+            .arg("-plaintext")
+            .args(args)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("grpcurl runs");
+        let mut input = child.stdin.take().unwrap();
+        input.write_all(stdin.unwrap_or("").as_bytes()).unwrap();
+        drop(input);
+        let out = child.wait_with_output().unwrap();
+        assert!(
+            out.status.success(),
+            "grpcurl {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let list = run(&[&addr, "list"], None);
+    assert!(
+        list.lines().any(|l| l == "trinocular.v1.Trinocular"),
+        "{list}"
+    );
+    assert!(list.lines().any(|l| l == "grpc.health.v1.Health"), "{list}");
+    let describe = run(&[&addr, "describe", "trinocular.v1.Trinocular"], None);
+    assert!(
+        describe.contains(
+            "rpc Match ( .trinocular.v1.MatchRequest ) returns ( .trinocular.v1.MatchResponse )"
+        ),
+        "{describe}"
+    );
+    let request = api::to_json(&example_request());
+    let reply = run(
+        &["-d", "@", &addr, "trinocular.v1.Trinocular/Match"],
+        Some(&request),
+    );
+    let reply: pb::MatchResponse =
+        api::from_json("reply", &reply).expect("a MatchResponse in JSON");
+    let direct = api::match_request(&example_request(), &Default::default())
+        .unwrap()
+        .run()
+        .unwrap();
+    assert_eq!(essence(&reply), essence(&direct));
+    let health = run(&[&addr, "grpc.health.v1.Health/Check"], None);
+    assert!(health.contains("SERVING"), "{health}");
+    rt.block_on(running.shutdown());
 }
 
 #[test]
@@ -369,6 +560,73 @@ fn deadlines_are_honoured_on_both_transports() {
         // The slow one completes, and the service is fine afterwards.
         assert_eq!(slow.await.unwrap().unwrap().status(), 200);
         let ok = grpc.r#match(small).await.unwrap().into_inner();
+        assert!(!ok.segments_3d.is_empty());
+        running.shutdown().await;
+    });
+}
+
+/// Polls `/metrics` until the count of jobs stopped early reaches `n` (or five seconds pass).
+async fn stopped_jobs(http: &reqwest::Client, running: &server::Running, n: u64) -> u64 {
+    let mut seen = 0;
+    for _ in 0..500 {
+        let text = http
+            .get(format!("http://{}/metrics", running.http_addr))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        seen = text
+            .lines()
+            .filter(|l| l.starts_with("trinocular_jobs_stopped_total{"))
+            .filter_map(|l| l.rsplit(' ').next()?.parse::<u64>().ok())
+            .sum();
+        if seen >= n {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    seen
+}
+
+#[test]
+fn a_running_job_stops_between_stages_once_nobody_waits() {
+    runtime().block_on(async {
+        let running = start(Limits {
+            threads: 1,
+            ..small_limits()
+        })
+        .await;
+        let http = reqwest::Client::new();
+        let url = format!("http://{}/v1/match", running.http_addr);
+        let slow = slow_request().encode_to_vec();
+
+        // Its deadline passes while it runs: 504, and the job stops at its next stage.
+        let reply = http
+            .post(format!("{url}?timeout_ms=5"))
+            .header("content-type", "application/x-protobuf")
+            .body(slow.clone())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 504);
+        assert_eq!(stopped_jobs(&http, &running, 1).await, 1);
+
+        // The client hangs up while it runs: the same.
+        let gone = http
+            .post(url.clone())
+            .header("content-type", "application/x-protobuf")
+            .body(slow)
+            .timeout(std::time::Duration::from_millis(20))
+            .send()
+            .await;
+        assert!(gone.unwrap_err().is_timeout());
+        assert_eq!(stopped_jobs(&http, &running, 2).await, 2);
+
+        // Nothing else noticed: the next request is answered.
+        let mut grpc = grpc_client(&running).await;
+        let ok = grpc.r#match(example_request()).await.unwrap().into_inner();
         assert!(!ok.segments_3d.is_empty());
         running.shutdown().await;
     });

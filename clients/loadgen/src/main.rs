@@ -12,7 +12,12 @@
 //!     --concurrency 4 --duration-s 10 [--json]
 //! trinocular-loadgen --target http://127.0.0.1:8080 --request examples/request.json \
 //!     --rate 200 --duration-s 10
+//! trinocular-loadgen --target inproc://2 --request examples/request.json --concurrency 4
 //! ```
+//!
+//! `inproc://THREADS` is the peer the transports are measured against: the library in this
+//! process, on a compute pool of THREADS threads behind the same admission limit as the
+//! server's (four jobs per thread), with no network, encoding or decoding of messages.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -22,6 +27,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use prost::Message;
 use trinocular::api::{self, pb};
+use trinocular::service::{Limits, Service};
 
 #[derive(Parser)]
 #[command(
@@ -29,7 +35,7 @@ use trinocular::api::{self, pb};
     about = "Load generator for the Trinocular service"
 )]
 struct Args {
-    /// grpc://HOST:PORT or http://HOST:PORT.
+    /// grpc://HOST:PORT, http://HOST:PORT, or inproc://THREADS (the library in this process).
     #[arg(long)]
     target: String,
     /// A MatchRequest in proto3 JSON.
@@ -64,6 +70,7 @@ enum Client {
         body: Vec<u8>,
         content_type: &'static str,
     },
+    InProcess(Arc<Service>),
 }
 
 impl Client {
@@ -95,6 +102,16 @@ impl Client {
                     if e.is_connect() { "connect" } else { "error" }
                 ),
             },
+            Client::InProcess(service) => {
+                let request = request.clone();
+                match service
+                    .match_within(move || Ok(request), |_| (), None, "inproc")
+                    .await
+                {
+                    Ok(_) => "OK".to_string(),
+                    Err(e) => format!("{:?}", e.code()),
+                }
+            }
         }
     }
 }
@@ -135,8 +152,18 @@ async fn main() -> anyhow::Result<()> {
             body,
             content_type,
         }
+    } else if let Some(threads) = args.target.strip_prefix("inproc://") {
+        let threads: usize = threads
+            .parse()
+            .context("inproc://THREADS needs a number of threads")?;
+        let limits = Limits {
+            threads,
+            max_jobs: 4 * threads,
+            ..Limits::default()
+        };
+        Client::InProcess(Arc::new(Service::new(limits)?))
     } else {
-        bail!("--target must start with grpc:// or http://");
+        bail!("--target must start with grpc://, http:// or inproc://");
     };
     let duration = Duration::from_secs_f64(args.duration_s.max(0.1));
     let outcomes: Arc<Mutex<Vec<Outcome>>> = Arc::default();

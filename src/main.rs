@@ -49,7 +49,7 @@ struct ServeArgs {
     /// Compute threads (default: one per core).
     #[arg(long)]
     threads: Option<usize>,
-    /// Jobs queued or running at once; past it, 429 / RESOURCE_EXHAUSTED (default: 4 per thread).
+    /// Jobs queued or running at once; past it, 429 / RESOURCE_EXHAUSTED (default: 2 per thread).
     #[arg(long)]
     max_jobs: Option<usize>,
     /// Largest request, MiB (default 32).

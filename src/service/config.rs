@@ -8,7 +8,7 @@
 //! http_addr = "0.0.0.0:8080"
 //! [compute]
 //! threads = 2          # 0: one per core
-//! max_jobs = 8         # 0: four per thread
+//! max_jobs = 4         # 0: two per thread
 //! [limits]
 //! max_message_mib = 32
 //! max_image_pixels = 40000000
@@ -63,7 +63,7 @@ pub struct ServerConfig {
 pub struct ComputeConfig {
     /// Compute threads; 0: one per core.
     pub threads: usize,
-    /// Jobs queued or running at once; 0: four per thread.
+    /// Jobs queued or running at once; 0: two per thread.
     pub max_jobs: usize,
 }
 
@@ -183,7 +183,7 @@ impl Config {
         Limits {
             threads,
             max_jobs: if self.compute.max_jobs == 0 {
-                4 * threads
+                super::JOBS_PER_THREAD * threads
             } else {
                 self.compute.max_jobs
             },
@@ -233,7 +233,7 @@ mod tests {
         assert_eq!(c.limits().max_jobs, 7);
         assert_eq!(
             Config::default().limits().max_jobs,
-            4 * Limits::default().threads
+            super::super::JOBS_PER_THREAD * Limits::default().threads
         );
     }
 

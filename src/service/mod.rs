@@ -25,6 +25,12 @@ use crate::pipeline::Checkpoint;
 pub use error::{http_status, ServiceError};
 pub use pool::{ComputePool, PoolError};
 
+/// Jobs queued or running per compute thread by default. Two: under overload an admitted
+/// request waits for at most about one job ahead of it per thread, so its latency stays near
+/// twice the service time while the excess is refused at once; more would only queue, which
+/// lengthens latency without adding throughput.
+pub const JOBS_PER_THREAD: usize = 2;
+
 /// What the service is allowed to do. Units in the names.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Limits {
@@ -46,7 +52,7 @@ impl Default for Limits {
         let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
         Limits {
             threads,
-            max_jobs: 4 * threads,
+            max_jobs: JOBS_PER_THREAD * threads,
             max_message_bytes: 32 << 20,
             max_image_pixels: DecodeLimits::default().max_pixels,
             max_segments_per_list: api::MAX_SEGMENTS_PER_LIST,

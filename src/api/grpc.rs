@@ -9,6 +9,7 @@ use tonic::{Request, Response, Status};
 use tracing::Instrument;
 
 use super::pb;
+use crate::service::sessions::map_to_pb;
 use crate::service::{request_id, Service, ServiceError};
 
 pub struct GrpcApi {
@@ -50,47 +51,149 @@ fn with_margin(timeout: Duration) -> Duration {
     timeout.saturating_sub(timeout / 10 + Duration::from_millis(2))
 }
 
+/// The request's id (the client's `x-request-id`, or a new one).
+fn id_of<T>(request: &Request<T>) -> String {
+    request_id::request_id(
+        request
+            .metadata()
+            .get(request_id::HEADER)
+            .and_then(|v| v.to_str().ok()),
+    )
+}
+
+/// The call's deadline, from `grpc-timeout`, less the margin.
+fn deadline_of<T>(request: &Request<T>) -> Option<Duration> {
+    request
+        .metadata()
+        .get("grpc-timeout")
+        .and_then(|v| v.to_str().ok())
+        .and_then(grpc_timeout)
+        .map(with_margin)
+}
+
+/// The answer, with the request id echoed in its metadata either way.
+fn respond<T>(id: &str, answer: Result<T, ServiceError>) -> Result<Response<T>, Status> {
+    let value = MetadataValue::try_from(id).ok();
+    match answer {
+        Ok(r) => {
+            let mut response = Response::new(r);
+            if let Some(v) = value {
+                response.metadata_mut().insert(request_id::HEADER, v);
+            }
+            Ok(response)
+        }
+        Err(e) => {
+            let mut s = status(&e);
+            if let Some(v) = value {
+                s.metadata_mut().insert(request_id::HEADER, v);
+            }
+            Err(s)
+        }
+    }
+}
+
+fn span(id: &str, rpc: &'static str) -> tracing::Span {
+    tracing::info_span!("grpc", request_id = %id, rpc)
+}
+
 #[tonic::async_trait]
 impl pb::trinocular_server::Trinocular for GrpcApi {
     async fn r#match(
         &self,
         request: Request<pb::MatchRequest>,
     ) -> Result<Response<pb::MatchResponse>, Status> {
-        let timeout = request
-            .metadata()
-            .get("grpc-timeout")
-            .and_then(|v| v.to_str().ok())
-            .and_then(grpc_timeout)
-            .map(with_margin);
-        let id = request_id::request_id(
-            request
-                .metadata()
-                .get(request_id::HEADER)
-                .and_then(|v| v.to_str().ok()),
-        );
+        let (id, timeout) = (id_of(&request), deadline_of(&request));
         let request = request.into_inner();
         let answer = self
             .service
             .match_within(move || Ok(request), |_| (), timeout, "grpc")
-            .instrument(tracing::info_span!("grpc", request_id = %id))
+            .instrument(span(&id, "Match"))
             .await;
-        let value = MetadataValue::try_from(id.as_str()).ok();
-        match answer {
-            Ok((r, ())) => {
-                let mut response = Response::new(r);
-                if let Some(v) = value {
-                    response.metadata_mut().insert(request_id::HEADER, v);
-                }
-                Ok(response)
-            }
-            Err(e) => {
-                let mut s = status(&e);
-                if let Some(v) = value {
-                    s.metadata_mut().insert(request_id::HEADER, v);
-                }
-                Err(s)
-            }
-        }
+        respond(&id, answer.map(|(r, ())| r))
+    }
+
+    async fn create_session(
+        &self,
+        request: Request<pb::CreateSessionRequest>,
+    ) -> Result<Response<pb::Session>, Status> {
+        let id = id_of(&request);
+        let answer = self
+            .service
+            .create_session(request.into_inner(), "grpc")
+            .instrument(span(&id, "CreateSession"))
+            .await;
+        respond(&id, answer)
+    }
+
+    async fn add_capture(
+        &self,
+        request: Request<pb::AddCaptureRequest>,
+    ) -> Result<Response<pb::AddCaptureResponse>, Status> {
+        let (id, timeout) = (id_of(&request), deadline_of(&request));
+        let answer = self
+            .service
+            .add_capture(request.into_inner(), timeout, "grpc")
+            .instrument(span(&id, "AddCapture"))
+            .await;
+        respond(&id, answer)
+    }
+
+    async fn get_map(
+        &self,
+        request: Request<pb::GetMapRequest>,
+    ) -> Result<Response<pb::Map>, Status> {
+        let id = id_of(&request);
+        let pb::GetMapRequest {
+            session_id,
+            min_observations,
+        } = request.into_inner();
+        let answer = self
+            .service
+            .get_map(&session_id, min_observations, "grpc")
+            .instrument(span(&id, "GetMap"))
+            .await;
+        respond(&id, answer.map(|m| map_to_pb(&m)))
+    }
+
+    async fn get_session(
+        &self,
+        request: Request<pb::GetSessionRequest>,
+    ) -> Result<Response<pb::Session>, Status> {
+        let id = id_of(&request);
+        let pb::GetSessionRequest { session_id } = request.into_inner();
+        let answer = self
+            .service
+            .get_session(&session_id, "grpc")
+            .instrument(span(&id, "GetSession"))
+            .await;
+        respond(&id, answer)
+    }
+
+    async fn list_sessions(
+        &self,
+        request: Request<pb::ListSessionsRequest>,
+    ) -> Result<Response<pb::ListSessionsResponse>, Status> {
+        let id = id_of(&request);
+        let answer = self
+            .service
+            .list_sessions("grpc")
+            .instrument(span(&id, "ListSessions"))
+            .await;
+        respond(&id, answer)
+    }
+
+    async fn delete_session(
+        &self,
+        request: Request<pb::DeleteSessionRequest>,
+    ) -> Result<Response<pb::DeleteSessionResponse>, Status> {
+        let id = id_of(&request);
+        let pb::DeleteSessionRequest { session_id } = request.into_inner();
+        let answer = self
+            .service
+            .delete_session(&session_id, "grpc")
+            .instrument(span(&id, "DeleteSession"))
+            .await;
+        respond(&id, answer.map(|()| pb::DeleteSessionResponse {}))
     }
 }
 

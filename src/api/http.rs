@@ -4,6 +4,10 @@
 //! - `POST /v1/match[?timeout_ms=N]`: a `MatchRequest` → a `MatchResponse` (504
 //!   DEADLINE_EXCEEDED past the timeout); or a `multipart/form-data` upload (parts
 //!   `calibration`, `options`, and `segments` or `image1` `image2` `image3`), answered in JSON;
+//! - sessions: `POST /v1/sessions` (a `CreateSessionRequest`), `GET /v1/sessions`,
+//!   `GET|DELETE /v1/sessions/{id}`, `POST /v1/sessions/{id}/captures[?timeout_ms=N]` (an
+//!   `AddCaptureRequest`, or a multipart upload with parts `pose` and `segments` or
+//!   `image1..3`), `GET /v1/sessions/{id}/map[?format=json|ply|obj|svg|png][&min_observations=N]`;
 //! - `GET /healthz`: the process is up; `GET /readyz`: it takes work (503 while stopping);
 //! - `GET /metrics`: Prometheus text format.
 //!
@@ -13,7 +17,7 @@
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, State};
+use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Path, State};
 use std::time::Duration;
 
 use axum::http::{header, HeaderMap, StatusCode, Uri};
@@ -23,6 +27,7 @@ use axum::Router;
 use prost::Message;
 
 use super::{from_json, pb, to_json, InputError};
+use crate::service::sessions::{map_to_pb, SessionMap};
 use crate::service::{request_id, Service, ServiceError};
 
 const PROTOBUF: &str = "application/x-protobuf";
@@ -33,6 +38,10 @@ pub fn router(service: Arc<Service>) -> Router {
     let max = service.limits().max_message_bytes;
     Router::new()
         .route("/v1/match", post(match_handler))
+        .route("/v1/sessions", post(create_session).get(list_sessions))
+        .route("/v1/sessions/{id}", get(get_session).delete(delete_session))
+        .route("/v1/sessions/{id}/captures", post(add_capture))
+        .route("/v1/sessions/{id}/map", get(get_map))
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/readyz", get(ready))
         .route(
@@ -147,11 +156,7 @@ async fn match_handler(
     request: axum::extract::Request,
 ) -> Response {
     let protobuf = is_protobuf(request.headers());
-    let multipart = request
-        .headers()
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with("multipart/form-data"));
+    let multipart = is_multipart(request.headers());
     let start = std::time::Instant::now();
     let max_bytes = service.limits().max_message_bytes;
     let refuse = |e: ServiceError| {
@@ -175,13 +180,16 @@ async fn match_handler(
                 )))
             }
         };
-        match request_from_multipart(parts, max_bytes).await {
+        match Upload::read(parts, max_bytes)
+            .await
+            .and_then(Upload::match_request)
+        {
             Ok(request) => Box::new(move || Ok(request)),
             Err(e) => return refuse(e),
         }
     } else {
         match Bytes::from_request(request, &()).await {
-            Ok(body) => Box::new(move || decode_body(&body, protobuf)),
+            Ok(body) => Box::new(move || decode_body::<pb::MatchRequest>(&body, protobuf)),
             Err(e) => return refuse(body_error(e.status(), e.body_text(), max_bytes)),
         }
     };
@@ -212,10 +220,13 @@ fn body_error(status: StatusCode, text: String, max_bytes: usize) -> ServiceErro
     }
 }
 
-fn decode_body(body: &[u8], protobuf: bool) -> Result<pb::MatchRequest, InputError> {
+/// A message from a body in protobuf or proto3 JSON.
+fn decode_body<T: Message + Default + serde::de::DeserializeOwned>(
+    body: &[u8],
+    protobuf: bool,
+) -> Result<T, InputError> {
     if protobuf {
-        pb::MatchRequest::decode(body)
-            .map_err(|e| InputError::new("request", format!("invalid protobuf: {e}")))
+        T::decode(body).map_err(|e| InputError::new("request", format!("invalid protobuf: {e}")))
     } else {
         std::str::from_utf8(body)
             .map_err(|_| InputError::new("request", "the body is not UTF-8 JSON"))
@@ -223,69 +234,328 @@ fn decode_body(body: &[u8], protobuf: bool) -> Result<pb::MatchRequest, InputErr
     }
 }
 
-/// A `MatchRequest` from a `multipart/form-data` upload, for curl: parts `calibration` (JSON),
-/// `options` (JSON, optional), and either `segments` (a `SegmentTriplet`, JSON) or `image1`,
-/// `image2`, `image3` (image files).
-async fn request_from_multipart(
-    mut parts: Multipart,
-    max_bytes: usize,
-) -> Result<pb::MatchRequest, ServiceError> {
-    let bad = |field: &str, message: String| ServiceError::Input(InputError::new(field, message));
-    let text = |field: &str, bytes: &[u8]| -> Result<String, ServiceError> {
-        String::from_utf8(bytes.to_vec()).map_err(|_| bad(field, "is not UTF-8 JSON".into()))
-    };
-    let (mut calibration, mut options, mut segments) = (None, None, None);
-    let mut images: [Option<Vec<u8>>; 3] = Default::default();
-    loop {
-        let field = match parts.next_field().await {
-            Ok(Some(field)) => field,
-            Ok(None) => break,
-            Err(e) => return Err(body_error(e.status(), e.body_text(), max_bytes)),
+/// A message as the answer, in the request's format.
+fn encoded<T: Message + serde::Serialize>(message: &T, protobuf: bool) -> Response {
+    if protobuf {
+        ([(header::CONTENT_TYPE, PROTOBUF)], message.encode_to_vec()).into_response()
+    } else {
+        ([(header::CONTENT_TYPE, JSON)], to_json(message) + "\n").into_response()
+    }
+}
+
+/// The answer to a session call: the message in the request's format, or the error.
+fn answer<T: Message + serde::Serialize>(result: Result<T, ServiceError>, protobuf: bool) -> Response {
+    match result {
+        Ok(message) => encoded(&message, protobuf),
+        Err(e) => error_response(&e),
+    }
+}
+
+/// The value of query parameter `name`, if given.
+fn query_param<'a>(uri: &'a Uri, name: &str) -> Option<&'a str> {
+    uri.query()?
+        .split('&')
+        .find_map(|pair| pair.strip_prefix(name)?.strip_prefix('='))
+}
+
+/// Reads a whole body, within the body limit.
+async fn read_body(request: axum::extract::Request, max_bytes: usize) -> Result<Bytes, ServiceError> {
+    Bytes::from_request(request, &())
+        .await
+        .map_err(|e| body_error(e.status(), e.body_text(), max_bytes))
+}
+
+/// Whether the request is a `multipart/form-data` upload.
+fn is_multipart(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("multipart/form-data"))
+}
+
+async fn create_session(
+    State(service): State<Arc<Service>>,
+    request: axum::extract::Request,
+) -> Response {
+    let protobuf = is_protobuf(request.headers());
+    let max_bytes = service.limits().max_message_bytes;
+    let result = async {
+        let body = read_body(request, max_bytes).await?;
+        let request: pb::CreateSessionRequest = decode_body(&body, protobuf)?;
+        service.create_session(request, "http").await
+    }
+    .await;
+    answer(result, protobuf)
+}
+
+async fn list_sessions(State(service): State<Arc<Service>>, headers: HeaderMap) -> Response {
+    answer(service.list_sessions("http").await, wants_protobuf(&headers))
+}
+
+async fn get_session(
+    State(service): State<Arc<Service>>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Response {
+    answer(service.get_session(&id, "http").await, wants_protobuf(&headers))
+}
+
+async fn delete_session(
+    State(service): State<Arc<Service>>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Response {
+    let result = service.delete_session(&id, "http").await;
+    answer(result.map(|()| pb::DeleteSessionResponse {}), wants_protobuf(&headers))
+}
+
+/// `Accept: application/x-protobuf` (for GETs, which have no body to take the format from).
+fn wants_protobuf(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with(PROTOBUF))
+        || is_protobuf(headers)
+}
+
+async fn add_capture(
+    State(service): State<Arc<Service>>,
+    Path(id): Path<String>,
+    uri: Uri,
+    request: axum::extract::Request,
+) -> Response {
+    let protobuf = is_protobuf(request.headers());
+    let multipart = is_multipart(request.headers());
+    let max_bytes = service.limits().max_message_bytes;
+    let result = async {
+        let timeout = timeout_of(&uri)?;
+        let mut capture = if multipart {
+            let parts = Multipart::from_request(request, &())
+                .await
+                .map_err(|e| ServiceError::Input(InputError::new("request", e.body_text())))?;
+            let upload = Upload::read(parts, max_bytes).await?;
+            upload.capture()?
+        } else {
+            let body = read_body(request, max_bytes).await?;
+            // Parsing a large body is CPU work: on the compute pool.
+            service
+                .pool()
+                .run(move |_| decode_body::<pb::AddCaptureRequest>(&body, protobuf))
+                .await??
         };
-        let name = field.name().unwrap_or_default().to_string();
-        let bytes = field
-            .bytes()
-            .await
-            .map_err(|e| body_error(e.status(), e.body_text(), max_bytes))?;
-        match name.as_str() {
-            "calibration" => calibration = Some(from_json("calibration", &text(&name, &bytes)?)?),
-            "options" => options = Some(from_json("options", &text(&name, &bytes)?)?),
-            "segments" => segments = Some(from_json("segments", &text(&name, &bytes)?)?),
-            "image1" | "image2" | "image3" => {
-                let i = usize::from(name.as_bytes()[5] - b'1');
-                images[i] = Some(bytes.to_vec());
-            }
-            other => {
-                return Err(bad(
-                    other,
-                    "unknown part: expected calibration, options, segments or image1..image3"
-                        .into(),
-                ))
+        if !capture.session_id.is_empty() && capture.session_id != id {
+            return Err(ServiceError::Input(InputError::new(
+                "session_id",
+                format!("{:?} differs from the session of the URL, {id:?}", capture.session_id),
+            )));
+        }
+        capture.session_id = id;
+        service.add_capture(capture, timeout, "http").await
+    }
+    .await;
+    answer(result, protobuf)
+}
+
+async fn get_map(
+    State(service): State<Arc<Service>>,
+    Path(id): Path<String>,
+    uri: Uri,
+    headers: HeaderMap,
+) -> Response {
+    let result = async {
+        let min_observations = match query_param(&uri, "min_observations") {
+            None => None,
+            Some(v) => Some(v.parse::<u32>().ok().filter(|&n| n >= 1).ok_or_else(|| {
+                InputError::new(
+                    "min_observations",
+                    format!("must be a whole number at least 1, got {v:?}"),
+                )
+            })?),
+        };
+        let format = query_param(&uri, "format").unwrap_or("json");
+        if !["json", "ply", "obj", "svg", "png"].contains(&format) {
+            return Err(ServiceError::Input(InputError::new(
+                "format",
+                format!("{format:?}: expected json, ply, obj, svg or png"),
+            )));
+        }
+        let map = service.get_map(&id, min_observations, "http").await?;
+        let format = format.to_string();
+        // Drawing and writing a large map is CPU work too.
+        service
+            .pool()
+            .run(move |_| map_export(&map, &format, wants_protobuf(&headers)))
+            .await?
+    }
+    .await;
+    result.unwrap_or_else(|e| error_response(&e))
+}
+
+/// A fused map in `format`.
+fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response, ServiceError> {
+    use crate::map::export;
+    let file = |content_type: &'static str, ext: &str, body: Vec<u8>| {
+        let disposition = format!("inline; filename=\"map-{}.{ext}\"", map.session_id);
+        let mut response = ([(header::CONTENT_TYPE, content_type)], body).into_response();
+        if let Ok(v) = header::HeaderValue::from_str(&disposition) {
+            response.headers_mut().insert(header::CONTENT_DISPOSITION, v);
+        }
+        response
+    };
+    Ok(match format {
+        "ply" => file("application/x-ply", "ply", export::to_ply(&map.segments).into_bytes()),
+        "obj" => file("model/obj", "obj", export::to_obj(&map.segments).into_bytes()),
+        "svg" => file(
+            "image/svg+xml",
+            "svg",
+            export::top_view_svg(&map.segments, &map.poses).into_bytes(),
+        ),
+        "png" => file(
+            "image/png",
+            "png",
+            export::top_view_png(&map.segments, &map.poses).map_err(|e| ServiceError::Internal {
+                detail: format!("cannot encode the map's PNG: {e}"),
+            })?,
+        ),
+        _ => encoded(&map_to_pb(map), protobuf),
+    })
+}
+
+/// The parts of a `multipart/form-data` upload, for curl: `calibration`, `options` (JSON,
+/// for `/v1/match`), `pose` (JSON, for captures: a `Pose` or its 16 numbers), and either
+/// `segments` (a `SegmentTriplet`, JSON) or `image1`, `image2`, `image3` (image files).
+#[derive(Default)]
+struct Upload {
+    calibration: Option<pb::Calibration>,
+    options: Option<pb::MatchOptions>,
+    pose: Option<pb::Pose>,
+    segments: Option<pb::SegmentTriplet>,
+    images: [Option<Vec<u8>>; 3],
+}
+
+impl Upload {
+    async fn read(mut parts: Multipart, max_bytes: usize) -> Result<Upload, ServiceError> {
+        let bad =
+            |field: &str, message: String| ServiceError::Input(InputError::new(field, message));
+        let text = |field: &str, bytes: &[u8]| -> Result<String, ServiceError> {
+            String::from_utf8(bytes.to_vec()).map_err(|_| bad(field, "is not UTF-8 JSON".into()))
+        };
+        let mut upload = Upload::default();
+        loop {
+            let field = match parts.next_field().await {
+                Ok(Some(field)) => field,
+                Ok(None) => break,
+                Err(e) => return Err(body_error(e.status(), e.body_text(), max_bytes)),
+            };
+            let name = field.name().unwrap_or_default().to_string();
+            let bytes = field
+                .bytes()
+                .await
+                .map_err(|e| body_error(e.status(), e.body_text(), max_bytes))?;
+            match name.as_str() {
+                "calibration" => {
+                    upload.calibration = Some(from_json("calibration", &text(&name, &bytes)?)?)
+                }
+                "options" => upload.options = Some(from_json("options", &text(&name, &bytes)?)?),
+                "segments" => {
+                    upload.segments = Some(from_json("segments", &text(&name, &bytes)?)?)
+                }
+                "pose" => {
+                    let text = text(&name, &bytes)?;
+                    // A bare list of 16 numbers is accepted too: the easy thing to type.
+                    let pose = if text.trim_start().starts_with('[') {
+                        serde_json::from_str::<Vec<f64>>(&text)
+                            .map(|matrix| pb::Pose { matrix })
+                            .map_err(|e| bad("pose", format!("invalid JSON: {e}")))?
+                    } else {
+                        from_json("pose", &text)?
+                    };
+                    upload.pose = Some(pose);
+                }
+                "image1" | "image2" | "image3" => {
+                    let i = usize::from(name.as_bytes()[5] - b'1');
+                    upload.images[i] = Some(bytes.to_vec());
+                }
+                other => {
+                    return Err(bad(
+                        other,
+                        "unknown part: expected calibration, options, pose, segments or \
+                         image1..image3"
+                            .into(),
+                    ))
+                }
             }
         }
+        Ok(upload)
     }
-    let given = images.iter().filter(|i| i.is_some()).count();
-    let input = match (segments, given) {
-        (Some(s), 0) => pb::match_request::Input::Segments(s),
-        (None, 3) => pb::match_request::Input::Images(pb::ImageTriplet {
-            images: images
-                .into_iter()
-                .map(|bytes| pb::Image {
-                    source: bytes.map(pb::image::Source::Encoded),
-                })
-                .collect(),
-        }),
-        (Some(_), _) => return Err(bad("segments", "give segments or images, not both".into())),
-        (None, n) => {
-            return Err(bad(
+
+    /// The input: segments, or the three images.
+    fn input(self) -> Result<Input, ServiceError> {
+        let bad =
+            |field: &str, message: String| ServiceError::Input(InputError::new(field, message));
+        let given = self.images.iter().filter(|i| i.is_some()).count();
+        match (self.segments, given) {
+            (Some(s), 0) => Ok(Input::Segments(s)),
+            (None, 3) => Ok(Input::Images(pb::ImageTriplet {
+                images: self
+                    .images
+                    .into_iter()
+                    .map(|bytes| pb::Image {
+                        source: bytes.map(pb::image::Source::Encoded),
+                    })
+                    .collect(),
+            })),
+            (Some(_), _) => Err(bad("segments", "give segments or images, not both".into())),
+            (None, n) => Err(bad(
                 "images",
                 format!("needs the three parts image1, image2, image3 (or segments), got {n}"),
-            ))
+            )),
         }
-    };
-    Ok(pb::MatchRequest {
-        calibration,
-        options,
-        input: Some(input),
-    })
+    }
+
+    /// The upload as a `MatchRequest`.
+    fn match_request(mut self) -> Result<pb::MatchRequest, ServiceError> {
+        if self.pose.is_some() {
+            return Err(ServiceError::Input(InputError::new(
+                "pose",
+                "a match has no pose (captures of a session do)",
+            )));
+        }
+        let (calibration, options) = (self.calibration.take(), self.options.take());
+        let input = match self.input()? {
+            Input::Segments(s) => pb::match_request::Input::Segments(s),
+            Input::Images(i) => pb::match_request::Input::Images(i),
+        };
+        Ok(pb::MatchRequest {
+            calibration,
+            options,
+            input: Some(input),
+        })
+    }
+
+    /// The upload as an `AddCaptureRequest` (its session from the URL).
+    fn capture(mut self) -> Result<pb::AddCaptureRequest, ServiceError> {
+        if self.calibration.is_some() || self.options.is_some() {
+            return Err(ServiceError::Input(InputError::new(
+                if self.calibration.is_some() { "calibration" } else { "options" },
+                "a session's captures use the calibration and options given when it was created",
+            )));
+        }
+        let rig_to_world = self.pose.take();
+        let input = match self.input()? {
+            Input::Segments(s) => pb::add_capture_request::Input::Segments(s),
+            Input::Images(i) => pb::add_capture_request::Input::Images(i),
+        };
+        Ok(pb::AddCaptureRequest {
+            session_id: String::new(),
+            rig_to_world,
+            input: Some(input),
+        })
+    }
+}
+
+/// What an upload matches.
+enum Input {
+    Segments(pb::SegmentTriplet),
+    Images(pb::ImageTriplet),
 }

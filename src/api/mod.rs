@@ -8,6 +8,7 @@
 mod convert;
 pub mod grpc;
 pub mod http;
+pub mod session;
 
 pub use convert::{
     calibration_to_pb, extract_params, images, match_params, match_request, match_response,

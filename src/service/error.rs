@@ -21,6 +21,12 @@ pub enum ServiceError {
         "the request is larger than the limit of {limit_bytes} bytes (limits.max_message_mib)"
     )]
     TooLarge { limit_bytes: usize },
+    /// What the request names does not exist (or expired).
+    #[error("{what} not found (it may have expired)")]
+    NotFound { field: String, what: String },
+    /// A dependency (the session store) cannot be reached; retry later.
+    #[error("{message}")]
+    Unavailable { message: String },
     /// The caller's deadline passed before the answer was ready.
     #[error("the deadline of {timeout_ms} ms passed before the answer was ready")]
     DeadlineExceeded { timeout_ms: u64 },
@@ -59,6 +65,8 @@ impl ServiceError {
             // As tonic answers a message past its decoding limit.
             ServiceError::TooLarge { .. } => Code::OutOfRange,
             ServiceError::DeadlineExceeded { .. } => Code::DeadlineExceeded,
+            ServiceError::NotFound { .. } => Code::NotFound,
+            ServiceError::Unavailable { .. } => Code::Unavailable,
             ServiceError::Stopped { .. } => Code::Cancelled,
             ServiceError::Internal { .. } => Code::Internal,
         }
@@ -68,8 +76,10 @@ impl ServiceError {
     pub fn field(&self) -> Option<&str> {
         match self {
             ServiceError::Input(e) => Some(&e.field),
+            ServiceError::NotFound { field, .. } => Some(field),
             ServiceError::Busy { .. }
             | ServiceError::TooLarge { .. }
+            | ServiceError::Unavailable { .. }
             | ServiceError::DeadlineExceeded { .. }
             | ServiceError::Stopped { .. }
             | ServiceError::Internal { .. } => None,

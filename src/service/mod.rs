@@ -14,6 +14,8 @@ pub mod metrics;
 pub mod pool;
 pub mod request_id;
 pub mod server;
+pub mod sessions;
+pub mod store;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -66,6 +68,8 @@ pub struct Service {
     limits: Limits,
     ready: AtomicBool,
     metrics: Arc<metrics::Metrics>,
+    store: Arc<dyn store::SessionStore>,
+    store_ttl: std::time::Duration,
 }
 
 /// Why a service could not start.
@@ -78,13 +82,25 @@ pub enum StartError {
 }
 
 impl Service {
-    pub fn new(limits: Limits) -> Result<Service, StartError> {
+    /// A service whose sessions live in `store` and expire after `session_ttl` idle.
+    pub fn new(
+        limits: Limits,
+        store: Arc<dyn store::SessionStore>,
+        session_ttl: std::time::Duration,
+    ) -> Result<Service, StartError> {
         Ok(Service {
             pool: ComputePool::new(limits.threads, limits.max_jobs)?,
             limits,
             ready: AtomicBool::new(true),
             metrics: Arc::new(metrics::Metrics::new()?),
+            store,
+            store_ttl: session_ttl,
         })
+    }
+
+    /// Where sessions are kept, for the log.
+    pub fn store_description(&self) -> String {
+        self.store.describe()
     }
 
     /// Logs and counts a request that failed, in [`Service::match_within`] or before it (a
@@ -121,12 +137,7 @@ impl Service {
         self.ready.store(ready, Ordering::Relaxed);
     }
 
-    /// Match, recorded in the metrics and the log under `transport`. On the compute pool, not
-    /// the async runtime: `read` produces the request (so an HTTP body is parsed there), the
-    /// request is checked and converted (images decoded) and the pipeline run, and `encode`
-    /// turns the response into what the transport sends. Past `timeout` (none: no deadline)
-    /// the answer is DEADLINE_EXCEEDED and the job, if still queued, never runs; if running, it
-    /// stops before its next stage (as it does when the caller goes away).
+    /// Match, recorded in the metrics and the log under `transport`: [`Service::run_match`].
     pub async fn match_within<T: Send + 'static>(
         &self,
         read: impl FnOnce() -> Result<pb::MatchRequest, InputError> + Send + 'static,
@@ -135,38 +146,7 @@ impl Service {
         transport: &str,
     ) -> Result<(pb::MatchResponse, T), ServiceError> {
         let start = std::time::Instant::now();
-        let limits = api::RequestLimits {
-            decode: DecodeLimits {
-                max_bytes: self.limits.max_message_bytes,
-                max_pixels: self.limits.max_image_pixels,
-            },
-            max_segments_per_list: self.limits.max_segments_per_list,
-        };
-        let stopped = Arc::clone(&self.metrics);
-        let job = self.pool.run(move |abandoned| -> Result<_, RunError> {
-            let input = api::match_request(&read()?, &limits)?;
-            let stop = || abandoned.is_set();
-            let response = input.run_until(Checkpoint::new(&stop)).inspect_err(|e| {
-                if let RunError::Stopped { stage } = e {
-                    stopped.record_stopped(stage);
-                }
-            })?;
-            let encoded = encode(&response);
-            Ok((response, encoded))
-        });
-        let finished = |done: Result<Result<_, RunError>, PoolError>| {
-            done.map_err(ServiceError::from)
-                .and_then(|r| r.map_err(ServiceError::from))
-        };
-        let result = match timeout {
-            None => finished(job.await),
-            Some(t) => match tokio::time::timeout(t, job).await {
-                Ok(done) => finished(done),
-                Err(_) => Err(ServiceError::DeadlineExceeded {
-                    timeout_ms: t.as_millis() as u64,
-                }),
-            },
-        };
+        let result = self.run_match(read, encode, timeout).await;
         let seconds = start.elapsed().as_secs_f64();
         match &result {
             Ok((r, _)) => {
@@ -183,5 +163,53 @@ impl Service {
             Err(e) => self.record_refused(transport, e, seconds),
         }
         result
+    }
+
+    /// Match on the compute pool, not the async runtime: `read` produces the request (so an
+    /// HTTP body is parsed there), the request is checked and converted (images decoded) and
+    /// the pipeline run, and `encode` turns the response into what the transport sends. Past
+    /// `timeout` (none: no deadline) the answer is DEADLINE_EXCEEDED and the job, if still
+    /// queued, never runs; if running, it stops before its next stage (as it does when the
+    /// caller goes away).
+    pub async fn run_match<T: Send + 'static>(
+        &self,
+        read: impl FnOnce() -> Result<pb::MatchRequest, InputError> + Send + 'static,
+        encode: impl FnOnce(&pb::MatchResponse) -> T + Send + 'static,
+        timeout: Option<std::time::Duration>,
+    ) -> Result<(pb::MatchResponse, T), ServiceError> {
+        let limits = api::RequestLimits {
+            decode: DecodeLimits {
+                max_bytes: self.limits.max_message_bytes,
+                max_pixels: self.limits.max_image_pixels,
+            },
+            max_segments_per_list: self.limits.max_segments_per_list,
+        };
+        let stopped = Arc::clone(&self.metrics);
+        let job = self.pool.run(move |abandoned| -> Result<_, RunError> {
+            let input = api::match_request(&read()?, &limits)?;
+            let stop = || abandoned.is_set();
+            let response = input
+                .run_until(Checkpoint::new(&stop))
+                .inspect_err(|e| {
+                    if let RunError::Stopped { stage } = e {
+                        stopped.record_stopped(stage);
+                    }
+                })?;
+            let encoded = encode(&response);
+            Ok((response, encoded))
+        });
+        let finished = |done: Result<Result<_, RunError>, PoolError>| {
+            done.map_err(ServiceError::from)
+                .and_then(|r| r.map_err(ServiceError::from))
+        };
+        match timeout {
+            None => finished(job.await),
+            Some(t) => match tokio::time::timeout(t, job).await {
+                Ok(done) => finished(done),
+                Err(_) => Err(ServiceError::DeadlineExceeded {
+                    timeout_ms: t.as_millis() as u64,
+                }),
+            },
+        }
     }
 }

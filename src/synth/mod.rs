@@ -99,6 +99,31 @@ pub fn bench_capture(seed: u64, scale: f64) -> (Scene, Rig) {
     (Scene::room(seed), rig)
 }
 
+/// A panoramic session in the standard room: the rig of [`standard_capture`] turning about
+/// the vertical through its origin, `poses` captures evenly spaced over a full turn. Returns
+/// the scene, the rig in its own frame (what a session's calibration holds) and, per capture,
+/// its pose (`rig_to_world`) and what the rig sees from there.
+pub fn panoramic_session(
+    seed: u64,
+    poses: usize,
+    defects: &Defects,
+) -> (Scene, Rig, Vec<(Pose, Observation)>) {
+    let scene = Scene::room(seed);
+    let spec = RigSpec::non_collinear(seed);
+    let rig = spec
+        .build(&Pose::identity())
+        .expect("preset rigs are valid for every seed");
+    let captures = (0..poses)
+        .map(|k| {
+            let yaw = std::f64::consts::TAU * k as f64 / poses.max(1) as f64;
+            let pose = Pose::from_position_yaw(Point3::from(STANDARD_RIG_POSITION), yaw);
+            let placed = spec.build(&pose).expect("a turned preset rig stays valid");
+            (pose, observe(&scene, &placed, defects, seed + k as u64))
+        })
+        .collect();
+    (scene, rig, captures)
+}
+
 /// The centroid of a rig's optical centres: the `rig_centre` of [`score()`].
 pub fn rig_centre(rig: &Rig) -> Point3<f64> {
     let c = rig.cameras();

@@ -51,3 +51,99 @@ pub fn run_json(request: &serde_json::Value) -> Result<trinocular::api::pb::Matc
         stopped => panic!("nothing asked to stop, yet: {stopped}"),
     })
 }
+
+/// A fresh directory under the system's temporary directory, for one test.
+pub fn scratch_dir(name: &str) -> std::path::PathBuf {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    let dir = std::env::temp_dir().join(format!(
+        "trinocular-test-{name}-{}-{}",
+        std::process::id(),
+        NEXT.fetch_add(1, Ordering::Relaxed)
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch directory");
+    dir
+}
+
+/// Idle TTL of the sessions of test services: long enough never to expire during a test.
+pub const TEST_SESSION_TTL: std::time::Duration = std::time::Duration::from_secs(3600);
+
+/// A service with `limits` whose sessions live in an embedded store in a scratch directory.
+pub async fn embedded_service(
+    limits: trinocular::service::Limits,
+) -> std::sync::Arc<trinocular::service::Service> {
+    let dir = scratch_dir("store");
+    let store = trinocular::service::store::open("embedded", &dir, TEST_SESSION_TTL)
+        .await
+        .expect("embedded store");
+    std::sync::Arc::new(
+        trinocular::service::Service::new(limits, store, TEST_SESSION_TTL).expect("service"),
+    )
+}
+
+/// `trinocular serve` as a child process on ephemeral ports, killed when dropped.
+pub struct ServerProcess {
+    pub child: std::process::Child,
+    pub grpc_addr: std::net::SocketAddr,
+    pub http_addr: std::net::SocketAddr,
+}
+
+impl ServerProcess {
+    /// Starts the binary with `args` added to ephemeral addresses, and waits for its
+    /// "listening" line (which carries the ports it got).
+    pub fn spawn(args: &[&str]) -> ServerProcess {
+        use std::io::BufRead;
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
+            .args([
+                "serve",
+                "--grpc-addr",
+                "127.0.0.1:0",
+                "--http-addr",
+                "127.0.0.1:0",
+                "--threads",
+                "1",
+            ])
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("the server binary starts");
+        let stderr = child.stderr.take().unwrap();
+        let mut lines = std::io::BufReader::new(stderr).lines();
+        let mut seen = Vec::new();
+        let addr_after = |line: &str, key: &str| -> Option<std::net::SocketAddr> {
+            let rest = &line[line.find(key)? + key.len()..];
+            rest.split_whitespace().next()?.parse().ok()
+        };
+        for line in lines.by_ref() {
+            let line = line.expect("server log");
+            if line.contains("listening") {
+                let grpc_addr = addr_after(&line, "grpc=").expect("grpc address in the log");
+                let http_addr = addr_after(&line, "http=").expect("http address in the log");
+                // Keep draining the log so the server never blocks on a full pipe.
+                std::thread::spawn(move || for _ in lines {});
+                return ServerProcess {
+                    child,
+                    grpc_addr,
+                    http_addr,
+                };
+            }
+            seen.push(line);
+        }
+        let _ = child.kill();
+        panic!("the server stopped before listening:\n{}", seen.join("\n"));
+    }
+
+    pub fn kill9(&mut self) {
+        let _ = self.child.kill(); // SIGKILL on Unix
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for ServerProcess {
+    fn drop(&mut self) {
+        self.kill9();
+    }
+}

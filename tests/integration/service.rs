@@ -16,9 +16,10 @@ fn runtime() -> tokio::runtime::Runtime {
 }
 
 async fn start(limits: Limits) -> server::Running {
-    let service = Arc::new(Service::new(limits).expect("pool"));
     let any = "127.0.0.1:0".parse().unwrap();
-    server::start(service, any, any).await.expect("listen")
+    server::start(crate::common::embedded_service(limits).await, any, any)
+        .await
+        .expect("listen")
 }
 
 async fn grpc_client(

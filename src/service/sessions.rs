@@ -1,0 +1,350 @@
+//! Session use cases: create, add a capture, get the fused map, list, get, delete.
+//!
+//! A session holds the rig's calibration and options (stored once) and, per capture, its
+//! pose and its 3D segments in the rig frame. Matching a capture runs on the compute pool
+//! like `Match`; the capture is appended to the store (one atomic, durable step) before the
+//! answer, so an acknowledged capture is never lost. The map is fused from the stored
+//! captures when asked, on the compute pool: replicas need share nothing but the store.
+
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use nalgebra::Isometry3;
+use prost::Message;
+
+use super::store::{SessionInfo, SessionRecord, StoreError};
+use super::{Service, ServiceError};
+use crate::api::session::{capture_match_request, pose_from_pb, pose_to_pb};
+use crate::api::{pb, InputError};
+use crate::map::{self, FuseParams, MapSegment};
+
+/// A session's fused map, world frame.
+#[derive(Debug, Clone)]
+pub struct SessionMap {
+    pub session_id: String,
+    pub segments: Vec<MapSegment>,
+    /// Rig pose of each capture, in capture order.
+    pub poses: Vec<Isometry3<f64>>,
+    pub fuse_ms: f64,
+}
+
+fn now_unix_ms() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
+
+impl From<StoreError> for ServiceError {
+    fn from(e: StoreError) -> ServiceError {
+        match e {
+            StoreError::NotFound { id } => ServiceError::NotFound {
+                field: "session_id".to_string(),
+                what: format!("session {id:?}"),
+            },
+            StoreError::AlreadyExists { id } => ServiceError::Internal {
+                detail: format!("session id {id} generated twice"),
+            },
+            StoreError::Unavailable { message } => ServiceError::Unavailable { message },
+            StoreError::Corrupt { message } => ServiceError::Internal {
+                detail: format!("corrupt session data: {message}"),
+            },
+        }
+    }
+}
+
+/// A stored message that no longer decodes: a bug or a damaged store, not the client's fault.
+fn corrupt(what: &str, e: prost::DecodeError) -> ServiceError {
+    ServiceError::Internal {
+        detail: format!("stored {what} does not decode: {e}"),
+    }
+}
+
+/// Session ids are looked up as given; refusing odd ones early keeps them out of store keys
+/// and logs.
+fn check_id(id: &str) -> Result<(), ServiceError> {
+    if id.is_empty() || id.len() > 64 || !id.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-')
+    {
+        return Err(ServiceError::Input(InputError::new(
+            "session_id",
+            format!("{id:?} is not a session id (letters, digits and '-', up to 64)"),
+        )));
+    }
+    Ok(())
+}
+
+impl Service {
+    /// Counts and logs a session call under `route`.
+    fn observe<T>(&self, transport: &str, route: &str, start: Instant, result: &Result<T, ServiceError>) {
+        let seconds = start.elapsed().as_secs_f64();
+        match result {
+            Ok(_) => {
+                tracing::info!(transport, route, code = ?tonic::Code::Ok, ms = seconds * 1e3, "session");
+                self.metrics
+                    .record(transport, route, tonic::Code::Ok, seconds, None);
+            }
+            Err(e) => {
+                if let ServiceError::Internal { detail } = e {
+                    tracing::error!(detail = %detail, route, "internal error");
+                }
+                tracing::info!(transport, route, code = ?e.code(), ms = seconds * 1e3, error = %e, "session");
+                self.metrics.record(transport, route, e.code(), seconds, None);
+            }
+        }
+    }
+
+    fn session_pb(&self, info: &SessionInfo, full: bool) -> Result<pb::Session, ServiceError> {
+        let r = &info.record;
+        let (calibration, stored) = if full {
+            let calibration = pb::Calibration::decode(&r.calibration[..])
+                .map_err(|e| corrupt("calibration", e))?;
+            let stored =
+                pb::StoredOptions::decode(&r.options[..]).map_err(|e| corrupt("options", e))?;
+            (Some(calibration), stored)
+        } else {
+            (None, pb::StoredOptions::default())
+        };
+        Ok(pb::Session {
+            id: r.id.clone(),
+            name: r.name.clone(),
+            created_unix_ms: r.created_unix_ms,
+            last_used_unix_ms: info.last_used_unix_ms,
+            captures: info.captures,
+            calibration,
+            options: stored.options,
+            map_options: stored.map_options,
+            idle_ttl_s: self.store_ttl.as_secs(),
+        })
+    }
+
+    pub async fn create_session(
+        &self,
+        request: pb::CreateSessionRequest,
+        transport: &str,
+    ) -> Result<pb::Session, ServiceError> {
+        let start = Instant::now();
+        let result = async {
+            crate::api::session::check_create_session(&request)?;
+            let pb::CreateSessionRequest {
+                name,
+                calibration,
+                options,
+                map_options,
+            } = request;
+            let record = SessionRecord {
+                id: uuid::Uuid::new_v4().simple().to_string(),
+                name,
+                created_unix_ms: now_unix_ms(),
+                calibration: calibration.unwrap_or_default().encode_to_vec(),
+                options: pb::StoredOptions {
+                    options,
+                    map_options,
+                }
+                .encode_to_vec(),
+            };
+            self.store.create(&record).await?;
+            let info = SessionInfo {
+                last_used_unix_ms: record.created_unix_ms,
+                captures: 0,
+                record,
+            };
+            self.session_pb(&info, true)
+        }
+        .await;
+        self.observe(transport, "create_session", start, &result);
+        result
+    }
+
+    pub async fn get_session(&self, id: &str, transport: &str) -> Result<pb::Session, ServiceError> {
+        let start = Instant::now();
+        let result = async {
+            check_id(id)?;
+            let info = self.store.get(id).await?;
+            self.session_pb(&info, true)
+        }
+        .await;
+        self.observe(transport, "get_session", start, &result);
+        result
+    }
+
+    pub async fn list_sessions(&self, transport: &str) -> Result<pb::ListSessionsResponse, ServiceError> {
+        let start = Instant::now();
+        let result = async {
+            let sessions = self.store.list().await?;
+            Ok(pb::ListSessionsResponse {
+                sessions: sessions
+                    .iter()
+                    .map(|info| self.session_pb(info, false))
+                    .collect::<Result<_, _>>()?,
+            })
+        }
+        .await;
+        self.observe(transport, "list_sessions", start, &result);
+        result
+    }
+
+    pub async fn delete_session(&self, id: &str, transport: &str) -> Result<(), ServiceError> {
+        let start = Instant::now();
+        let result = async {
+            check_id(id)?;
+            Ok(self.store.delete(id).await?)
+        }
+        .await;
+        self.observe(transport, "delete_session", start, &result);
+        result
+    }
+
+    /// Matches one capture with the session's rig and options, then stores its pose and 3D
+    /// segments. A bad pose or input is refused before anything is stored; a capture whose
+    /// match failed is not stored either.
+    pub async fn add_capture(
+        &self,
+        request: pb::AddCaptureRequest,
+        timeout: Option<Duration>,
+        transport: &str,
+    ) -> Result<pb::AddCaptureResponse, ServiceError> {
+        let start = Instant::now();
+        let result = async {
+            let pb::AddCaptureRequest {
+                session_id,
+                rig_to_world,
+                input,
+            } = request;
+            check_id(&session_id)?;
+            let pose = pose_from_pb(rig_to_world.as_ref(), "rig_to_world")?;
+            let info = self.store.get(&session_id).await?;
+            let calibration = pb::Calibration::decode(&info.record.calibration[..])
+                .map_err(|e| corrupt("calibration", e))?;
+            let stored = pb::StoredOptions::decode(&info.record.options[..])
+                .map_err(|e| corrupt("options", e))?;
+            let match_request = capture_match_request(calibration, stored.options, input);
+            let (response, ()) = self
+                .run_match(move || Ok(match_request), |_| (), timeout)
+                .await?;
+            let capture = pb::StoredCapture {
+                rig_to_world: Some(pose_to_pb(&pose)),
+                segments: response
+                    .segments_3d
+                    .iter()
+                    .map(|s| pb::Segment3 {
+                        start: s.start.clone(),
+                        end: s.end.clone(),
+                        ..Default::default()
+                    })
+                    .collect(),
+                received_unix_ms: now_unix_ms(),
+            };
+            let index = self
+                .store
+                .append_capture(&session_id, &capture.encode_to_vec())
+                .await?;
+            Ok(pb::AddCaptureResponse {
+                r#match: Some(response),
+                capture_index: index,
+                map: Some(pb::MapSummary {
+                    captures: index + 1,
+                }),
+            })
+        }
+        .await;
+        self.observe(transport, "add_capture", start, &result);
+        result
+    }
+
+    /// The session's map, fused on the compute pool from its stored captures.
+    /// `min_observations` overrides the session's map option.
+    pub async fn get_map(
+        &self,
+        id: &str,
+        min_observations: Option<u32>,
+        transport: &str,
+    ) -> Result<SessionMap, ServiceError> {
+        let start = Instant::now();
+        let result = async {
+            check_id(id)?;
+            if min_observations == Some(0) {
+                return Err(ServiceError::Input(InputError::new(
+                    "min_observations",
+                    "must be at least 1",
+                )));
+            }
+            let info = self.store.get(id).await?;
+            let stored = pb::StoredOptions::decode(&info.record.options[..])
+                .map_err(|e| corrupt("options", e))?;
+            let captures = self.store.captures(id).await?;
+            let min_observations = min_observations
+                .or(stored.map_options.and_then(|m| m.min_observations))
+                .unwrap_or(1);
+            let session_id = id.to_string();
+            let job = self.pool.run(move |_| fuse_stored(session_id, &captures, min_observations));
+            job.await?
+        }
+        .await;
+        self.observe(transport, "get_map", start, &result);
+        result
+    }
+}
+
+/// Decodes the stored captures and fuses them (on the compute pool).
+fn fuse_stored(
+    session_id: String,
+    captures: &[Vec<u8>],
+    min_observations: u32,
+) -> Result<SessionMap, ServiceError> {
+    let t = Instant::now();
+    let mut poses = Vec::with_capacity(captures.len());
+    let mut segments = Vec::with_capacity(captures.len());
+    for bytes in captures {
+        let capture = pb::StoredCapture::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
+        let (pose, s) = crate::api::session::stored_capture_segments(&capture).map_err(|e| {
+            ServiceError::Internal {
+                detail: format!("stored capture: {e}"),
+            }
+        })?;
+        poses.push(pose);
+        segments.push(s);
+    }
+    let inputs: Vec<map::Capture> = segments
+        .iter()
+        .zip(&poses)
+        .enumerate()
+        .map(|(i, (segments, pose))| map::Capture {
+            id: i as u32,
+            rig_to_world: *pose,
+            segments,
+        })
+        .collect();
+    let params = FuseParams {
+        min_observations,
+        ..FuseParams::default()
+    };
+    let segments = map::fuse(&inputs, &params);
+    Ok(SessionMap {
+        session_id,
+        segments,
+        poses,
+        fuse_ms: t.elapsed().as_secs_f64() * 1e3,
+    })
+}
+
+/// The `Map` message of a fused map.
+pub fn map_to_pb(map: &SessionMap) -> pb::Map {
+    let point = |p: &nalgebra::Point3<f64>| pb::Point3 {
+        x: p.x,
+        y: p.y,
+        z: p.z,
+    };
+    pb::Map {
+        session_id: map.session_id.clone(),
+        segments: map
+            .segments
+            .iter()
+            .map(|s| pb::MapSegment {
+                start: Some(point(&s.start)),
+                end: Some(point(&s.end)),
+                observations: s.observations,
+                captures: s.captures.clone(),
+            })
+            .collect(),
+        poses: map.poses.iter().map(pose_to_pb).collect(),
+        fuse_ms: map.fuse_ms,
+    }
+}

@@ -1,0 +1,789 @@
+//! Sessions over real sockets: a robot's captures from many poses fused into a map, on the
+//! embedded store (in-process servers, and the binary killed with SIGKILL and restarted) and
+//! on Redis (two server processes sharing one session; Redis going away and coming back).
+
+use std::time::Duration;
+
+use prost::Message;
+use trinocular::api::{self, pb};
+use trinocular::service::{server, Limits};
+use trinocular::synth::{panoramic_session, Defects};
+
+use crate::common::{embedded_service, scratch_dir, ServerProcess};
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("runtime")
+}
+
+fn limits() -> Limits {
+    Limits {
+        threads: 2,
+        max_jobs: 16,
+        ..Limits::default()
+    }
+}
+
+async fn start() -> server::Running {
+    let any = "127.0.0.1:0".parse().unwrap();
+    server::start(embedded_service(limits()).await, any, any)
+        .await
+        .expect("listen")
+}
+
+type Client = pb::trinocular_client::TrinocularClient<tonic::transport::Channel>;
+
+async fn connect(addr: std::net::SocketAddr) -> Client {
+    Client::connect(format!("http://{addr}"))
+        .await
+        .expect("connect")
+        .max_decoding_message_size(64 << 20)
+}
+
+/// A panoramic session of the synthetic room (clean observations): the rig's calibration and,
+/// per pose, the capture to add.
+fn panorama(poses: usize) -> (pb::Calibration, Vec<pb::AddCaptureRequest>) {
+    let (_, rig, captures) = panoramic_session(3, poses, &Defects::clean());
+    let requests = captures
+        .iter()
+        .map(|(pose, observation)| {
+            let m = pose.to_matrix();
+            pb::AddCaptureRequest {
+                session_id: String::new(),
+                rig_to_world: Some(pb::Pose {
+                    matrix: (0..16).map(|i| m[(i / 4, i % 4)]).collect(),
+                }),
+                input: Some(pb::add_capture_request::Input::Segments(
+                    pb::SegmentTriplet {
+                        lists: observation
+                            .lists
+                            .iter()
+                            .map(api::segment_list_to_pb)
+                            .collect(),
+                    },
+                )),
+            }
+        })
+        .collect();
+    (api::calibration_to_pb(&rig), requests)
+}
+
+fn create_request(calibration: &pb::Calibration) -> pb::CreateSessionRequest {
+    pb::CreateSessionRequest {
+        name: "office tour".to_string(),
+        calibration: Some(calibration.clone()),
+        options: None,
+        map_options: None,
+    }
+}
+
+/// A map's geometry and observation counts, sorted: what must not depend on which server
+/// or in which order the captures came (capture indices do).
+fn geometry(map: &pb::Map) -> Vec<([f64; 6], u32)> {
+    let mut out: Vec<([f64; 6], u32)> = map
+        .segments
+        .iter()
+        .map(|s| {
+            let (a, b) = (s.start.clone().unwrap(), s.end.clone().unwrap());
+            ([a.x, a.y, a.z, b.x, b.y, b.z], s.observations)
+        })
+        .collect();
+    out.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    out
+}
+
+fn same_geometry(a: &pb::Map, b: &pb::Map) {
+    let (a, b) = (geometry(a), geometry(b));
+    assert_eq!(a.len(), b.len(), "map sizes differ");
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.1, y.1, "observations differ: {x:?} vs {y:?}");
+        for k in 0..6 {
+            assert!((x.0[k] - y.0[k]).abs() < 1e-9, "{x:?} vs {y:?}");
+        }
+    }
+}
+
+#[test]
+fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
+    let (calibration, captures) = panorama(6);
+    runtime().block_on(async {
+        let running = start().await;
+        let mut grpc = connect(running.grpc_addr).await;
+        let http = reqwest::Client::new();
+        let base = format!("http://{}/v1/sessions", running.http_addr);
+
+        // Created over HTTP JSON, as curl would.
+        let created = http
+            .post(&base)
+            .body(api::to_json(&create_request(&calibration)))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(created.status(), 200);
+        let session: pb::Session = api::from_json("s", &created.text().await.unwrap()).unwrap();
+        assert_eq!(session.id.len(), 32);
+        assert_eq!((session.name.as_str(), session.captures), ("office tour", 0));
+
+        // Captures alternately over gRPC and HTTP (protobuf).
+        for (i, capture) in captures.iter().enumerate() {
+            let capture = pb::AddCaptureRequest {
+                session_id: session.id.clone(),
+                ..capture.clone()
+            };
+            let answer = if i % 2 == 0 {
+                grpc.add_capture(capture).await.unwrap().into_inner()
+            } else {
+                let reply = http
+                    .post(format!("{base}/{}/captures", session.id))
+                    .header("content-type", "application/x-protobuf")
+                    .body(capture.encode_to_vec())
+                    .send()
+                    .await
+                    .unwrap();
+                assert_eq!(reply.status(), 200);
+                pb::AddCaptureResponse::decode(reply.bytes().await.unwrap()).unwrap()
+            };
+            assert_eq!(answer.capture_index, i as u64);
+            assert_eq!(answer.map.unwrap().captures, i as u64 + 1);
+            assert!(!answer.r#match.unwrap().segments_3d.is_empty());
+        }
+
+        let got = grpc
+            .get_session(pb::GetSessionRequest {
+                session_id: session.id.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(got.captures, captures.len() as u64);
+        assert_eq!(got.calibration, Some(calibration.clone()));
+        let listed = grpc
+            .list_sessions(pb::ListSessionsRequest {})
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(listed.sessions.iter().any(|s| s.id == session.id));
+
+        let map = grpc
+            .get_map(pb::GetMapRequest {
+                session_id: session.id.clone(),
+                min_observations: None,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(map.poses.len(), captures.len());
+        assert!(map.segments.len() > 20, "{} segments", map.segments.len());
+        assert!(
+            map.segments.iter().any(|s| s.observations >= 2),
+            "neighbouring poses overlap, so some segments are seen twice"
+        );
+        for s in &map.segments {
+            assert_eq!(s.captures.len() as u32, s.observations);
+            assert!(s.captures.windows(2).all(|w| w[0] < w[1]));
+        }
+        // The same map over HTTP JSON.
+        let url = format!("{base}/{}/map", session.id);
+        let text = http.get(&url).send().await.unwrap().text().await.unwrap();
+        let by_http: pb::Map = api::from_json("map", &text).unwrap();
+        assert_eq!(geometry(&by_http), geometry(&map));
+        // Seen at least twice: a subset.
+        let twice: pb::Map = api::from_json(
+            "map",
+            &http
+                .get(format!("{url}?min_observations=2"))
+                .send()
+                .await
+                .unwrap()
+                .text()
+                .await
+                .unwrap(),
+        )
+        .unwrap();
+        assert!(!twice.segments.is_empty() && twice.segments.len() < map.segments.len());
+        assert!(twice.segments.iter().all(|s| s.observations >= 2));
+
+        // Exports.
+        for (format, content_type, starts) in [
+            ("ply", "application/x-ply", &b"ply\n"[..]),
+            ("obj", "model/obj", &b"#"[..]),
+            ("svg", "image/svg+xml", &b"<"[..]),
+            ("png", "image/png", &b"\x89PNG"[..]),
+        ] {
+            let reply = http
+                .get(format!("{url}?format={format}"))
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(reply.status(), 200, "{format}");
+            assert_eq!(reply.headers()["content-type"], content_type);
+            let body = reply.bytes().await.unwrap();
+            assert!(body.starts_with(starts), "{format}: {:?}", &body[..8.min(body.len())]);
+            if format == "png" {
+                let picture = image::load_from_memory(&body).expect("a PNG that decodes");
+                assert!(picture.width() >= 200 && picture.height() >= 200);
+            }
+            if format == "ply" {
+                let text = String::from_utf8(body.to_vec()).unwrap();
+                let vertices = format!("element vertex {}", 2 * map.segments.len());
+                assert!(text.contains(&vertices), "{text:.300}");
+            }
+        }
+        let reply = http.get(format!("{url}?format=dxf")).send().await.unwrap();
+        assert_eq!(reply.status(), 400);
+
+        // Deleted: gone everywhere.
+        let reply = http
+            .delete(format!("{base}/{}", session.id))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 200);
+        let status = grpc
+            .get_session(pb::GetSessionRequest {
+                session_id: session.id.clone(),
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), tonic::Code::NotFound);
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn the_map_does_not_depend_on_the_order_of_the_captures() {
+    let (calibration, captures) = panorama(6);
+    runtime().block_on(async {
+        let running = start().await;
+        let mut grpc = connect(running.grpc_addr).await;
+        let mut maps = Vec::new();
+        for order in [vec![0, 1, 2, 3, 4, 5], vec![5, 3, 1, 0, 4, 2]] {
+            let session = grpc
+                .create_session(create_request(&calibration))
+                .await
+                .unwrap()
+                .into_inner();
+            for &i in &order {
+                let capture = pb::AddCaptureRequest {
+                    session_id: session.id.clone(),
+                    ..captures[i].clone()
+                };
+                grpc.add_capture(capture).await.unwrap();
+            }
+            let map = grpc
+                .get_map(pb::GetMapRequest {
+                    session_id: session.id,
+                    min_observations: None,
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            maps.push(map);
+        }
+        same_geometry(&maps[0], &maps[1]);
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
+    let (calibration, captures) = panorama(1);
+    runtime().block_on(async {
+        let running = start().await;
+        let mut grpc = connect(running.grpc_addr).await;
+        let http = reqwest::Client::new();
+        let session = grpc
+            .create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+        let good = pb::AddCaptureRequest {
+            session_id: session.id.clone(),
+            ..captures[0].clone()
+        };
+        let with_matrix = |matrix: Vec<f64>| pb::AddCaptureRequest {
+            rig_to_world: Some(pb::Pose { matrix }),
+            ..good.clone()
+        };
+        let mut scaled = good.rig_to_world.clone().unwrap().matrix;
+        scaled[0] *= 1.5;
+        let mut nan = good.rig_to_world.clone().unwrap().matrix;
+        nan[3] = f64::NAN;
+        for (bad, field) in [
+            (with_matrix(vec![1.0; 12]), "rig_to_world.matrix"),
+            (with_matrix(scaled), "rig_to_world.matrix"),
+            (with_matrix(nan), "rig_to_world.matrix[3]"),
+            (
+                pb::AddCaptureRequest {
+                    rig_to_world: None,
+                    ..good.clone()
+                },
+                "rig_to_world",
+            ),
+            (
+                pb::AddCaptureRequest {
+                    input: None,
+                    ..good.clone()
+                },
+                "input",
+            ),
+        ] {
+            let status = grpc.add_capture(bad.clone()).await.unwrap_err();
+            assert_eq!(status.code(), tonic::Code::InvalidArgument, "{status:?}");
+            assert!(
+                status.message().starts_with(&format!("{field}: ")),
+                "{field}: {status:?}"
+            );
+            let reply = http
+                .post(format!(
+                    "http://{}/v1/sessions/{}/captures",
+                    running.http_addr, session.id
+                ))
+                .header("content-type", "application/x-protobuf")
+                .body(bad.encode_to_vec())
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(reply.status(), 400);
+            let body: serde_json::Value = reply.json().await.unwrap();
+            assert_eq!(body["error"]["field"], field);
+        }
+        let after = grpc
+            .get_session(pb::GetSessionRequest {
+                session_id: session.id.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(after.captures, 0, "nothing was stored");
+
+        // A bad calibration is refused at creation, naming the field.
+        let mut broken = calibration.clone();
+        broken.cameras[1].projection.truncate(5);
+        let status = grpc
+            .create_session(create_request(&broken))
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), tonic::Code::InvalidArgument);
+        assert!(status.message().starts_with("calibration.cameras[1]"), "{status:?}");
+
+        // Unknown sessions: NOT_FOUND / 404 on every call.
+        let unknown = "0123456789abcdef0123456789abcdef".to_string();
+        let status = grpc
+            .add_capture(pb::AddCaptureRequest {
+                session_id: unknown.clone(),
+                ..good.clone()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), tonic::Code::NotFound, "{status:?}");
+        let status = grpc
+            .get_map(pb::GetMapRequest {
+                session_id: unknown.clone(),
+                min_observations: None,
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), tonic::Code::NotFound);
+        let status = grpc
+            .delete_session(pb::DeleteSessionRequest {
+                session_id: unknown.clone(),
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), tonic::Code::NotFound);
+        let base = format!("http://{}/v1/sessions/{unknown}", running.http_addr);
+        for url in [base.clone(), format!("{base}/map")] {
+            let reply = http.get(&url).send().await.unwrap();
+            assert_eq!(reply.status(), 404, "{url}");
+            let body: serde_json::Value = reply.json().await.unwrap();
+            assert_eq!(body["error"]["code"], "NOT_FOUND");
+            assert_eq!(body["error"]["field"], "session_id");
+        }
+        let reply = http
+            .get(format!("http://{}/v1/sessions/not%20an%20id", running.http_addr))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn captures_upload_as_curl_sends_them() {
+    let (calibration, captures) = panorama(1);
+    runtime().block_on(async {
+        let running = start().await;
+        let http = reqwest::Client::new();
+        let base = format!("http://{}/v1/sessions", running.http_addr);
+        let session: pb::Session = api::from_json(
+            "s",
+            &http
+                .post(&base)
+                .body(api::to_json(&create_request(&calibration)))
+                .send()
+                .await
+                .unwrap()
+                .text()
+                .await
+                .unwrap(),
+        )
+        .unwrap();
+        let pb::AddCaptureRequest {
+            rig_to_world,
+            input: Some(pb::add_capture_request::Input::Segments(segments)),
+            ..
+        } = captures[0].clone()
+        else {
+            unreachable!("the fixture sends segments")
+        };
+        // The pose as 16 bare numbers, the easy thing to type.
+        let pose = serde_json::to_string(&rig_to_world.unwrap().matrix).unwrap();
+        let form = reqwest::multipart::Form::new()
+            .text("pose", pose)
+            .text("segments", api::to_json(&segments));
+        let reply = http
+            .post(format!("{base}/{}/captures", session.id))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 200);
+        let answer: pb::AddCaptureResponse =
+            api::from_json("a", &reply.text().await.unwrap()).unwrap();
+        assert_eq!(answer.capture_index, 0);
+
+        // A capture upload has no calibration of its own: the session's is used.
+        let form = reqwest::multipart::Form::new()
+            .text("calibration", "{}")
+            .text("segments", api::to_json(&segments));
+        let reply = http
+            .post(format!("{base}/{}/captures", session.id))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        let body: serde_json::Value = reply.json().await.unwrap();
+        assert_eq!(body["error"]["field"], "calibration");
+        running.shutdown().await;
+    });
+}
+
+/// Sends `captures` to `session` on `client`, `streams` at a time; returns the acknowledged
+/// capture indices (those answered OK) once `stop` says so or all are sent.
+async fn stream_captures(
+    addr: std::net::SocketAddr,
+    session: &str,
+    captures: &[pb::AddCaptureRequest],
+    streams: usize,
+) -> Vec<u64> {
+    let acked = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let mut tasks = Vec::new();
+    for s in 0..streams {
+        let mut client = connect(addr).await;
+        let mine: Vec<pb::AddCaptureRequest> = captures
+            .iter()
+            .skip(s)
+            .step_by(streams)
+            .map(|c| pb::AddCaptureRequest {
+                session_id: session.to_string(),
+                ..c.clone()
+            })
+            .collect();
+        let acked = std::sync::Arc::clone(&acked);
+        tasks.push(tokio::spawn(async move {
+            for capture in mine {
+                match client.add_capture(capture).await {
+                    Ok(answer) => acked.lock().unwrap().push(answer.into_inner().capture_index),
+                    Err(_) => return, // the server went away
+                }
+            }
+        }));
+    }
+    for t in tasks {
+        let _ = t.await;
+    }
+    let out = acked.lock().unwrap().clone();
+    out
+}
+
+#[test]
+fn acknowledged_captures_survive_kill_9_and_restart() {
+    let (calibration, captures) = panorama(12);
+    // Many captures, so the kill lands while some are being written.
+    let captures: Vec<_> = captures.iter().cycle().take(400).cloned().collect();
+    let data = scratch_dir("kill9");
+    let data_arg = data.to_str().unwrap().to_string();
+    let rt = runtime();
+    let mut server = ServerProcess::spawn(&["--data-dir", &data_arg]);
+    let session = rt.block_on(async {
+        let mut grpc = connect(server.grpc_addr).await;
+        grpc.create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner()
+    });
+    let addr = server.grpc_addr;
+    let (id, list) = (session.id.clone(), captures.clone());
+    let sender = std::thread::spawn(move || {
+        runtime().block_on(async { stream_captures(addr, &id, &list, 4).await })
+    });
+    // Let some captures land, then kill the server mid-stream.
+    std::thread::sleep(Duration::from_millis(600));
+    server.kill9();
+    let acked = sender.join().unwrap();
+    assert!(
+        !acked.is_empty() && acked.len() < captures.len(),
+        "the kill should land mid-stream: {} of {} acknowledged",
+        acked.len(),
+        captures.len()
+    );
+
+    let restarted = ServerProcess::spawn(&["--data-dir", &data_arg]);
+    rt.block_on(async {
+        let mut grpc = connect(restarted.grpc_addr).await;
+        let stored = grpc
+            .get_session(pb::GetSessionRequest {
+                session_id: session.id.clone(),
+            })
+            .await
+            .expect("the session survived")
+            .into_inner()
+            .captures;
+        // Every acknowledged capture is there (indices are dense, so each is below the count);
+        // at most the four in flight were stored without their answer reaching the client.
+        let highest = *acked.iter().max().unwrap();
+        assert!(highest < stored, "capture {highest} acknowledged, {stored} stored");
+        assert!(stored as usize <= acked.len() + 4, "{stored} stored, {} acked", acked.len());
+        // Nothing half-written: every stored capture decodes into the map.
+        let map = grpc
+            .get_map(pb::GetMapRequest {
+                session_id: session.id.clone(),
+                min_observations: None,
+            })
+            .await
+            .expect("every stored capture reads back")
+            .into_inner();
+        assert_eq!(map.poses.len() as u64, stored);
+    });
+    drop(restarted);
+    let _ = std::fs::remove_dir_all(&data);
+}
+
+/// The Redis the tests use: `$TRINOCULAR_TEST_REDIS`, or the local default; `None` (with the
+/// reason) when it does not answer.
+fn test_redis() -> Result<String, String> {
+    let url = std::env::var("TRINOCULAR_TEST_REDIS")
+        .unwrap_or_else(|_| "redis://127.0.0.1:6379".to_string());
+    let addr = url
+        .trim_start_matches("redis://")
+        .split('/')
+        .next()
+        .unwrap_or_default()
+        .to_string();
+    let reachable = std::net::ToSocketAddrs::to_socket_addrs(&addr.as_str())
+        .ok()
+        .and_then(|mut a| a.next())
+        .and_then(|a| std::net::TcpStream::connect_timeout(&a, Duration::from_secs(1)).ok());
+    match reachable {
+        Some(_) => Ok(url),
+        None => Err(format!("no Redis at {url} (connection refused or timed out)")),
+    }
+}
+
+#[test]
+fn two_replicas_on_one_redis_build_the_same_map_as_one_server() {
+    let url = match test_redis() {
+        Ok(url) => url,
+        Err(why) => {
+            eprintln!("SKIPPED two_replicas_on_one_redis_build_the_same_map_as_one_server: {why}");
+            return;
+        }
+    };
+    let (calibration, captures) = panorama(12);
+    let a = ServerProcess::spawn(&["--store", &url]);
+    let b = ServerProcess::spawn(&["--store", &url]);
+    runtime().block_on(async {
+        let mut grpc_a = connect(a.grpc_addr).await;
+        let session = grpc_a
+            .create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+        // Every capture sent to both replicas at once, interleaved: 24 concurrent appends.
+        let (to_a, to_b) = tokio::join!(
+            stream_captures(a.grpc_addr, &session.id, &captures, 6),
+            stream_captures(b.grpc_addr, &session.id, &captures, 6),
+        );
+        let mut indices: Vec<u64> = to_a.iter().chain(&to_b).copied().collect();
+        indices.sort_unstable();
+        assert_eq!(indices, (0..24).collect::<Vec<u64>>(), "no capture lost or doubled");
+
+        let mut grpc_b = connect(b.grpc_addr).await;
+        let request = pb::GetMapRequest {
+            session_id: session.id.clone(),
+            min_observations: None,
+        };
+        let map_a = grpc_a.get_map(request.clone()).await.unwrap().into_inner();
+        let map_b = grpc_b.get_map(request).await.unwrap().into_inner();
+        same_geometry(&map_a, &map_b);
+
+        // One server, the same captures twice in order: the same map.
+        let running = start().await;
+        let mut one = connect(running.grpc_addr).await;
+        let alone = one
+            .create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+        for capture in captures.iter().chain(&captures) {
+            one.add_capture(pb::AddCaptureRequest {
+                session_id: alone.id.clone(),
+                ..capture.clone()
+            })
+            .await
+            .unwrap();
+        }
+        let map_one = one
+            .get_map(pb::GetMapRequest {
+                session_id: alone.id,
+                min_observations: None,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        same_geometry(&map_a, &map_one);
+        grpc_a
+            .delete_session(pb::DeleteSessionRequest {
+                session_id: session.id,
+            })
+            .await
+            .unwrap();
+        running.shutdown().await;
+    });
+}
+
+/// A private `redis-server` on a free port, stopped when dropped.
+struct PrivateRedis {
+    child: std::process::Child,
+    port: u16,
+}
+
+impl PrivateRedis {
+    fn start(port: u16) -> Result<PrivateRedis, String> {
+        let child = std::process::Command::new("redis-server")
+            .args(["--port", &port.to_string(), "--bind", "127.0.0.1"])
+            .args(["--save", "", "--appendonly", "no"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .map_err(|e| format!("cannot run redis-server ({e})"))?;
+        for _ in 0..100 {
+            if std::net::TcpStream::connect(("127.0.0.1", port)).is_ok() {
+                return Ok(PrivateRedis { child, port });
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        Err("redis-server did not start listening".to_string())
+    }
+
+    fn stop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for PrivateRedis {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+#[test]
+fn redis_going_away_is_unavailable_and_service_resumes_when_it_returns() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free port");
+    let mut redis = match PrivateRedis::start(port) {
+        Ok(r) => r,
+        Err(why) => {
+            eprintln!("SKIPPED redis_going_away_is_unavailable_and_service_resumes_when_it_returns: {why}");
+            return;
+        }
+    };
+    let url = format!("redis://127.0.0.1:{}", redis.port);
+    let (calibration, captures) = panorama(1);
+    let server = ServerProcess::spawn(&["--store", &url]);
+    runtime().block_on(async {
+        let mut grpc = connect(server.grpc_addr).await;
+        let http = reqwest::Client::new();
+        let session = grpc
+            .create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+
+        redis.stop();
+        let t0 = std::time::Instant::now();
+        let status = grpc
+            .add_capture(pb::AddCaptureRequest {
+                session_id: session.id.clone(),
+                ..captures[0].clone()
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), tonic::Code::Unavailable, "{status:?}");
+        assert!(status.message().contains("redis"), "{status:?}");
+        assert!(t0.elapsed() < Duration::from_secs(10), "fails promptly, no hang");
+        let reply = http
+            .get(format!("http://{}/v1/sessions/{}", server.http_addr, session.id))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 503);
+        let body: serde_json::Value = reply.json().await.unwrap();
+        assert_eq!(body["error"]["code"], "UNAVAILABLE");
+        // Matching needs no store: it goes on.
+        let (_, rig, obs) = trinocular::synth::standard_capture(1, Defects::clean(), false);
+        let matched = grpc
+            .r#match(pb::MatchRequest {
+                calibration: Some(api::calibration_to_pb(&rig)),
+                options: None,
+                input: Some(pb::match_request::Input::Segments(pb::SegmentTriplet {
+                    lists: obs.lists.iter().map(api::segment_list_to_pb).collect(),
+                })),
+            })
+            .await;
+        assert!(matched.is_ok(), "{matched:?}");
+
+        // Redis back (empty: it kept nothing): sessions work again.
+        let _redis = PrivateRedis::start(port).expect("redis-server restarts");
+        let mut recovered = None;
+        for _ in 0..100 {
+            match grpc.create_session(create_request(&calibration)).await {
+                Ok(s) => {
+                    recovered = Some(s.into_inner());
+                    break;
+                }
+                Err(s) => assert_eq!(s.code(), tonic::Code::Unavailable, "{s:?}"),
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        let fresh = recovered.expect("sessions work again once Redis is back");
+        let answer = grpc
+            .add_capture(pb::AddCaptureRequest {
+                session_id: fresh.id,
+                ..captures[0].clone()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(answer.capture_index, 0);
+    });
+}

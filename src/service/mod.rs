@@ -14,6 +14,7 @@ pub mod metrics;
 pub mod pool;
 pub mod request_id;
 pub mod server;
+pub mod store;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

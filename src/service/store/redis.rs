@@ -432,7 +432,7 @@ mod tests {
     #[tokio::test]
     async fn redis_two_replicas_append_concurrently() {
         let ttl = Duration::from_secs(3600);
-        let Some(a) = store("redis_two_replicas", ttl).await else {
+        let Some(a) = store("redis_two_replicas_append_concurrently", ttl).await else {
             return;
         };
         // A second store with its own connection, as another replica would have.
@@ -481,6 +481,110 @@ mod tests {
         }
         // A bound, not a speed claim: the call must not hang.
         assert!(started.elapsed() < CALL_DEADLINE + Duration::from_secs(1));
+    }
+
+    /// A TCP relay to Redis that can be cut and restored on the same port, to stage an outage
+    /// without touching the real server.
+    struct Relay {
+        port: u16,
+        target: String,
+        tasks: Arc<std::sync::Mutex<Vec<tokio::task::JoinHandle<()>>>>,
+    }
+
+    impl Relay {
+        async fn start(port: u16, target: &str) -> Relay {
+            let listener = tokio::net::TcpListener::bind(("127.0.0.1", port))
+                .await
+                .unwrap();
+            let port = listener.local_addr().unwrap().port();
+            let tasks = Arc::new(std::sync::Mutex::new(Vec::new()));
+            let (target_owned, tasks2) = (target.to_string(), Arc::clone(&tasks));
+            let accept = tokio::spawn(async move {
+                while let Ok((mut inbound, _)) = listener.accept().await {
+                    let target = target_owned.clone();
+                    let relay = tokio::spawn(async move {
+                        if let Ok(mut outbound) = tokio::net::TcpStream::connect(target).await {
+                            let _ =
+                                tokio::io::copy_bidirectional(&mut inbound, &mut outbound).await;
+                        }
+                    });
+                    tasks2.lock().unwrap().push(relay);
+                }
+            });
+            tasks.lock().unwrap().push(accept);
+            Relay {
+                port,
+                target: target.to_string(),
+                tasks,
+            }
+        }
+
+        /// Closes the port and every relayed connection.
+        fn cut(&self) {
+            for t in self.tasks.lock().unwrap().drain(..) {
+                t.abort();
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn redis_outage_fails_in_bounded_time_and_recovers() {
+        let test = "redis_outage_fails_in_bounded_time_and_recovers";
+        let url = url();
+        let Some(target) = url
+            .strip_prefix("redis://")
+            .map(|rest| rest.split('/').next().unwrap_or(rest).to_string())
+            .filter(|authority| !authority.contains('@'))
+        else {
+            eprintln!("SKIPPED {test}: {url} is not a plain redis://host:port URL");
+            return;
+        };
+        if tokio::net::TcpStream::connect(&target).await.is_err() {
+            eprintln!("SKIPPED {test}: no Redis at {url} (cannot connect)");
+            return;
+        }
+        let relay = Relay::start(0, &target).await;
+        let relayed = format!("redis://127.0.0.1:{}", relay.port);
+        let prefix = format!("trinocular-test:{test}:{}:", std::process::id());
+        let s = RedisStore::open(&relayed, &prefix, Duration::from_secs(3600))
+            .await
+            .unwrap();
+        s.create(&contract::record("o")).await.unwrap();
+        assert_eq!(s.append_capture("o", b"before").await.unwrap(), 0);
+
+        relay.cut();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let started = std::time::Instant::now();
+        match s.append_capture("o", b"during").await {
+            Err(StoreError::Unavailable { message }) => {
+                assert!(
+                    message.contains(&format!("redis at {relayed}")),
+                    "{message}"
+                )
+            }
+            other => panic!("expected Unavailable during the outage, got {other:?}"),
+        }
+        assert!(started.elapsed() < CALL_DEADLINE + Duration::from_secs(1));
+
+        // Redis is back on the same address: the connection manager reconnects.
+        let relay = Relay::start(relay.port, &relay.target).await;
+        let mut recovered = None;
+        for _ in 0..50 {
+            match s.append_capture("o", b"after").await {
+                Ok(index) => {
+                    recovered = Some(index);
+                    break;
+                }
+                Err(_) => tokio::time::sleep(Duration::from_millis(200)).await,
+            }
+        }
+        assert_eq!(recovered, Some(1), "the failed append stored nothing");
+        assert_eq!(
+            s.captures("o").await.unwrap(),
+            [b"before".to_vec(), b"after".to_vec()]
+        );
+        cleanup(&s).await;
+        relay.cut();
     }
 
     #[test]

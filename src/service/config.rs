@@ -16,9 +16,15 @@
 //! [log]
 //! json = false
 //! level = "info"
+//! [store]
+//! url = "embedded"     # or redis://host:port[/db], shared by replicas
+//! data_dir = "data"    # the embedded store's directory, relative to the working directory
+//! session_ttl_s = 86400
 //! ```
 
 use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
@@ -31,6 +37,36 @@ pub struct Config {
     pub compute: ComputeConfig,
     pub limits: LimitsConfig,
     pub log: LogConfig,
+    pub store: StoreConfig,
+}
+
+/// Where sessions live (see [`super::store::open`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StoreConfig {
+    /// `embedded` (a redb file under `data_dir`, one replica) or `redis://host:port[/db]`.
+    pub url: String,
+    /// The embedded store's directory, relative to the working directory; created if missing.
+    pub data_dir: PathBuf,
+    /// A session not used for this long disappears with its captures, seconds.
+    pub session_ttl_s: u64,
+}
+
+impl Default for StoreConfig {
+    fn default() -> Self {
+        StoreConfig {
+            url: "embedded".to_string(),
+            data_dir: PathBuf::from("data"),
+            session_ttl_s: 24 * 3600,
+        }
+    }
+}
+
+impl StoreConfig {
+    /// The idle TTL.
+    pub fn session_ttl(&self) -> Duration {
+        Duration::from_secs(self.session_ttl_s)
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -165,6 +201,12 @@ impl Config {
         if self.limits.max_segments_per_list == 0 {
             problems.push("limits.max_segments_per_list must be at least 1".to_string());
         }
+        if let Err(problem) = super::store::check_url(&self.store.url) {
+            problems.push(problem);
+        }
+        if self.store.session_ttl_s == 0 {
+            problems.push("store.session_ttl_s must be at least 1".to_string());
+        }
         if problems.is_empty() {
             Ok(())
         } else {
@@ -252,5 +294,33 @@ mod tests {
         c.limits.max_segments_per_list = 0;
         let problems = c.validate().unwrap_err();
         assert_eq!(problems.lines().count(), 3, "{problems}");
+    }
+
+    #[test]
+    fn store_section() {
+        let c = Config::default();
+        assert_eq!(c.store.url, "embedded");
+        assert_eq!(c.store.data_dir, PathBuf::from("data"));
+        assert_eq!(c.store.session_ttl(), Duration::from_secs(86400));
+        assert!(c.validate().is_ok());
+        let file = "[store]\nurl = \"redis://127.0.0.1:6379/1\"\ndata_dir = \"/var/lib/t\"\n";
+        let c = Config::load(
+            Some(file),
+            env(&[("TRINOCULAR__STORE__SESSION_TTL_S", "60")]),
+        )
+        .unwrap();
+        assert_eq!(c.store.url, "redis://127.0.0.1:6379/1");
+        assert_eq!(c.store.data_dir, PathBuf::from("/var/lib/t"));
+        assert_eq!(c.store.session_ttl_s, 60);
+        assert!(c.validate().is_ok());
+        let e = Config::load(Some("[store]\nttl = 5\n"), env(&[])).unwrap_err();
+        assert!(e.contains("ttl"), "{e}");
+        let mut c = Config::default();
+        c.store.url = "mysql://db".to_string();
+        c.store.session_ttl_s = 0;
+        let problems = c.validate().unwrap_err();
+        assert_eq!(problems.lines().count(), 2, "{problems}");
+        assert!(problems.contains("store.url"), "{problems}");
+        assert!(problems.contains("store.session_ttl_s"), "{problems}");
     }
 }

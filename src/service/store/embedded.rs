@@ -1,0 +1,491 @@
+//! The default store: one redb file, `trinocular.redb` under the data directory, for a single
+//! replica. Every operation is one redb write transaction, so concurrent calls are serialised
+//! and nothing is ever half-written; every acknowledged change is committed with redb's default
+//! (immediate) durability before the call returns, so it survives `kill -9`. redb blocks, so
+//! transactions run on tokio's blocking pool.
+//!
+//! ```text
+//! sessions  id          → encoded record (see super::encode_record)
+//! meta      id          → (last_used_unix_ms, captures)
+//! captures  (id, index) → capture bytes
+//! ```
+//!
+//! Expired sessions are swept lazily, when touched or listed: deterministic, no background task.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use redb::{Database, ReadableTable, Table, TableDefinition, WriteTransaction};
+
+use super::{
+    decode_record, encode_record, now_unix_ms, ttl_ms, SessionInfo, SessionRecord, SessionStore,
+    StoreError,
+};
+
+const SESSIONS: TableDefinition<&str, &[u8]> = TableDefinition::new("sessions");
+const META: TableDefinition<&str, (u64, u64)> = TableDefinition::new("meta");
+const CAPTURES: TableDefinition<(&str, u64), &[u8]> = TableDefinition::new("captures");
+
+/// The file's name under the data directory.
+pub const FILE_NAME: &str = "trinocular.redb";
+
+pub struct EmbeddedStore {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    db: Database,
+    path: PathBuf,
+    ttl_ms: u64,
+    /// A read refreshes `last_used` only when it is at least this old, so that reading a busy
+    /// session does not cost a disk sync each time; expiry is late by at most this much.
+    touch_every_ms: u64,
+}
+
+/// The three tables, open in one write transaction.
+struct Tables<'t> {
+    sessions: Table<'t, &'static str, &'static [u8]>,
+    meta: Table<'t, &'static str, (u64, u64)>,
+    captures: Table<'t, (&'static str, u64), &'static [u8]>,
+}
+
+impl EmbeddedStore {
+    /// Opens (creating if needed) `data_dir/trinocular.redb`. A file another process holds is
+    /// [`StoreError::Unavailable`] naming the path.
+    pub async fn open(data_dir: &Path, ttl: Duration) -> Result<EmbeddedStore, StoreError> {
+        let dir = data_dir.to_path_buf();
+        let ttl_ms = ttl_ms(ttl);
+        let inner = tokio::task::spawn_blocking(move || -> Result<Inner, StoreError> {
+            let path = dir.join(FILE_NAME);
+            std::fs::create_dir_all(&dir).map_err(|e| StoreError::Unavailable {
+                message: format!(
+                    "embedded redb at {}: cannot create the data directory: {e}",
+                    path.display()
+                ),
+            })?;
+            let db = Database::create(&path).map_err(|e| match e {
+                redb::DatabaseError::DatabaseAlreadyOpen => StoreError::Unavailable {
+                    message: format!(
+                        "embedded redb at {}: the file is held by another process \
+                         (or already open in this one)",
+                        path.display()
+                    ),
+                },
+                other => fail(&path, "cannot open", other),
+            })?;
+            let inner = Inner {
+                db,
+                path,
+                ttl_ms,
+                touch_every_ms: ttl_ms / 64,
+            };
+            // Create the tables once, so that later transactions find them.
+            let txn = inner.db.begin_write().map_err(|e| inner.fail("begin", e))?;
+            Tables::open(&inner, &txn)?;
+            txn.commit().map_err(|e| inner.fail("commit", e))?;
+            Ok(inner)
+        })
+        .await
+        .map_err(|e| StoreError::Unavailable {
+            message: format!(
+                "embedded redb under {}: open failed: {e}",
+                data_dir.display()
+            ),
+        })??;
+        Ok(EmbeddedStore {
+            inner: Arc::new(inner),
+        })
+    }
+
+    /// Runs `f` in one write transaction on the blocking pool, with the time now. The
+    /// transaction is committed (durably) if `f` marked it changed and ended in success or a
+    /// caller's error (NotFound, AlreadyExists: an expired session may have been swept); on a
+    /// storage error it is dropped, so nothing is half-written.
+    async fn write<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&Inner, &mut Tables, u64, &mut bool) -> Result<T, StoreError> + Send + 'static,
+    ) -> Result<T, StoreError> {
+        let inner = Arc::clone(&self.inner);
+        tokio::task::spawn_blocking(move || {
+            let txn = inner.db.begin_write().map_err(|e| inner.fail("begin", e))?;
+            let now = now_unix_ms();
+            let mut changed = false;
+            let result = {
+                let mut tables = Tables::open(&inner, &txn)?;
+                f(&inner, &mut tables, now, &mut changed)
+            };
+            let keep = matches!(
+                result,
+                Ok(_) | Err(StoreError::NotFound { .. } | StoreError::AlreadyExists { .. })
+            );
+            if changed && keep {
+                txn.commit().map_err(|e| inner.fail("commit", e))?;
+            } else {
+                txn.abort().map_err(|e| inner.fail("abort", e))?;
+            }
+            result
+        })
+        .await
+        .map_err(|e| StoreError::Unavailable {
+            message: format!(
+                "embedded redb at {}: transaction task failed: {e}",
+                self.inner.path.display()
+            ),
+        })?
+    }
+}
+
+fn fail(path: &Path, what: &str, e: impl Into<redb::Error>) -> StoreError {
+    match e.into() {
+        redb::Error::Corrupted(message) => StoreError::Corrupt {
+            message: format!("embedded redb at {}: {message}", path.display()),
+        },
+        e => StoreError::Unavailable {
+            message: format!("embedded redb at {}: {what}: {e}", path.display()),
+        },
+    }
+}
+
+impl Inner {
+    fn fail(&self, what: &str, e: impl Into<redb::Error>) -> StoreError {
+        fail(&self.path, what, e)
+    }
+
+    fn expired(&self, last_used: u64, now: u64) -> bool {
+        now.saturating_sub(last_used) > self.ttl_ms
+    }
+
+    /// `(last_used, captures)` of a live session; an expired one is removed (and `changed`
+    /// set) and reads as absent.
+    fn live(
+        &self,
+        t: &mut Tables,
+        id: &str,
+        now: u64,
+        changed: &mut bool,
+    ) -> Result<Option<(u64, u64)>, StoreError> {
+        let meta = t
+            .meta
+            .get(id)
+            .map_err(|e| self.fail("read", e))?
+            .map(|g| g.value());
+        match meta {
+            Some((last_used, _)) if self.expired(last_used, now) => {
+                self.remove(t, id)?;
+                *changed = true;
+                Ok(None)
+            }
+            other => Ok(other),
+        }
+    }
+
+    fn remove(&self, t: &mut Tables, id: &str) -> Result<(), StoreError> {
+        t.sessions.remove(id).map_err(|e| self.fail("remove", e))?;
+        t.meta.remove(id).map_err(|e| self.fail("remove", e))?;
+        t.captures
+            .retain_in((id, 0u64)..=(id, u64::MAX), |_, _| false)
+            .map_err(|e| self.fail("remove", e))?;
+        Ok(())
+    }
+
+    fn record(&self, t: &Tables, id: &str) -> Result<SessionRecord, StoreError> {
+        let bytes = t
+            .sessions
+            .get(id)
+            .map_err(|e| self.fail("read", e))?
+            .ok_or_else(|| StoreError::Corrupt {
+                message: format!(
+                    "embedded redb at {}: session {id:?} has metadata but no record",
+                    self.path.display()
+                ),
+            })?;
+        decode_record(id, bytes.value())
+    }
+
+    /// Marks the session used now, unless it was so recently that the write is not worth it.
+    fn touch(
+        &self,
+        t: &mut Tables,
+        id: &str,
+        (last_used, captures): (u64, u64),
+        now: u64,
+        changed: &mut bool,
+    ) -> Result<u64, StoreError> {
+        if now.saturating_sub(last_used) < self.touch_every_ms {
+            return Ok(last_used);
+        }
+        t.meta
+            .insert(id, (now, captures))
+            .map_err(|e| self.fail("write", e))?;
+        *changed = true;
+        Ok(now)
+    }
+}
+
+impl<'t> Tables<'t> {
+    fn open(inner: &Inner, txn: &'t WriteTransaction) -> Result<Tables<'t>, StoreError> {
+        let open = |e| inner.fail("open table", e);
+        Ok(Tables {
+            sessions: txn.open_table(SESSIONS).map_err(open)?,
+            meta: txn.open_table(META).map_err(open)?,
+            captures: txn.open_table(CAPTURES).map_err(open)?,
+        })
+    }
+}
+
+fn not_found(id: &str) -> StoreError {
+    StoreError::NotFound { id: id.to_string() }
+}
+
+#[async_trait::async_trait]
+impl SessionStore for EmbeddedStore {
+    async fn create(&self, record: &SessionRecord) -> Result<(), StoreError> {
+        let id = record.id.clone();
+        let encoded = encode_record(record);
+        self.write(move |inner, t, now, changed| {
+            if inner.live(t, &id, now, changed)?.is_some() {
+                return Err(StoreError::AlreadyExists { id });
+            }
+            t.sessions
+                .insert(id.as_str(), encoded.as_slice())
+                .map_err(|e| inner.fail("write", e))?;
+            t.meta
+                .insert(id.as_str(), (now, 0))
+                .map_err(|e| inner.fail("write", e))?;
+            *changed = true;
+            Ok(())
+        })
+        .await
+    }
+
+    async fn get(&self, id: &str) -> Result<SessionInfo, StoreError> {
+        let id = id.to_string();
+        self.write(move |inner, t, now, changed| {
+            let meta = inner
+                .live(t, &id, now, changed)?
+                .ok_or_else(|| not_found(&id))?;
+            let last_used = inner.touch(t, &id, meta, now, changed)?;
+            Ok(SessionInfo {
+                record: inner.record(t, &id)?,
+                captures: meta.1,
+                last_used_unix_ms: last_used,
+            })
+        })
+        .await
+    }
+
+    async fn list(&self) -> Result<Vec<SessionInfo>, StoreError> {
+        self.write(move |inner, t, now, changed| {
+            let mut live = Vec::new();
+            let mut expired = Vec::new();
+            for entry in t.meta.iter().map_err(|e| inner.fail("read", e))? {
+                let (id, meta) = entry.map_err(|e| inner.fail("read", e))?;
+                let (id, (last_used, captures)) = (id.value().to_string(), meta.value());
+                if inner.expired(last_used, now) {
+                    expired.push(id);
+                } else {
+                    live.push((id, last_used, captures));
+                }
+            }
+            for id in &expired {
+                inner.remove(t, id)?;
+                *changed = true;
+            }
+            // redb iterates keys in byte order, which is `String`'s order: sorted by id.
+            live.into_iter()
+                .map(|(id, last_used, captures)| {
+                    Ok(SessionInfo {
+                        record: inner.record(t, &id)?,
+                        captures,
+                        last_used_unix_ms: last_used,
+                    })
+                })
+                .collect()
+        })
+        .await
+    }
+
+    async fn delete(&self, id: &str) -> Result<(), StoreError> {
+        let id = id.to_string();
+        self.write(move |inner, t, now, changed| {
+            inner
+                .live(t, &id, now, changed)?
+                .ok_or_else(|| not_found(&id))?;
+            inner.remove(t, &id)?;
+            *changed = true;
+            Ok(())
+        })
+        .await
+    }
+
+    async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
+        let id = id.to_string();
+        let capture = capture.to_vec();
+        self.write(move |inner, t, now, changed| {
+            let (_, index) = inner
+                .live(t, &id, now, changed)?
+                .ok_or_else(|| not_found(&id))?;
+            t.captures
+                .insert((id.as_str(), index), capture.as_slice())
+                .map_err(|e| inner.fail("write", e))?;
+            t.meta
+                .insert(id.as_str(), (now, index + 1))
+                .map_err(|e| inner.fail("write", e))?;
+            *changed = true;
+            Ok(index)
+        })
+        .await
+    }
+
+    async fn captures(&self, id: &str) -> Result<Vec<Vec<u8>>, StoreError> {
+        let id = id.to_string();
+        self.write(move |inner, t, now, changed| {
+            let meta = inner
+                .live(t, &id, now, changed)?
+                .ok_or_else(|| not_found(&id))?;
+            inner.touch(t, &id, meta, now, changed)?;
+            let mut out = Vec::with_capacity(meta.1 as usize);
+            let range = t
+                .captures
+                .range((id.as_str(), 0u64)..=(id.as_str(), u64::MAX))
+                .map_err(|e| inner.fail("read", e))?;
+            for entry in range {
+                let (key, value) = entry.map_err(|e| inner.fail("read", e))?;
+                // Indices are dense from 0: a gap means the file lost a write.
+                if key.value().1 != out.len() as u64 {
+                    return Err(StoreError::Corrupt {
+                        message: format!(
+                            "embedded redb at {}: session {id:?} lacks capture {}",
+                            inner.path.display(),
+                            out.len()
+                        ),
+                    });
+                }
+                out.push(value.value().to_vec());
+            }
+            Ok(out)
+        })
+        .await
+    }
+
+    fn describe(&self) -> String {
+        format!("embedded redb at {}", self.inner.path.display())
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::super::contract;
+    use super::*;
+
+    /// A fresh directory under the system's temporary directory.
+    pub fn temp_dir(name: &str) -> PathBuf {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static N: AtomicU64 = AtomicU64::new(0);
+        let dir = std::env::temp_dir().join(format!(
+            "trinocular-store-{name}-{}-{}",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    async fn store(name: &str, ttl: Duration) -> (EmbeddedStore, PathBuf) {
+        let dir = temp_dir(name);
+        (EmbeddedStore::open(&dir, ttl).await.unwrap(), dir)
+    }
+
+    #[tokio::test]
+    async fn embedded_crud() {
+        let (s, dir) = store("crud", Duration::from_secs(3600)).await;
+        contract::crud(&s).await;
+        drop(s);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[tokio::test]
+    async fn embedded_captures() {
+        let (s, dir) = store("captures", Duration::from_secs(3600)).await;
+        contract::captures(&s).await;
+        drop(s);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[tokio::test]
+    async fn embedded_expiry() {
+        let ttl = Duration::from_millis(1500);
+        let (s, dir) = store("expiry", ttl).await;
+        contract::expiry(&s, ttl).await;
+        drop(s);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[tokio::test]
+    async fn embedded_survives_reopening() {
+        let ttl = Duration::from_secs(3600);
+        let (s, dir) = store("durable", ttl).await;
+        s.create(&contract::record("kept")).await.unwrap();
+        for i in 0..5u8 {
+            s.append_capture("kept", &[i; 3]).await.unwrap();
+        }
+        s.create(&contract::record("gone")).await.unwrap();
+        s.delete("gone").await.unwrap();
+        drop(s);
+        let s = EmbeddedStore::open(&dir, ttl).await.unwrap();
+        let info = s.get("kept").await.unwrap();
+        assert_eq!(info.record, contract::record("kept"));
+        assert_eq!(info.captures, 5);
+        let expected: Vec<Vec<u8>> = (0..5u8).map(|i| vec![i; 3]).collect();
+        assert_eq!(s.captures("kept").await.unwrap(), expected);
+        assert_eq!(s.append_capture("kept", b"more").await.unwrap(), 5);
+        assert_eq!(s.list().await.unwrap().len(), 1);
+        drop(s);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[tokio::test]
+    async fn embedded_concurrent_appends_get_distinct_indices() {
+        let (s, dir) = store("concurrent", Duration::from_secs(3600)).await;
+        let s = Arc::new(s);
+        s.create(&contract::record("c")).await.unwrap();
+        let tasks: Vec<_> = (0..4u8)
+            .map(|task| {
+                let s = Arc::clone(&s);
+                tokio::spawn(async move {
+                    let mut indices = Vec::new();
+                    for i in 0..25u8 {
+                        indices.push(s.append_capture("c", &[task, i]).await.unwrap());
+                    }
+                    indices
+                })
+            })
+            .collect();
+        let mut indices = Vec::new();
+        for t in tasks {
+            indices.extend(t.await.unwrap());
+        }
+        indices.sort_unstable();
+        assert_eq!(indices, (0..100).collect::<Vec<u64>>());
+        assert_eq!(s.captures("c").await.unwrap().len(), 100);
+        drop(s);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[tokio::test]
+    async fn a_file_already_held_is_unavailable_naming_the_path() {
+        let (s, dir) = store("held", Duration::from_secs(60)).await;
+        let second = EmbeddedStore::open(&dir, Duration::from_secs(60)).await;
+        match second {
+            Err(StoreError::Unavailable { message }) => {
+                assert!(message.contains(FILE_NAME), "{message}");
+                assert!(message.contains("held"), "{message}");
+            }
+            Err(e) => panic!("expected Unavailable, got {e:?}"),
+            Ok(_) => panic!("expected Unavailable, opened twice"),
+        }
+        drop(s);
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}

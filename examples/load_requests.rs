@@ -42,7 +42,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let images = pb::MatchRequest {
         calibration: Some(api::calibration_to_pb(&rig)),
         options: None,
-        input: Some(pb::match_request::Input::Images(pb::ImageTriplet { images })),
+        input: Some(pb::match_request::Input::Images(pb::ImageTriplet {
+            images,
+        })),
     };
     write(dir.join("images512.json"), &images)?;
     Ok(())

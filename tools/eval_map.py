@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Scores a session map (examples/session_map.rs) on ../shared/data/office with ../shared/eval.
 
-    python3 tools/eval_map.py [--shared ../shared] [--python /tmp/ev/bin/python] [--images]
+    /tmp/ev/bin/python tools/eval_map.py [--shared ../shared] [--images]
         [--options '{"maxDirectionSigmaDeg": 2}'] [--min-observations 2]
         [--fuse '--lateral-m 0.02 --angle-deg 3'] [--out DIR] [--no-run]
 
@@ -13,7 +13,8 @@ scorer does not say — duplicates:
   - overlap_ratio: over those edges, summed length of the correct segments projected on their
     edge / length of the union of these projections (1.0 = no two segments cover the same
     stretch of an edge).
-Prints the scorer's JSON with these keys added. The scorer needs numpy (see its README).
+Prints the scorer's JSON with these keys added. Run it with a python that has numpy (the
+scorer's, see ../shared/eval/README.md); the scorer runs with the same python.
 """
 import argparse, json, os, shlex, subprocess, sys
 
@@ -24,7 +25,6 @@ def main():
     here = os.path.dirname(os.path.abspath(__file__))
     ap = argparse.ArgumentParser()
     ap.add_argument("--shared", default=os.path.join(here, "..", "..", "shared"))
-    ap.add_argument("--python", default="/tmp/ev/bin/python", help="python with numpy, for the scorer")
     ap.add_argument("--images", action="store_true")
     ap.add_argument("--options", default=None, help="MatchOptions, proto3 JSON")
     ap.add_argument("--min-observations", default=None)
@@ -46,7 +46,7 @@ def main():
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     map_path = os.path.join(a.out, "map.json")
     details = os.path.join(a.out, "details.json")
-    out = subprocess.run([a.python, os.path.join(a.shared, "eval", "score.py"), data, map_path,
+    out = subprocess.run([sys.executable, os.path.join(a.shared, "eval", "score.py"), data, map_path,
                           "--details", details, "--png", os.path.join(a.out, "score.png")],
                          check=True, capture_output=True, text=True).stdout
     summary = json.loads(out)

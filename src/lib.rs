@@ -14,6 +14,7 @@
 //! | [`geometry`] | cameras, rig, rectification (one disparity for three views), 3D lines |
 //! | [`matching`] | buckets, hypothesis prediction and verification, validation |
 //! | [`reconstruct`] | triplets to 3D segments, fragments merged |
+//! | [`map`] | session captures fused into a world-frame room map, exports |
 //! | [`pipeline`] | the chain in one call, input checks, statistics |
 //! | [`synth`] | synthetic rooms with exact ground truth, and a scorer |
 //! | [`api`] | the protobuf schema and its conversion to the types above |
@@ -25,6 +26,7 @@ pub mod api;
 pub mod demo;
 pub mod extract;
 pub mod geometry;
+pub mod map;
 pub mod matching;
 pub mod overlay;
 pub mod pipeline;

@@ -1,0 +1,113 @@
+//! Session map benchmarks (criterion, release): `fuse/12` and `fuse/50` fuse that many
+//! synthetic captures of one room, ~300 noisy, partly fragmented segments each (3,600 and
+//! 15,000 segments), on the default rayon pool — what a GetMap recomputes from stored
+//! captures.
+//!
+//!     cargo bench --bench map
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use trinocular::map::{fuse, Capture, FuseParams};
+use trinocular::segment::Segment3;
+
+/// Uniform in [-1, 1], deterministic (xorshift).
+struct Noise(u64);
+
+impl Noise {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+}
+
+/// A 6 x 5 x 2.5 m room with 1,200 axis-aligned edges on its walls; `n` poses turning in its
+/// middle, each seeing the ~230 edges in its 76° field of view (nine in ten of them; three in
+/// ten split in two, so ~280 segments), endpoints with 5 mm noise.
+fn session(n: usize) -> (Vec<Isometry3<f64>>, Vec<Vec<Segment3>>) {
+    let mut r = Noise(0x5eed);
+    let mut edges = Vec::new();
+    for _ in 0..1200 {
+        let wall = ((r.next() + 1.0) * 2.0) as usize % 4;
+        let (u, z) = (r.next(), 1.25 + 1.2 * r.next());
+        let base = match wall {
+            0 => Point3::new(3.0 * u, 2.5, z),
+            1 => Point3::new(3.0 * u, -2.5, z),
+            2 => Point3::new(3.0, 2.5 * u, z),
+            _ => Point3::new(-3.0, 2.5 * u, z),
+        };
+        let along = if wall < 2 { Vector3::x() } else { Vector3::y() };
+        let dir = if r.next() > 0.0 { along } else { Vector3::z() };
+        edges.push((base, base + dir * (0.2 + 0.6 * (r.next() + 1.0))));
+    }
+    let poses: Vec<_> = (0..n)
+        .map(|k| {
+            Isometry3::from_parts(
+                Translation3::new(0.1 * r.next(), 0.1 * r.next(), 1.2),
+                UnitQuaternion::from_axis_angle(
+                    &Vector3::z_axis(),
+                    std::f64::consts::TAU * k as f64 / n as f64,
+                ),
+            )
+        })
+        .collect();
+    let mut jitter = |r: &mut Noise| Vector3::new(r.next(), r.next(), r.next()) * 0.005;
+    let segments = poses
+        .iter()
+        .map(|pose| {
+            let inv = pose.inverse();
+            let mut out = Vec::new();
+            let look = pose.rotation * Vector3::y();
+            for &(a, b) in &edges {
+                let to = nalgebra::center(&a, &b) - pose.translation.vector;
+                let cos = (look.x * to.x + look.y * to.y) / look.xy().norm() / to.xy().norm();
+                if cos < 38f64.to_radians().cos() || r.next() < -0.8 {
+                    continue; // outside the field of view, or missed
+                }
+                let mut push = |p: Point3<f64>, q: Point3<f64>, r: &mut Noise| {
+                    out.push(Segment3 {
+                        start: inv * p + jitter(r),
+                        end: inv * q + jitter(r),
+                    })
+                };
+                if r.next() > 0.4 {
+                    let m = a + (b - a) * 0.5;
+                    push(a, m, &mut r);
+                    push(m, b, &mut r);
+                } else {
+                    push(a, b, &mut r);
+                }
+            }
+            out
+        })
+        .collect();
+    (poses, segments)
+}
+
+fn bench_fuse(c: &mut Criterion) {
+    let mut group = c.benchmark_group("fuse");
+    for n in [12usize, 50] {
+        let (poses, segments) = session(n);
+        let captures: Vec<Capture> = poses
+            .iter()
+            .zip(&segments)
+            .enumerate()
+            .map(|(i, (p, s))| Capture {
+                id: i as u32,
+                rig_to_world: *p,
+                segments: s,
+            })
+            .collect();
+        let total: usize = segments.iter().map(Vec::len).sum();
+        group.throughput(Throughput::Elements(total as u64));
+        let params = FuseParams::default();
+        group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+            b.iter(|| fuse(&captures, &params))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_fuse);
+criterion_main!(benches);

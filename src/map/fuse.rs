@@ -1,0 +1,370 @@
+//! The fusion itself: world-frame segments, candidate pairs from an R-tree, links between
+//! collinear overlapping pairs, connected components, and one weighted line fit per group.
+//!
+//! Order independence comes from working on a canonical order: segments are sorted by
+//! (capture id, rig-frame coordinates) before anything else, so indices, R-tree, components
+//! and floating-point sums are the same whatever order the captures came in. Sorting on
+//! rig-frame coordinates also keeps that order when every pose is moved by one rigid
+//! transform, so the map then moves with them.
+//!
+//! Chaining: a component of the link graph can bend (A links B links C, with A and C on
+//! different lines). Each component is fitted with one line and accepted as one map segment
+//! only when every member lies within tolerance of that line; otherwise it is split by
+//! greedy growth from the longest unassigned member (longest first, then canonical order),
+//! re-fitting the line as members join, so a map segment never strays from a straight line.
+
+use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
+use rayon::prelude::*;
+use rstar::primitives::{GeomWithData, Rectangle};
+use rstar::{RTree, RTreeObject};
+
+use super::{Capture, FuseParams, MapSegment};
+
+/// A member may lie this many times its own lateral tolerance from the fitted line: the line
+/// is itself uncertain, by about as much again (quadrature).
+const FIT_SLACK: f64 = std::f64::consts::SQRT_2;
+/// Shorter than this, a segment has no direction and is ignored, metres.
+const MIN_LENGTH_M: f64 = 1e-9;
+
+/// One world-frame segment and what fusing it needs.
+#[derive(Debug, Clone, Copy)]
+struct Item {
+    a: Point3<f64>,
+    b: Point3<f64>,
+    /// Unit direction a→b.
+    dir: Vector3<f64>,
+    len: f64,
+    capture: u32,
+    /// Lateral tolerance at `a` and `b`, metres.
+    tol_a: f64,
+    tol_b: f64,
+}
+
+impl Item {
+    fn tol_max(&self) -> f64 {
+        self.tol_a.max(self.tol_b)
+    }
+}
+
+/// A 3D line through `c` along the unit vector `d`.
+#[derive(Debug, Clone, Copy)]
+struct Line {
+    c: Point3<f64>,
+    d: Vector3<f64>,
+}
+
+impl Line {
+    fn distance(&self, p: &Point3<f64>) -> f64 {
+        let w = p - self.c;
+        (w - self.d * w.dot(&self.d)).norm()
+    }
+
+    fn at(&self, p: &Point3<f64>) -> f64 {
+        (p - self.c).dot(&self.d)
+    }
+}
+
+/// Fuses `captures` into a map: see the module documentation of [`crate::map`].
+///
+/// Parameters are assumed valid ([`FuseParams::check`]); segments with non-finite or
+/// coincident endpoints are ignored. The output is sorted by start, then end point, and each
+/// segment starts at its lower end along its direction made canonical (largest component
+/// positive).
+pub fn fuse(captures: &[Capture], params: &FuseParams) -> Vec<MapSegment> {
+    let items = world_items(captures, params);
+    if items.is_empty() {
+        return Vec::new();
+    }
+    let inflate = |s: &Item| s.tol_max() + 0.5 * params.max_gap_m;
+    let boxes: Vec<_> = items
+        .iter()
+        .enumerate()
+        .map(|(i, s)| GeomWithData::new(envelope(s, inflate(s)), i as u32))
+        .collect();
+    let tree = RTree::bulk_load(boxes);
+    let cos_max = params.angle_deg.to_radians().cos();
+
+    // Two inflated boxes intersect whenever the segments' closest points are within the sum
+    // of the inflations, which bounds lateral tolerance plus gap of any linkable pair.
+    let neighbours: Vec<Vec<u32>> = (0..items.len())
+        .into_par_iter()
+        .map(|i| {
+            let s = &items[i];
+            let mut out: Vec<u32> = tree
+                .locate_in_envelope_intersecting(&envelope(s, inflate(s)).envelope())
+                .map(|g| g.data)
+                .filter(|&j| (j as usize) > i && linked(&items, i, j as usize, cos_max, params))
+                .collect();
+            out.sort_unstable();
+            out
+        })
+        .collect();
+
+    let mut sets = UnionFind::new(items.len());
+    for (i, js) in neighbours.iter().enumerate() {
+        for &j in js {
+            sets.union(i, j as usize);
+        }
+    }
+    let mut component_of = vec![usize::MAX; items.len()];
+    let mut components: Vec<Vec<usize>> = Vec::new();
+    for i in 0..items.len() {
+        let root = sets.find(i);
+        if component_of[root] == usize::MAX {
+            component_of[root] = components.len();
+            components.push(Vec::new());
+        }
+        components[component_of[root]].push(i);
+    }
+
+    let mut map: Vec<MapSegment> = components
+        .par_iter()
+        .flat_map_iter(|members| split(&items, members, cos_max, params))
+        .filter_map(|group| merge(&items, &group))
+        .filter(|m| m.observations >= params.min_observations)
+        .collect();
+    map.sort_by(|p, q| {
+        let key = |m: &MapSegment| [m.start.x, m.start.y, m.start.z, m.end.x, m.end.y, m.end.z];
+        key(p)
+            .iter()
+            .zip(key(q).iter())
+            .map(|(x, y)| x.total_cmp(y))
+            .find(|o| o.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal)
+            .then_with(|| p.captures.cmp(&q.captures))
+    });
+    map
+}
+
+/// Every usable segment of every capture in the world frame, in canonical order.
+fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
+    let mut keyed: Vec<([f64; 6], Item)> = Vec::new();
+    for c in captures {
+        let rig = Point3::from(c.rig_to_world.translation.vector);
+        let tol = |p: &Point3<f64>| params.lateral_m.max(params.lateral_rel * (p - rig).norm());
+        for s in c.segments {
+            let (a, b) = (c.rig_to_world * s.start, c.rig_to_world * s.end);
+            let len = (b - a).norm();
+            let finite = a.iter().chain(b.iter()).all(|v| v.is_finite());
+            if !finite || !(len > MIN_LENGTH_M) {
+                continue;
+            }
+            let key = [s.start.x, s.start.y, s.start.z, s.end.x, s.end.y, s.end.z];
+            let item = Item {
+                a,
+                b,
+                dir: (b - a) / len,
+                len,
+                capture: c.id,
+                tol_a: tol(&a),
+                tol_b: tol(&b),
+            };
+            keyed.push((key, item));
+        }
+    }
+    keyed.sort_by(|(k1, s1), (k2, s2)| {
+        s1.capture.cmp(&s2.capture).then_with(|| {
+            k1.iter()
+                .zip(k2)
+                .map(|(x, y)| x.total_cmp(y))
+                .find(|o| o.is_ne())
+                .unwrap_or(std::cmp::Ordering::Equal)
+        })
+    });
+    keyed.into_iter().map(|(_, s)| s).collect()
+}
+
+fn envelope(s: &Item, inflate: f64) -> Rectangle<[f64; 3]> {
+    let lo = s.a.inf(&s.b) - Vector3::repeat(inflate);
+    let hi = s.a.sup(&s.b) + Vector3::repeat(inflate);
+    Rectangle::from_corners(lo.into(), hi.into())
+}
+
+/// True when items `i` and `j` are one line: directions within the angle, the shorter's
+/// endpoints within tolerance of the longer's line, and at most `max_gap_m` apart along it.
+/// Symmetric: the roles depend on length, ties on index, not on the argument order.
+fn linked(items: &[Item], i: usize, j: usize, cos_max: f64, params: &FuseParams) -> bool {
+    let (short, long) = if (items[i].len, i) < (items[j].len, j) {
+        (&items[i], &items[j])
+    } else {
+        (&items[j], &items[i])
+    };
+    if short.dir.dot(&long.dir).abs() < cos_max {
+        return false;
+    }
+    let line = Line {
+        c: long.a,
+        d: long.dir,
+    };
+    let t_long = long.tol_max();
+    for (p, t) in [(&short.a, short.tol_a), (&short.b, short.tol_b)] {
+        if line.distance(p) > t.hypot(t_long) {
+            return false;
+        }
+    }
+    let (t0, t1) = (line.at(&short.a), line.at(&short.b));
+    let gap = (t0.min(t1) - long.len).max(-t0.max(t1));
+    gap <= params.max_gap_m
+}
+
+/// True when `s` lies along `line`: direction within the angle, endpoints within
+/// [`FIT_SLACK`] times their tolerance.
+fn fits(s: &Item, line: &Line, cos_max: f64) -> bool {
+    s.dir.dot(&line.d).abs() >= cos_max
+        && line.distance(&s.a) <= FIT_SLACK * s.tol_a
+        && line.distance(&s.b) <= FIT_SLACK * s.tol_b
+}
+
+/// A component as groups that each fit one line: itself when it does, else greedy growth.
+fn split(items: &[Item], members: &[usize], cos_max: f64, params: &FuseParams) -> Vec<Vec<usize>> {
+    if members.len() == 1 {
+        return vec![members.to_vec()];
+    }
+    let line = fit(items, members);
+    if members.iter().all(|&m| fits(&items[m], &line, cos_max)) {
+        return vec![members.to_vec()];
+    }
+    let mut order = members.to_vec();
+    order.sort_by(|&p, &q| items[q].len.total_cmp(&items[p].len).then(p.cmp(&q)));
+    let mut taken = vec![false; order.len()];
+    let mut groups = Vec::new();
+    for k in 0..order.len() {
+        if taken[k] {
+            continue;
+        }
+        taken[k] = true;
+        let mut group = vec![order[k]];
+        let mut line = fit(items, &group);
+        let mut extent = extent_of(items, &group, &line);
+        loop {
+            let mut added = false;
+            for (l, &m) in order.iter().enumerate() {
+                if taken[l] || !fits(&items[m], &line, cos_max) {
+                    continue;
+                }
+                let (t0, t1) = (line.at(&items[m].a), line.at(&items[m].b));
+                let gap = (t0.min(t1) - extent.1).max(extent.0 - t0.max(t1));
+                if gap <= params.max_gap_m {
+                    taken[l] = true;
+                    group.push(m);
+                    added = true;
+                }
+            }
+            if !added {
+                break;
+            }
+            group.sort_unstable();
+            line = fit(items, &group);
+            extent = extent_of(items, &group, &line);
+        }
+        group.sort_unstable();
+        groups.push(group);
+    }
+    groups
+}
+
+/// Smallest and largest projection of the members' endpoints on `line`.
+fn extent_of(items: &[Item], group: &[usize], line: &Line) -> (f64, f64) {
+    group
+        .iter()
+        .flat_map(|&m| [line.at(&items[m].a), line.at(&items[m].b)])
+        .fold((f64::MAX, f64::MIN), |(lo, hi), t| (lo.min(t), hi.max(t)))
+}
+
+/// Weighted total-least-squares line of `group`: each member is a uniform density along its
+/// length, weighted by 1/tolerance² (far, less precise observations count less), so the
+/// weight of a member is its length over its tolerance squared. The direction is the
+/// principal axis of the weighted scatter, made canonical (largest component positive).
+fn fit(items: &[Item], group: &[usize]) -> Line {
+    if let [m] = group {
+        let s = &items[*m];
+        return Line {
+            c: s.a,
+            d: canonical(s.dir),
+        };
+    }
+    let weight = |s: &Item| s.len / (0.5 * (s.tol_a + s.tol_b)).powi(2);
+    let mut total = 0.0;
+    let mut sum = Vector3::zeros();
+    for &m in group {
+        let s = &items[m];
+        let w = weight(s);
+        total += w;
+        sum += w * nalgebra::center(&s.a, &s.b).coords;
+    }
+    let c = Point3::from(sum / total);
+    let mut scatter = Matrix3::zeros();
+    for &m in group {
+        let s = &items[m];
+        let w = weight(s);
+        let r = nalgebra::center(&s.a, &s.b) - c;
+        scatter += w * (r * r.transpose() + (s.len * s.len / 12.0) * (s.dir * s.dir.transpose()));
+    }
+    let eigen = SymmetricEigen::new(scatter);
+    let k = eigen.eigenvalues.imax();
+    Line {
+        c,
+        d: canonical(eigen.eigenvectors.column(k).normalize()),
+    }
+}
+
+/// `d` or `−d`, whichever has its largest-magnitude component positive.
+fn canonical(d: Vector3<f64>) -> Vector3<f64> {
+    if d[d.iamax()] < 0.0 {
+        -d
+    } else {
+        d
+    }
+}
+
+/// One map segment from a group: the fitted line between the extreme projections.
+fn merge(items: &[Item], group: &[usize]) -> Option<MapSegment> {
+    let line = fit(items, group);
+    let (lo, hi) = extent_of(items, group, &line);
+    let mut captures: Vec<u32> = group.iter().map(|&m| items[m].capture).collect();
+    captures.sort_unstable();
+    captures.dedup();
+    let (start, end) = (line.c + line.d * lo, line.c + line.d * hi);
+    let finite = start.iter().chain(end.iter()).all(|v| v.is_finite());
+    finite.then(|| MapSegment {
+        start,
+        end,
+        observations: captures.len() as u32,
+        captures,
+    })
+}
+
+/// Disjoint sets over `0..n`, union by size with path halving.
+struct UnionFind {
+    parent: Vec<usize>,
+    size: Vec<usize>,
+}
+
+impl UnionFind {
+    fn new(n: usize) -> UnionFind {
+        UnionFind {
+            parent: (0..n).collect(),
+            size: vec![1; n],
+        }
+    }
+
+    fn find(&mut self, mut i: usize) -> usize {
+        while self.parent[i] != i {
+            self.parent[i] = self.parent[self.parent[i]];
+            i = self.parent[i];
+        }
+        i
+    }
+
+    fn union(&mut self, a: usize, b: usize) {
+        let (mut a, mut b) = (self.find(a), self.find(b));
+        if a == b {
+            return;
+        }
+        if self.size[a] < self.size[b] {
+            std::mem::swap(&mut a, &mut b);
+        }
+        self.parent[b] = a;
+        self.size[a] += self.size[b];
+    }
+}

@@ -1,0 +1,359 @@
+//! Tests of [`fuse`] on small hand-made sessions: merging, separation, filtering, order
+//! independence, chaining, and invariance under a rigid motion of the whole session.
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use proptest::prelude::*;
+
+use super::{fuse, Capture, FuseParams, MapSegment};
+use crate::segment::Segment3;
+
+/// A deterministic noise source (xorshift), uniform in [-1, 1].
+struct Noise(u64);
+
+impl Noise {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+    }
+
+    fn vec(&mut self, scale: f64) -> Vector3<f64> {
+        Vector3::new(self.next(), self.next(), self.next()) * scale
+    }
+}
+
+fn pose(x: f64, y: f64, yaw_deg: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(x, y, 1.2),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_deg.to_radians()),
+    )
+}
+
+/// World segments `(a, b)` as seen from `pose`, each endpoint moved by up to `noise` metres.
+fn seen(
+    pose: &Isometry3<f64>,
+    world: &[(Point3<f64>, Point3<f64>)],
+    noise: &mut Noise,
+    amount: f64,
+) -> Vec<Segment3> {
+    let inv = pose.inverse();
+    world
+        .iter()
+        .map(|(a, b)| Segment3 {
+            start: inv * a + noise.vec(amount),
+            end: inv * b + noise.vec(amount),
+        })
+        .collect()
+}
+
+#[test]
+fn default_params_pass_and_bad_ones_name_their_field() {
+    FuseParams::default().check().unwrap();
+    let bad = |f: fn(&mut FuseParams)| {
+        let mut p = FuseParams::default();
+        f(&mut p);
+        p.check().unwrap_err().field
+    };
+    assert_eq!(bad(|p| p.lateral_m = 0.0), "lateral_m");
+    assert_eq!(bad(|p| p.lateral_rel = f64::NAN), "lateral_rel");
+    assert_eq!(bad(|p| p.angle_deg = 90.0), "angle_deg");
+    assert_eq!(bad(|p| p.max_gap_m = -1.0), "max_gap_m");
+    assert_eq!(bad(|p| p.min_observations = 0), "min_observations");
+}
+
+fn p(x: f64, y: f64, z: f64) -> Point3<f64> {
+    Point3::new(x, y, z)
+}
+
+#[test]
+fn one_wall_edge_seen_twice_is_one_segment_with_two_observations() {
+    let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
+    let (pa, pb) = (pose(1.0, 0.0, 0.0), pose(2.0, 0.5, 25.0));
+    let mut n = Noise(7);
+    let (sa, sb) = (
+        seen(&pa, &wall, &mut n, 0.005),
+        seen(&pb, &wall, &mut n, 0.005),
+    );
+    let captures = [
+        Capture {
+            id: 4,
+            rig_to_world: pa,
+            segments: &sa,
+        },
+        Capture {
+            id: 9,
+            rig_to_world: pb,
+            segments: &sb,
+        },
+    ];
+    let map = fuse(&captures, &FuseParams::default());
+    assert_eq!(map.len(), 1, "{map:?}");
+    assert_eq!(map[0].observations, 2);
+    assert_eq!(map[0].captures, vec![4, 9]);
+    for q in [map[0].start, map[0].end] {
+        assert!((q.y - 3.0).abs() < 0.01 && (q.z - 0.8).abs() < 0.01, "{q}");
+    }
+    assert!((map[0].length() - 2.0).abs() < 0.02);
+}
+
+#[test]
+fn fragments_of_one_capture_count_once() {
+    let pa = pose(0.0, 0.0, 0.0);
+    let world = [
+        (p(-1.0, 3.0, 1.0), p(0.2, 3.0, 1.0)),
+        (p(0.22, 3.0, 1.0), p(1.0, 3.0, 1.0)),
+    ];
+    let s = seen(&pa, &world, &mut Noise(3), 0.0);
+    let map = fuse(
+        &[Capture {
+            id: 1,
+            rig_to_world: pa,
+            segments: &s,
+        }],
+        &FuseParams::default(),
+    );
+    assert_eq!(map.len(), 1);
+    assert_eq!((map[0].observations, map[0].captures.clone()), (1, vec![1]));
+    assert!((map[0].length() - 2.0).abs() < 1e-9);
+}
+
+#[test]
+fn parallel_edges_ten_centimetres_apart_stay_separate() {
+    let world = [
+        (p(0.0, 3.0, 1.0), p(2.0, 3.0, 1.0)),
+        (p(0.0, 3.0, 1.1), p(2.0, 3.0, 1.1)),
+        (p(0.0, 3.1, 0.5), p(2.0, 3.1, 0.5)),
+        (p(0.0, 3.0, 0.5), p(2.0, 3.0, 0.5)),
+    ];
+    let poses = [pose(1.0, 0.0, 0.0), pose(1.5, 0.3, -20.0)];
+    let mut n = Noise(11);
+    let segs: Vec<_> = poses
+        .iter()
+        .map(|q| seen(q, &world, &mut n, 0.005))
+        .collect();
+    let captures: Vec<_> = (0..2)
+        .map(|i| Capture {
+            id: i as u32,
+            rig_to_world: poses[i],
+            segments: &segs[i],
+        })
+        .collect();
+    let map = fuse(&captures, &FuseParams::default());
+    assert_eq!(map.len(), 4, "{map:?}");
+    assert!(map.iter().all(|m| m.observations == 2));
+}
+
+#[test]
+fn segments_seen_once_are_dropped_with_min_observations_two() {
+    let common = [(p(0.0, 3.0, 1.0), p(2.0, 3.0, 1.0))];
+    let poses = [pose(1.0, 0.0, 0.0), pose(1.2, 0.0, 15.0)];
+    let mut n = Noise(5);
+    let mut a = seen(&poses[0], &common, &mut n, 0.003);
+    a.extend(seen(
+        &poses[0],
+        &[(p(0.0, 4.0, 0.0), p(0.0, 4.0, 2.0))],
+        &mut n,
+        0.0,
+    ));
+    let b = seen(&poses[1], &common, &mut n, 0.003);
+    let captures = [
+        Capture {
+            id: 0,
+            rig_to_world: poses[0],
+            segments: &a,
+        },
+        Capture {
+            id: 1,
+            rig_to_world: poses[1],
+            segments: &b,
+        },
+    ];
+    assert_eq!(fuse(&captures, &FuseParams::default()).len(), 2);
+    let two = FuseParams {
+        min_observations: 2,
+        ..FuseParams::default()
+    };
+    let map = fuse(&captures, &two);
+    assert_eq!(map.len(), 1);
+    assert_eq!(map[0].captures, vec![0, 1]);
+}
+
+/// A room of `edges` random edges, seen in fragments with noise from `poses` turning poses.
+fn session(seed: u64, edges: usize, poses: usize) -> (Vec<Isometry3<f64>>, Vec<Vec<Segment3>>) {
+    let mut n = Noise(seed);
+    let world: Vec<_> = (0..edges)
+        .map(|_| {
+            let a = p(3.0 * n.next(), 3.0 * n.next(), 1.0 + n.next());
+            (a, a + n.vec(1.0))
+        })
+        .collect();
+    let poses: Vec<_> = (0..poses)
+        .map(|k| {
+            pose(
+                0.1 * n.next(),
+                0.1 * n.next(),
+                360.0 * k as f64 / poses as f64,
+            )
+        })
+        .collect();
+    let segs = poses
+        .iter()
+        .map(|q| {
+            let mut out = Vec::new();
+            for (a, b) in &world {
+                if n.next() < -0.3 {
+                    continue; // not seen from here
+                }
+                // Sometimes in two fragments.
+                let cut = 0.5 + 0.3 * n.next();
+                let m = a + (b - a) * cut;
+                if n.next() > 0.4 {
+                    out.extend(seen(q, &[(*a, m), (m, *b)], &mut n, 0.004));
+                } else {
+                    out.extend(seen(q, &[(*a, *b)], &mut n, 0.004));
+                }
+            }
+            out
+        })
+        .collect();
+    (poses, segs)
+}
+
+fn captures_of<'a>(poses: &[Isometry3<f64>], segs: &'a [Vec<Segment3>]) -> Vec<Capture<'a>> {
+    poses
+        .iter()
+        .zip(segs)
+        .enumerate()
+        .map(|(i, (q, s))| Capture {
+            id: i as u32,
+            rig_to_world: *q,
+            segments: s,
+        })
+        .collect()
+}
+
+#[test]
+fn the_map_does_not_depend_on_capture_order() {
+    let (poses, segs) = session(42, 120, 12);
+    let captures = captures_of(&poses, &segs);
+    let params = FuseParams::default();
+    let map = fuse(&captures, &params);
+    assert!(map.iter().any(|m| m.observations > 3), "fusion happened");
+    let mut shuffled = captures.clone();
+    let mut n = Noise(99);
+    for i in (1..shuffled.len()).rev() {
+        let j = ((n.next() + 1.0) * 0.5 * (i + 1) as f64) as usize;
+        shuffled.swap(i, j.min(i));
+    }
+    assert_ne!(
+        shuffled.iter().map(|c| c.id).collect::<Vec<_>>(),
+        (0..12).collect::<Vec<_>>()
+    );
+    assert_eq!(fuse(&shuffled, &params), map, "bit for bit");
+    shuffled.reverse();
+    assert_eq!(fuse(&shuffled, &params), map);
+}
+
+#[test]
+fn a_gently_bending_chain_is_split_into_straight_pieces() {
+    // 24 chords of 0.3 m along an arc, each turning 1° from the last: neighbours link, but
+    // the whole chain turns 23°, so one line cannot hold it.
+    let (radius, step) = (0.15 / 0.5f64.to_radians().sin(), 1f64.to_radians());
+    let centre = p(0.0, 3.0 + radius, 1.0);
+    let at = |k: usize| {
+        let t = -std::f64::consts::FRAC_PI_2 + step * k as f64;
+        centre + Vector3::new(radius * t.cos(), radius * t.sin(), 0.0)
+    };
+    let world: Vec<_> = (0..24).map(|k| (at(k), at(k + 1))).collect();
+    let q = pose(0.0, 0.0, 0.0);
+    let s = seen(&q, &world, &mut Noise(1), 0.0);
+    let params = FuseParams::default();
+    let map = fuse(
+        &[Capture {
+            id: 0,
+            rig_to_world: q,
+            segments: &s,
+        }],
+        &params,
+    );
+    assert!(map.len() >= 3, "{}", map.len());
+    for m in &map {
+        for t in [0.0, 0.5, 1.0] {
+            let x = m.start + (m.end - m.start) * t;
+            let off = ((x - centre).norm() - radius).abs();
+            assert!(off < 0.05, "{off} m off the arc");
+        }
+    }
+}
+
+#[test]
+fn empty_and_degenerate_input_give_an_empty_map() {
+    let q = pose(0.0, 0.0, 0.0);
+    let degenerate = [
+        Segment3 {
+            start: p(1.0, 1.0, 1.0),
+            end: p(1.0, 1.0, 1.0),
+        },
+        Segment3 {
+            start: p(f64::NAN, 1.0, 1.0),
+            end: p(1.0, 2.0, 1.0),
+        },
+    ];
+    let c = Capture {
+        id: 0,
+        rig_to_world: q,
+        segments: &degenerate,
+    };
+    assert!(fuse(&[], &FuseParams::default()).is_empty());
+    assert!(fuse(&[c], &FuseParams::default()).is_empty());
+}
+
+fn close(a: &Point3<f64>, b: &Point3<f64>) -> bool {
+    (a - b).norm() < 1e-7
+}
+
+fn same_up_to_orientation(m: &MapSegment, e: &MapSegment) -> bool {
+    m.captures == e.captures
+        && ((close(&m.start, &e.start) && close(&m.end, &e.end))
+            || (close(&m.start, &e.end) && close(&m.end, &e.start)))
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// Moving every pose by one rigid motion moves the map by it (the tolerances depend on
+    /// ranges only, and the canonical order on rig-frame coordinates).
+    #[test]
+    fn a_rigid_motion_of_the_session_moves_the_map(
+        axis in (-1.0f64..1.0, -1.0f64..1.0, 0.2f64..1.0),
+        angle in -3.1f64..3.1,
+        shift in (-20.0f64..20.0, -20.0f64..20.0, -5.0f64..5.0),
+        seed in 1u64..1000,
+    ) {
+        let (poses, segs) = session(seed, 40, 6);
+        let params = FuseParams::default();
+        let map = fuse(&captures_of(&poses, &segs), &params);
+        let motion = Isometry3::from_parts(
+            Translation3::new(shift.0, shift.1, shift.2),
+            UnitQuaternion::from_axis_angle(
+                &nalgebra::Unit::new_normalize(Vector3::new(axis.0, axis.1, axis.2)),
+                angle,
+            ),
+        );
+        let moved_poses: Vec<_> = poses.iter().map(|q| motion * q).collect();
+        let moved = fuse(&captures_of(&moved_poses, &segs), &params);
+        prop_assert_eq!(moved.len(), map.len());
+        for e in &map {
+            let expected = MapSegment {
+                start: motion * e.start,
+                end: motion * e.end,
+                ..e.clone()
+            };
+            prop_assert!(
+                moved.iter().any(|m| same_up_to_orientation(m, &expected)),
+                "{:?} missing", expected
+            );
+        }
+    }
+}

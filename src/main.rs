@@ -61,6 +61,16 @@ struct ServeArgs {
     /// Most segments in one list of a request (default 100,000).
     #[arg(long)]
     max_segments_per_list: Option<usize>,
+    /// Where sessions live: `embedded` (default: a file under --data-dir, no server needed)
+    /// or `redis://HOST:PORT[/DB]` (shared by replicas).
+    #[arg(long)]
+    store: Option<String>,
+    /// The embedded store's directory (default `data`).
+    #[arg(long)]
+    data_dir: Option<PathBuf>,
+    /// Sessions unused this long expire with their captures, seconds (default 86400).
+    #[arg(long)]
+    session_ttl_s: Option<u64>,
     /// Log one JSON object per line.
     #[arg(long)]
     log_json: bool,
@@ -279,7 +289,7 @@ fn run_demo(args: &DemoArgs) -> Result<(), Failure> {
 
 fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     use std::sync::Arc;
-    use trinocular::service::{config::Config, server, Service};
+    use trinocular::service::{config::Config, server, store, Service};
     let file = match &args.config {
         Some(path) => Some(read(path)?),
         None => None,
@@ -308,6 +318,15 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     if let Some(n) = args.max_segments_per_list {
         config.limits.max_segments_per_list = n;
     }
+    if let Some(url) = &args.store {
+        config.store.url = url.clone();
+    }
+    if let Some(dir) = &args.data_dir {
+        config.store.data_dir = dir.clone();
+    }
+    if let Some(s) = args.session_ttl_s {
+        config.store.session_ttl_s = s;
+    }
     if args.log_json {
         config.log.json = true;
     }
@@ -331,9 +350,15 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
         limits = ?limits,
         "effective configuration"
     );
-    let service = Arc::new(Service::new(limits.clone()).context("cannot start the service")?);
     let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     runtime.block_on(async {
+        let ttl = config.store.session_ttl();
+        let store = store::open(&config.store.url, &config.store.data_dir, ttl)
+            .await
+            .context("cannot open the session store")?;
+        tracing::info!(store = %store.describe(), "sessions");
+        let service =
+            Arc::new(Service::new(limits.clone(), store, ttl).context("cannot start the service")?);
         let running = server::start(
             Arc::clone(&service),
             config.server.grpc_addr,

@@ -244,7 +244,10 @@ fn encoded<T: Message + serde::Serialize>(message: &T, protobuf: bool) -> Respon
 }
 
 /// The answer to a session call: the message in the request's format, or the error.
-fn answer<T: Message + serde::Serialize>(result: Result<T, ServiceError>, protobuf: bool) -> Response {
+fn answer<T: Message + serde::Serialize>(
+    result: Result<T, ServiceError>,
+    protobuf: bool,
+) -> Response {
     match result {
         Ok(message) => encoded(&message, protobuf),
         Err(e) => error_response(&e),
@@ -259,7 +262,10 @@ fn query_param<'a>(uri: &'a Uri, name: &str) -> Option<&'a str> {
 }
 
 /// Reads a whole body, within the body limit.
-async fn read_body(request: axum::extract::Request, max_bytes: usize) -> Result<Bytes, ServiceError> {
+async fn read_body(
+    request: axum::extract::Request,
+    max_bytes: usize,
+) -> Result<Bytes, ServiceError> {
     Bytes::from_request(request, &())
         .await
         .map_err(|e| body_error(e.status(), e.body_text(), max_bytes))
@@ -289,7 +295,10 @@ async fn create_session(
 }
 
 async fn list_sessions(State(service): State<Arc<Service>>, headers: HeaderMap) -> Response {
-    answer(service.list_sessions("http").await, wants_protobuf(&headers))
+    answer(
+        service.list_sessions("http").await,
+        wants_protobuf(&headers),
+    )
 }
 
 async fn get_session(
@@ -297,7 +306,10 @@ async fn get_session(
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Response {
-    answer(service.get_session(&id, "http").await, wants_protobuf(&headers))
+    answer(
+        service.get_session(&id, "http").await,
+        wants_protobuf(&headers),
+    )
 }
 
 async fn delete_session(
@@ -306,7 +318,10 @@ async fn delete_session(
     headers: HeaderMap,
 ) -> Response {
     let result = service.delete_session(&id, "http").await;
-    answer(result.map(|()| pb::DeleteSessionResponse {}), wants_protobuf(&headers))
+    answer(
+        result.map(|()| pb::DeleteSessionResponse {}),
+        wants_protobuf(&headers),
+    )
 }
 
 /// `Accept: application/x-protobuf` (for GETs, which have no body to take the format from).
@@ -346,7 +361,10 @@ async fn add_capture(
         if !capture.session_id.is_empty() && capture.session_id != id {
             return Err(ServiceError::Input(InputError::new(
                 "session_id",
-                format!("{:?} differs from the session of the URL, {id:?}", capture.session_id),
+                format!(
+                    "{:?} differs from the session of the URL, {id:?}",
+                    capture.session_id
+                ),
             )));
         }
         capture.session_id = id;
@@ -398,13 +416,23 @@ fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response
         let disposition = format!("inline; filename=\"map-{}.{ext}\"", map.session_id);
         let mut response = ([(header::CONTENT_TYPE, content_type)], body).into_response();
         if let Ok(v) = header::HeaderValue::from_str(&disposition) {
-            response.headers_mut().insert(header::CONTENT_DISPOSITION, v);
+            response
+                .headers_mut()
+                .insert(header::CONTENT_DISPOSITION, v);
         }
         response
     };
     Ok(match format {
-        "ply" => file("application/x-ply", "ply", export::to_ply(&map.segments).into_bytes()),
-        "obj" => file("model/obj", "obj", export::to_obj(&map.segments).into_bytes()),
+        "ply" => file(
+            "application/x-ply",
+            "ply",
+            export::to_ply(&map.segments).into_bytes(),
+        ),
+        "obj" => file(
+            "model/obj",
+            "obj",
+            export::to_obj(&map.segments).into_bytes(),
+        ),
         "svg" => file(
             "image/svg+xml",
             "svg",
@@ -413,8 +441,10 @@ fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response
         "png" => file(
             "image/png",
             "png",
-            export::top_view_png(&map.segments, &map.poses).map_err(|e| ServiceError::Internal {
-                detail: format!("cannot encode the map's PNG: {e}"),
+            export::top_view_png(&map.segments, &map.poses).map_err(|e| {
+                ServiceError::Internal {
+                    detail: format!("cannot encode the map's PNG: {e}"),
+                }
             })?,
         ),
         _ => encoded(&map_to_pb(map), protobuf),
@@ -457,9 +487,7 @@ impl Upload {
                     upload.calibration = Some(from_json("calibration", &text(&name, &bytes)?)?)
                 }
                 "options" => upload.options = Some(from_json("options", &text(&name, &bytes)?)?),
-                "segments" => {
-                    upload.segments = Some(from_json("segments", &text(&name, &bytes)?)?)
-                }
+                "segments" => upload.segments = Some(from_json("segments", &text(&name, &bytes)?)?),
                 "pose" => {
                     let text = text(&name, &bytes)?;
                     // A bare list of 16 numbers is accepted too: the easy thing to type.
@@ -537,7 +565,11 @@ impl Upload {
     fn capture(mut self) -> Result<pb::AddCaptureRequest, ServiceError> {
         if self.calibration.is_some() || self.options.is_some() {
             return Err(ServiceError::Input(InputError::new(
-                if self.calibration.is_some() { "calibration" } else { "options" },
+                if self.calibration.is_some() {
+                    "calibration"
+                } else {
+                    "options"
+                },
                 "a session's captures use the calibration and options given when it was created",
             )));
         }

@@ -18,13 +18,19 @@ pub const MAX_NAME_CHARS: usize = 200;
 /// The rigid transform of a `Pose` (16 doubles, row-major 4x4), or an error naming `field`.
 pub fn pose_from_pb(pose: Option<&pb::Pose>, field: &str) -> Result<Isometry3<f64>, InputError> {
     let pb::Pose { matrix } = pose.ok_or_else(|| {
-        InputError::new(field, "missing: a row-major 4x4 rigid transform, 16 numbers")
+        InputError::new(
+            field,
+            "missing: a row-major 4x4 rigid transform, 16 numbers",
+        )
     })?;
     let field = format!("{field}.matrix");
     if matrix.len() != 16 {
         return Err(InputError::new(
             field,
-            format!("needs exactly 16 numbers (row-major 4x4), got {}", matrix.len()),
+            format!(
+                "needs exactly 16 numbers (row-major 4x4), got {}",
+                matrix.len()
+            ),
         ));
     }
     if let Some(i) = matrix.iter().position(|v| !v.is_finite()) {
@@ -34,7 +40,11 @@ pub fn pose_from_pb(pose: Option<&pb::Pose>, field: &str) -> Result<Isometry3<f6
         ));
     }
     let m = Matrix4::from_row_slice(matrix);
-    if m.row(3).iter().zip([0.0, 0.0, 0.0, 1.0]).any(|(a, b)| *a != b) {
+    if m.row(3)
+        .iter()
+        .zip([0.0, 0.0, 0.0, 1.0])
+        .any(|(a, b)| *a != b)
+    {
         return Err(InputError::new(
             field,
             format!(

@@ -188,13 +188,11 @@ impl Service {
         let job = self.pool.run(move |abandoned| -> Result<_, RunError> {
             let input = api::match_request(&read()?, &limits)?;
             let stop = || abandoned.is_set();
-            let response = input
-                .run_until(Checkpoint::new(&stop))
-                .inspect_err(|e| {
-                    if let RunError::Stopped { stage } = e {
-                        stopped.record_stopped(stage);
-                    }
-                })?;
+            let response = input.run_until(Checkpoint::new(&stop)).inspect_err(|e| {
+                if let RunError::Stopped { stage } = e {
+                    stopped.record_stopped(stage);
+                }
+            })?;
             let encoded = encode(&response);
             Ok((response, encoded))
         });

@@ -73,7 +73,13 @@ fn check_id(id: &str) -> Result<(), ServiceError> {
 
 impl Service {
     /// Counts and logs a session call under `route`.
-    fn observe<T>(&self, transport: &str, route: &str, start: Instant, result: &Result<T, ServiceError>) {
+    fn observe<T>(
+        &self,
+        transport: &str,
+        route: &str,
+        start: Instant,
+        result: &Result<T, ServiceError>,
+    ) {
         let seconds = start.elapsed().as_secs_f64();
         match result {
             Ok(_) => {
@@ -86,7 +92,8 @@ impl Service {
                     tracing::error!(detail = %detail, route, "internal error");
                 }
                 tracing::info!(transport, route, code = ?e.code(), ms = seconds * 1e3, error = %e, "session");
-                self.metrics.record(transport, route, e.code(), seconds, None);
+                self.metrics
+                    .record(transport, route, e.code(), seconds, None);
             }
         }
     }
@@ -153,7 +160,11 @@ impl Service {
         result
     }
 
-    pub async fn get_session(&self, id: &str, transport: &str) -> Result<pb::Session, ServiceError> {
+    pub async fn get_session(
+        &self,
+        id: &str,
+        transport: &str,
+    ) -> Result<pb::Session, ServiceError> {
         let start = Instant::now();
         let result = async {
             check_id(id)?;
@@ -165,7 +176,10 @@ impl Service {
         result
     }
 
-    pub async fn list_sessions(&self, transport: &str) -> Result<pb::ListSessionsResponse, ServiceError> {
+    pub async fn list_sessions(
+        &self,
+        transport: &str,
+    ) -> Result<pb::ListSessionsResponse, ServiceError> {
         let start = Instant::now();
         let result = async {
             let sessions = self.store.list().await?;
@@ -274,7 +288,9 @@ impl Service {
                 .or(stored.map_options.and_then(|m| m.min_observations))
                 .unwrap_or(1);
             let session_id = id.to_string();
-            let job = self.pool.run(move |_| fuse_stored(session_id, &captures, min_observations));
+            let job = self
+                .pool
+                .run(move |_| fuse_stored(session_id, &captures, min_observations));
             job.await?
         }
         .await;

@@ -103,6 +103,9 @@ impl ServerProcess {
                 "127.0.0.1:0",
                 "--threads",
                 "1",
+                // Room for the tests' concurrent streams: they test stores, not admission.
+                "--max-jobs",
+                "64",
             ])
             .args(args)
             .env("RUST_LOG", "info")
@@ -145,5 +148,17 @@ impl ServerProcess {
 impl Drop for ServerProcess {
     fn drop(&mut self) {
         self.kill9();
+    }
+}
+
+/// `reqwest` without its `json` feature: parse the body with serde_json.
+#[allow(async_fn_in_trait)]
+pub trait JsonBody {
+    async fn json_body(self) -> serde_json::Value;
+}
+
+impl JsonBody for reqwest::Response {
+    async fn json_body(self) -> serde_json::Value {
+        serde_json::from_str(&self.text().await.expect("body")).expect("JSON body")
     }
 }

@@ -5,7 +5,9 @@ use std::sync::Arc;
 
 use prost::Message;
 use trinocular::api::{self, pb};
-use trinocular::service::{server, Limits, Service};
+use trinocular::service::{server, Limits};
+
+use crate::common::JsonBody;
 
 fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread()
@@ -311,7 +313,7 @@ fn too_many_segments_in_a_list_is_refused_naming_the_list_and_the_limit() {
 #[test]
 fn health_and_readiness() {
     runtime().block_on(async {
-        let service = Arc::new(Service::new(small_limits()).unwrap());
+        let service = crate::common::embedded_service(small_limits()).await;
         let any = "127.0.0.1:0".parse().unwrap();
         let running = server::start(Arc::clone(&service), any, any).await.unwrap();
         let http = reqwest::Client::new();
@@ -326,17 +328,6 @@ fn health_and_readiness() {
         assert_eq!(get("/healthz").await.unwrap().status(), 200);
         running.shutdown().await;
     });
-}
-
-/// `reqwest` without its `json` feature: parse the body with serde_json.
-trait JsonBody {
-    async fn json_body(self) -> serde_json::Value;
-}
-
-impl JsonBody for reqwest::Response {
-    async fn json_body(self) -> serde_json::Value {
-        serde_json::from_str(&self.text().await.expect("body")).expect("JSON body")
-    }
 }
 
 /// The grpcurl binary: `$GRPCURL`, or `grpcurl` on the PATH (`.ci/run` installs one).

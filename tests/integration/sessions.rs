@@ -9,7 +9,7 @@ use trinocular::api::{self, pb};
 use trinocular::service::{server, Limits};
 use trinocular::synth::{panoramic_session, Defects};
 
-use crate::common::{embedded_service, scratch_dir, ServerProcess};
+use crate::common::{embedded_service, scratch_dir, JsonBody, ServerProcess};
 
 fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread()
@@ -108,7 +108,8 @@ fn same_geometry(a: &pb::Map, b: &pb::Map) {
 
 #[test]
 fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
-    let (calibration, captures) = panorama(6);
+    // 30 degrees apart: neighbouring views overlap (the rig sees about 46 degrees).
+    let (calibration, captures) = panorama(12);
     runtime().block_on(async {
         let running = start().await;
         let mut grpc = connect(running.grpc_addr).await;
@@ -125,7 +126,10 @@ fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
         assert_eq!(created.status(), 200);
         let session: pb::Session = api::from_json("s", &created.text().await.unwrap()).unwrap();
         assert_eq!(session.id.len(), 32);
-        assert_eq!((session.name.as_str(), session.captures), ("office tour", 0));
+        assert_eq!(
+            (session.name.as_str(), session.captures),
+            ("office tour", 0)
+        );
 
         // Captures alternately over gRPC and HTTP (protobuf).
         for (i, capture) in captures.iter().enumerate() {
@@ -221,7 +225,11 @@ fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
             assert_eq!(reply.status(), 200, "{format}");
             assert_eq!(reply.headers()["content-type"], content_type);
             let body = reply.bytes().await.unwrap();
-            assert!(body.starts_with(starts), "{format}: {:?}", &body[..8.min(body.len())]);
+            assert!(
+                body.starts_with(starts),
+                "{format}: {:?}",
+                &body[..8.min(body.len())]
+            );
             if format == "png" {
                 let picture = image::load_from_memory(&body).expect("a PNG that decodes");
                 assert!(picture.width() >= 200 && picture.height() >= 200);
@@ -255,12 +263,15 @@ fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
 
 #[test]
 fn the_map_does_not_depend_on_the_order_of_the_captures() {
-    let (calibration, captures) = panorama(6);
+    let (calibration, captures) = panorama(12);
     runtime().block_on(async {
         let running = start().await;
         let mut grpc = connect(running.grpc_addr).await;
         let mut maps = Vec::new();
-        for order in [vec![0, 1, 2, 3, 4, 5], vec![5, 3, 1, 0, 4, 2]] {
+        for order in [
+            (0..12).collect::<Vec<usize>>(),
+            vec![7, 3, 11, 0, 5, 9, 1, 10, 2, 8, 4, 6],
+        ] {
             let session = grpc
                 .create_session(create_request(&calibration))
                 .await
@@ -348,7 +359,7 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
                 .await
                 .unwrap();
             assert_eq!(reply.status(), 400);
-            let body: serde_json::Value = reply.json().await.unwrap();
+            let body = reply.json_body().await;
             assert_eq!(body["error"]["field"], field);
         }
         let after = grpc
@@ -368,7 +379,10 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
             .await
             .unwrap_err();
         assert_eq!(status.code(), tonic::Code::InvalidArgument);
-        assert!(status.message().starts_with("calibration.cameras[1]"), "{status:?}");
+        assert!(
+            status.message().starts_with("calibration.cameras[1]"),
+            "{status:?}"
+        );
 
         // Unknown sessions: NOT_FOUND / 404 on every call.
         let unknown = "0123456789abcdef0123456789abcdef".to_string();
@@ -399,12 +413,15 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
         for url in [base.clone(), format!("{base}/map")] {
             let reply = http.get(&url).send().await.unwrap();
             assert_eq!(reply.status(), 404, "{url}");
-            let body: serde_json::Value = reply.json().await.unwrap();
+            let body = reply.json_body().await;
             assert_eq!(body["error"]["code"], "NOT_FOUND");
             assert_eq!(body["error"]["field"], "session_id");
         }
         let reply = http
-            .get(format!("http://{}/v1/sessions/not%20an%20id", running.http_addr))
+            .get(format!(
+                "http://{}/v1/sessions/not%20an%20id",
+                running.http_addr
+            ))
             .send()
             .await
             .unwrap();
@@ -468,7 +485,7 @@ fn captures_upload_as_curl_sends_them() {
             .await
             .unwrap();
         assert_eq!(reply.status(), 400);
-        let body: serde_json::Value = reply.json().await.unwrap();
+        let body = reply.json_body().await;
         assert_eq!(body["error"]["field"], "calibration");
         running.shutdown().await;
     });
@@ -499,7 +516,10 @@ async fn stream_captures(
         tasks.push(tokio::spawn(async move {
             for capture in mine {
                 match client.add_capture(capture).await {
-                    Ok(answer) => acked.lock().unwrap().push(answer.into_inner().capture_index),
+                    Ok(answer) => acked
+                        .lock()
+                        .unwrap()
+                        .push(answer.into_inner().capture_index),
                     Err(_) => return, // the server went away
                 }
             }
@@ -558,8 +578,15 @@ fn acknowledged_captures_survive_kill_9_and_restart() {
         // Every acknowledged capture is there (indices are dense, so each is below the count);
         // at most the four in flight were stored without their answer reaching the client.
         let highest = *acked.iter().max().unwrap();
-        assert!(highest < stored, "capture {highest} acknowledged, {stored} stored");
-        assert!(stored as usize <= acked.len() + 4, "{stored} stored, {} acked", acked.len());
+        assert!(
+            highest < stored,
+            "capture {highest} acknowledged, {stored} stored"
+        );
+        assert!(
+            stored as usize <= acked.len() + 4,
+            "{stored} stored, {} acked",
+            acked.len()
+        );
         // Nothing half-written: every stored capture decodes into the map.
         let map = grpc
             .get_map(pb::GetMapRequest {
@@ -592,7 +619,9 @@ fn test_redis() -> Result<String, String> {
         .and_then(|a| std::net::TcpStream::connect_timeout(&a, Duration::from_secs(1)).ok());
     match reachable {
         Some(_) => Ok(url),
-        None => Err(format!("no Redis at {url} (connection refused or timed out)")),
+        None => Err(format!(
+            "no Redis at {url} (connection refused or timed out)"
+        )),
     }
 }
 
@@ -622,7 +651,11 @@ fn two_replicas_on_one_redis_build_the_same_map_as_one_server() {
         );
         let mut indices: Vec<u64> = to_a.iter().chain(&to_b).copied().collect();
         indices.sort_unstable();
-        assert_eq!(indices, (0..24).collect::<Vec<u64>>(), "no capture lost or doubled");
+        assert_eq!(
+            indices,
+            (0..24).collect::<Vec<u64>>(),
+            "no capture lost or doubled"
+        );
 
         let mut grpc_b = connect(b.grpc_addr).await;
         let request = pb::GetMapRequest {
@@ -740,14 +773,20 @@ fn redis_going_away_is_unavailable_and_service_resumes_when_it_returns() {
             .unwrap_err();
         assert_eq!(status.code(), tonic::Code::Unavailable, "{status:?}");
         assert!(status.message().contains("redis"), "{status:?}");
-        assert!(t0.elapsed() < Duration::from_secs(10), "fails promptly, no hang");
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "fails promptly, no hang"
+        );
         let reply = http
-            .get(format!("http://{}/v1/sessions/{}", server.http_addr, session.id))
+            .get(format!(
+                "http://{}/v1/sessions/{}",
+                server.http_addr, session.id
+            ))
             .send()
             .await
             .unwrap();
         assert_eq!(reply.status(), 503);
-        let body: serde_json::Value = reply.json().await.unwrap();
+        let body = reply.json_body().await;
         assert_eq!(body["error"]["code"], "UNAVAILABLE");
         // Matching needs no store: it goes on.
         let (_, rig, obs) = trinocular::synth::standard_capture(1, Defects::clean(), false);

@@ -27,6 +27,7 @@ use anyhow::{bail, Context};
 use clap::Parser;
 use prost::Message;
 use trinocular::api::{self, pb};
+use trinocular::service::store::MemoryStore;
 use trinocular::service::{Limits, Service};
 
 #[derive(Parser)]
@@ -224,7 +225,9 @@ async fn main() -> anyhow::Result<()> {
             max_jobs: trinocular::service::JOBS_PER_THREAD * threads,
             ..Limits::default()
         };
-        Client::InProcess(Arc::new(Service::new(limits)?))
+        let ttl = Duration::from_secs(60);
+        let store = Arc::new(MemoryStore::new(ttl));
+        Client::InProcess(Arc::new(Service::new(limits, store, ttl)?))
     } else {
         bail!("--target must start with grpc://, http:// or inproc://");
     };

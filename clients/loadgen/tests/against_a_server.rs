@@ -3,6 +3,7 @@
 
 use std::sync::Arc;
 
+use trinocular::service::store::MemoryStore;
 use trinocular::service::{server, Limits, Service};
 
 fn loadgen(args: &[&str]) -> serde_json::Value {
@@ -29,7 +30,9 @@ fn measures_both_transports_and_counts_refusals() {
             max_jobs: 1,
             ..Limits::default()
         };
-        let service = Arc::new(Service::new(limits).unwrap());
+        let ttl = std::time::Duration::from_secs(60);
+        let store = Arc::new(MemoryStore::new(ttl));
+        let service = Arc::new(Service::new(limits, store, ttl).unwrap());
         let any = "127.0.0.1:0".parse().unwrap();
         let running = server::start(service, any, any).await.unwrap();
         (running.grpc_addr, running.http_addr, running)

@@ -12,6 +12,7 @@
 //! captures. Records and captures are opaque bytes here: the store never decodes them.
 
 pub mod embedded;
+pub mod memory;
 pub mod redis;
 
 use std::path::Path;
@@ -20,6 +21,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 pub use self::redis::RedisStore;
 pub use embedded::EmbeddedStore;
+pub use memory::MemoryStore;
 
 /// What a session was created with. `calibration` and `options` are encoded protobuf messages,
 /// the caller's business.
@@ -90,6 +92,8 @@ pub async fn open(
         Ok(Arc::new(
             RedisStore::open(url, self::redis::DEFAULT_PREFIX, ttl).await?,
         ))
+    } else if url == "memory" {
+        Ok(Arc::new(MemoryStore::new(ttl)))
     } else {
         Ok(Arc::new(EmbeddedStore::open(data_dir, ttl).await?))
     }
@@ -98,11 +102,11 @@ pub async fn open(
 /// Whether `url` names a store [`open`] knows; the problem names `store.url`. Configuration
 /// validation calls this, so the two cannot disagree.
 pub fn check_url(url: &str) -> Result<(), String> {
-    if url.is_empty() || url == "embedded" || is_redis(url) {
+    if url.is_empty() || url == "embedded" || url == "memory" || is_redis(url) {
         Ok(())
     } else {
         Err(format!(
-            "store.url: {url:?} is neither \"embedded\" nor redis://host:port[/db]"
+            "store.url: {url:?} is none of \"embedded\", \"memory\" and redis://host:port[/db]"
         ))
     }
 }
@@ -325,6 +329,7 @@ mod tests {
     #[test]
     fn urls_are_checked() {
         assert!(check_url("embedded").is_ok());
+        assert!(check_url("memory").is_ok());
         assert!(check_url("").is_ok());
         assert!(check_url("redis://127.0.0.1:6379/2").is_ok());
         let e = check_url("postgres://x").unwrap_err();

@@ -1,0 +1,131 @@
+//! Sessions in this process's memory: lost when it stops. For throwaway runs
+//! (`--store memory`), the load generator's in-process peer and tests; the same contract as
+//! the durable stores, idle expiry included.
+
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+use std::time::Duration;
+
+use super::{now_unix_ms, ttl_ms, SessionInfo, SessionRecord, SessionStore, StoreError};
+
+struct Session {
+    record: SessionRecord,
+    captures: Vec<Vec<u8>>,
+    last_used_unix_ms: u64,
+}
+
+pub struct MemoryStore {
+    sessions: Mutex<BTreeMap<String, Session>>,
+    ttl_ms: u64,
+}
+
+impl MemoryStore {
+    pub fn new(ttl: Duration) -> MemoryStore {
+        MemoryStore {
+            sessions: Mutex::new(BTreeMap::new()),
+            ttl_ms: ttl_ms(ttl),
+        }
+    }
+
+    /// The sessions, expired ones dropped first. A poisoned lock means a panic while holding
+    /// it; the map is still consistent (every change is one insert or remove), so carry on.
+    fn live(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, Session>> {
+        let mut sessions = self.sessions.lock().unwrap_or_else(|p| p.into_inner());
+        let now = now_unix_ms();
+        sessions.retain(|_, s| now.saturating_sub(s.last_used_unix_ms) < self.ttl_ms);
+        sessions
+    }
+}
+
+fn info(s: &Session) -> SessionInfo {
+    SessionInfo {
+        record: s.record.clone(),
+        captures: s.captures.len() as u64,
+        last_used_unix_ms: s.last_used_unix_ms,
+    }
+}
+
+fn not_found(id: &str) -> StoreError {
+    StoreError::NotFound { id: id.to_string() }
+}
+
+#[async_trait::async_trait]
+impl SessionStore for MemoryStore {
+    async fn create(&self, record: &SessionRecord) -> Result<(), StoreError> {
+        let mut sessions = self.live();
+        if sessions.contains_key(&record.id) {
+            return Err(StoreError::AlreadyExists {
+                id: record.id.clone(),
+            });
+        }
+        sessions.insert(
+            record.id.clone(),
+            Session {
+                record: record.clone(),
+                captures: Vec::new(),
+                last_used_unix_ms: now_unix_ms(),
+            },
+        );
+        Ok(())
+    }
+
+    async fn get(&self, id: &str) -> Result<SessionInfo, StoreError> {
+        let mut sessions = self.live();
+        let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
+        s.last_used_unix_ms = now_unix_ms();
+        Ok(info(s))
+    }
+
+    async fn list(&self) -> Result<Vec<SessionInfo>, StoreError> {
+        Ok(self.live().values().map(info).collect())
+    }
+
+    async fn delete(&self, id: &str) -> Result<(), StoreError> {
+        self.live()
+            .remove(id)
+            .map(|_| ())
+            .ok_or_else(|| not_found(id))
+    }
+
+    async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
+        let mut sessions = self.live();
+        let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
+        s.captures.push(capture.to_vec());
+        s.last_used_unix_ms = now_unix_ms();
+        Ok(s.captures.len() as u64 - 1)
+    }
+
+    async fn captures(&self, id: &str) -> Result<Vec<Vec<u8>>, StoreError> {
+        let mut sessions = self.live();
+        let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
+        s.last_used_unix_ms = now_unix_ms();
+        Ok(s.captures.clone())
+    }
+
+    fn describe(&self) -> String {
+        "in memory (lost at exit)".to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::contract;
+    use super::*;
+
+    fn runtime() -> tokio::runtime::Runtime {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+    }
+
+    #[test]
+    fn keeps_the_store_contract() {
+        runtime().block_on(async {
+            contract::crud(&MemoryStore::new(Duration::from_secs(60))).await;
+            contract::captures(&MemoryStore::new(Duration::from_secs(60))).await;
+            let ttl = Duration::from_millis(600);
+            contract::expiry(&MemoryStore::new(ttl), ttl).await;
+        });
+    }
+}

@@ -22,7 +22,8 @@ impl Noise {
     }
 }
 
-/// A 6 x 5 x 2.5 m room with 1,200 axis-aligned edges on its walls; `n` poses turning in its
+/// A 6 x 5 x 2.5 m room with 1,200 axis-aligned edges on its walls, on a
+/// 10 cm grid of lines; `n` poses turning in its
 /// middle, each seeing the ~230 edges in its 76° field of view (nine in ten of them; three in
 /// ten split in two, so ~280 segments), endpoints with 5 mm noise.
 fn session(n: usize) -> (Vec<Isometry3<f64>>, Vec<Vec<Segment3>>) {
@@ -30,7 +31,16 @@ fn session(n: usize) -> (Vec<Isometry3<f64>>, Vec<Vec<Segment3>>) {
     let mut edges = Vec::new();
     for _ in 0..1200 {
         let wall = ((r.next() + 1.0) * 2.0) as usize % 4;
+        // Edges lie on a 10 cm grid of lines (shelves, frames, panels), so distinct lines are
+        // at least 10 cm apart and edges on one line sometimes touch or overlap.
+        let grid = |v: f64| (v * 10.0).round() / 10.0;
         let (u, z) = (r.next(), 1.25 + 1.2 * r.next());
+        let dir_along = r.next() > 0.0;
+        let (u, z) = if dir_along {
+            (u, grid(z))
+        } else {
+            (grid(3.0 * u) / 3.0, z)
+        };
         let base = match wall {
             0 => Point3::new(3.0 * u, 2.5, z),
             1 => Point3::new(3.0 * u, -2.5, z),
@@ -38,7 +48,7 @@ fn session(n: usize) -> (Vec<Isometry3<f64>>, Vec<Vec<Segment3>>) {
             _ => Point3::new(-3.0, 2.5 * u, z),
         };
         let along = if wall < 2 { Vector3::x() } else { Vector3::y() };
-        let dir = if r.next() > 0.0 { along } else { Vector3::z() };
+        let dir = if dir_along { along } else { Vector3::z() };
         edges.push((base, base + dir * (0.2 + 0.6 * (r.next() + 1.0))));
     }
     let poses: Vec<_> = (0..n)
@@ -52,7 +62,7 @@ fn session(n: usize) -> (Vec<Isometry3<f64>>, Vec<Vec<Segment3>>) {
             )
         })
         .collect();
-    let mut jitter = |r: &mut Noise| Vector3::new(r.next(), r.next(), r.next()) * 0.005;
+    let jitter = |r: &mut Noise| Vector3::new(r.next(), r.next(), r.next()) * 0.005;
     let segments = poses
         .iter()
         .map(|pose| {
@@ -60,7 +70,7 @@ fn session(n: usize) -> (Vec<Isometry3<f64>>, Vec<Vec<Segment3>>) {
             let mut out = Vec::new();
             let look = pose.rotation * Vector3::y();
             for &(a, b) in &edges {
-                let to = nalgebra::center(&a, &b) - pose.translation.vector;
+                let to = nalgebra::center(&a, &b) - Point3::from(pose.translation.vector);
                 let cos = (look.x * to.x + look.y * to.y) / look.xy().norm() / to.xy().norm();
                 if cos < 38f64.to_radians().cos() || r.next() < -0.8 {
                     continue; // outside the field of view, or missed

@@ -75,23 +75,25 @@ pub fn fuse(captures: &[Capture], params: &FuseParams) -> Vec<MapSegment> {
     if items.is_empty() {
         return Vec::new();
     }
-    let inflate = |s: &Item| s.tol_max() + 0.5 * params.max_gap_m;
+    // Linkable segments' closest points are within √(lateral² + gap²), lateral ≤ √(tᵢ² + tⱼ²);
+    // with inflations √(tᵢ² + gap²/2), (iᵢ + iⱼ)² ≥ iᵢ² + iⱼ² = tᵢ² + tⱼ² + gap² bounds it, so
+    // intersecting boxes never miss a pair.
+    let inflate = |s: &Item| (s.tol_max().powi(2) + 0.5 * params.max_gap_m.powi(2)).sqrt();
+    let spread = 2.0 * (0.5 * params.angle_deg.to_radians()).sin() + 1e-9;
     let boxes: Vec<_> = items
         .iter()
         .enumerate()
-        .map(|(i, s)| GeomWithData::new(envelope(s, inflate(s)), i as u32))
+        .map(|(i, s)| GeomWithData::new(envelope(s, inflate(s), spread), i as u32))
         .collect();
     let tree = RTree::bulk_load(boxes);
     let cos_max = params.angle_deg.to_radians().cos();
 
-    // Two inflated boxes intersect whenever the segments' closest points are within the sum
-    // of the inflations, which bounds lateral tolerance plus gap of any linkable pair.
     let neighbours: Vec<Vec<u32>> = (0..items.len())
         .into_par_iter()
         .map(|i| {
             let s = &items[i];
             let mut out: Vec<u32> = tree
-                .locate_in_envelope_intersecting(&envelope(s, inflate(s)).envelope())
+                .locate_in_envelope_intersecting(&envelope(s, inflate(s), spread).envelope())
                 .map(|g| g.data)
                 .filter(|&j| (j as usize) > i && linked(&items, i, j as usize, cos_max, params))
                 .collect();
@@ -146,7 +148,7 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
             let (a, b) = (c.rig_to_world * s.start, c.rig_to_world * s.end);
             let len = (b - a).norm();
             let finite = a.iter().chain(b.iter()).all(|v| v.is_finite());
-            if !finite || !(len > MIN_LENGTH_M) {
+            if !finite || len <= MIN_LENGTH_M {
                 continue;
             }
             let key = [s.start.x, s.start.y, s.start.z, s.end.x, s.end.y, s.end.z];
@@ -174,10 +176,31 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
     keyed.into_iter().map(|(_, s)| s).collect()
 }
 
-fn envelope(s: &Item, inflate: f64) -> Rectangle<[f64; 3]> {
-    let lo = s.a.inf(&s.b) - Vector3::repeat(inflate);
-    let hi = s.a.sup(&s.b) + Vector3::repeat(inflate);
-    Rectangle::from_corners(lo.into(), hi.into())
+/// The R-tree key of a segment: its bounding box inflated by `inflate` metres, and the
+/// squares of its direction's x and y components (blind to the direction's sign) inflated by
+/// `spread`. Two segments whose directions are within θ differ by at most 4·sin(θ/2) in
+/// each square, so the direction dimensions keep crossing, non-parallel segments — most
+/// neighbours in a room — out of each other's candidates at no risk of missing a pair.
+fn envelope(s: &Item, inflate: f64, spread: f64) -> Rectangle<[f64; 5]> {
+    let lo = s.a.inf(&s.b);
+    let hi = s.a.sup(&s.b);
+    let (x2, y2) = (s.dir.x * s.dir.x, s.dir.y * s.dir.y);
+    Rectangle::from_corners(
+        [
+            lo.x - inflate,
+            lo.y - inflate,
+            lo.z - inflate,
+            x2 - spread,
+            y2 - spread,
+        ],
+        [
+            hi.x + inflate,
+            hi.y + inflate,
+            hi.z + inflate,
+            x2 + spread,
+            y2 + spread,
+        ],
+    )
 }
 
 /// True when items `i` and `j` are one line: directions within the angle, the shorter's
@@ -198,7 +221,7 @@ fn linked(items: &[Item], i: usize, j: usize, cos_max: f64, params: &FuseParams)
     };
     let t_long = long.tol_max();
     for (p, t) in [(&short.a, short.tol_a), (&short.b, short.tol_b)] {
-        if line.distance(p) > t.hypot(t_long) {
+        if line.distance(p) > (t * t + t_long * t_long).sqrt() {
             return false;
         }
     }
@@ -326,7 +349,7 @@ fn merge(items: &[Item], group: &[usize]) -> Option<MapSegment> {
     captures.dedup();
     let (start, end) = (line.c + line.d * lo, line.c + line.d * hi);
     let finite = start.iter().chain(end.iter()).all(|v| v.is_finite());
-    finite.then(|| MapSegment {
+    finite.then_some(MapSegment {
         start,
         end,
         observations: captures.len() as u32,

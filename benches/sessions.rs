@@ -38,9 +38,11 @@ fn fixture() -> Fixture {
                     rig_to_world: Some(pb::Pose {
                         matrix: (0..16).map(|i| m[(i / 4, i % 4)]).collect(),
                     }),
-                    input: Some(pb::add_capture_request::Input::Segments(pb::SegmentTriplet {
-                        lists: obs.lists.iter().map(api::segment_list_to_pb).collect(),
-                    })),
+                    input: Some(pb::add_capture_request::Input::Segments(
+                        pb::SegmentTriplet {
+                            lists: obs.lists.iter().map(api::segment_list_to_pb).collect(),
+                        },
+                    )),
                 }
             })
             .collect(),
@@ -141,7 +143,10 @@ fn bench(c: &mut Criterion) {
     let service = service(Arc::new(store::MemoryStore::new(TTL)));
     let id = rt.block_on(session(&service, &f, 50));
     group.bench_function("get_map/50", |b| {
-        b.iter(|| rt.block_on(service.get_map(&id, None, "bench")).expect("map"))
+        b.iter(|| {
+            rt.block_on(service.get_map(&id, None, "bench"))
+                .expect("map")
+        })
     });
     group.finish();
     let _ = std::fs::remove_dir_all(&dir);

@@ -141,7 +141,7 @@ pub fn stored_capture_segments(
 ) -> Result<(Isometry3<f64>, Vec<Segment3>), InputError> {
     let pose = pose_from_pb(capture.rig_to_world.as_ref(), "rig_to_world")?;
     let point = |p: &Option<pb::Point3>| {
-        let p = p.clone().unwrap_or_default();
+        let p = p.unwrap_or_default();
         Point3::new(p.x, p.y, p.z)
     };
     let segments = capture

@@ -1,11 +1,12 @@
 //! The fusion itself: world-frame segments, candidate pairs from an R-tree, links between
 //! collinear overlapping pairs, connected components, and one weighted line fit per group.
 //!
-//! Order independence comes from working on a canonical order: segments are sorted by
-//! (capture id, rig-frame coordinates) before anything else, so indices, R-tree, components
-//! and floating-point sums are the same whatever order the captures came in. Sorting on
-//! rig-frame coordinates also keeps that order when every pose is moved by one rigid
-//! transform, so the map then moves with them.
+//! Order independence comes from working on a canonical order: segments are sorted by their
+//! rig-frame coordinates (then world-frame, then capture id, for exact ties) before anything
+//! else, so indices, R-tree, components and floating-point sums are the same whatever order
+//! the captures came in — and whatever ids they were given, which in a session are their
+//! arrival order. Sorting on rig-frame coordinates also keeps that order when every pose is
+//! moved by one rigid transform, so the map then moves with them.
 //!
 //! Chaining: a component of the link graph can bend (A links B links C, with A and C on
 //! different lines). Each component is fitted with one line and accepted as one map segment
@@ -164,14 +165,18 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
             keyed.push((key, item));
         }
     }
+    let lexical = |x: &[f64], y: &[f64]| {
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| p.total_cmp(q))
+            .find(|o| o.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal)
+    };
+    let world = |s: &Item| [s.a.x, s.a.y, s.a.z, s.b.x, s.b.y, s.b.z];
     keyed.sort_by(|(k1, s1), (k2, s2)| {
-        s1.capture.cmp(&s2.capture).then_with(|| {
-            k1.iter()
-                .zip(k2)
-                .map(|(x, y)| x.total_cmp(y))
-                .find(|o| o.is_ne())
-                .unwrap_or(std::cmp::Ordering::Equal)
-        })
+        lexical(k1, k2)
+            .then_with(|| lexical(&world(s1), &world(s2)))
+            .then_with(|| s1.capture.cmp(&s2.capture))
     });
     keyed.into_iter().map(|(_, s)| s).collect()
 }

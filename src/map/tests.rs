@@ -253,6 +253,33 @@ fn the_map_does_not_depend_on_capture_order() {
     assert_eq!(fuse(&shuffled, &params), map, "bit for bit");
     shuffled.reverse();
     assert_eq!(fuse(&shuffled, &params), map);
+
+    // In a session the ids are arrival indices: numbered by arrival, the geometry is the same
+    // bit for bit, and each segment's captures are the same captures under their new numbers.
+    let renumbered: Vec<Capture> = shuffled
+        .iter()
+        .enumerate()
+        .map(|(i, c)| Capture {
+            id: i as u32,
+            rig_to_world: c.rig_to_world,
+            segments: c.segments,
+        })
+        .collect();
+    let mut new_id = vec![0u32; shuffled.len()];
+    for (i, c) in shuffled.iter().enumerate() {
+        new_id[c.id as usize] = i as u32;
+    }
+    let again = fuse(&renumbered, &params);
+    assert_eq!(again.len(), map.len());
+    for (x, y) in again.iter().zip(&map) {
+        assert_eq!(
+            (x.start, x.end, x.observations),
+            (y.start, y.end, y.observations)
+        );
+        let mut expected: Vec<u32> = y.captures.iter().map(|&c| new_id[c as usize]).collect();
+        expected.sort_unstable();
+        assert_eq!(x.captures, expected);
+    }
 }
 
 #[test]

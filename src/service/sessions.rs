@@ -239,8 +239,8 @@ impl Service {
                     .segments_3d
                     .iter()
                     .map(|s| pb::Segment3 {
-                        start: s.start.clone(),
-                        end: s.end.clone(),
+                        start: s.start,
+                        end: s.end,
                         ..Default::default()
                     })
                     .collect(),

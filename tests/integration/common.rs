@@ -136,6 +136,7 @@ impl ServerProcess {
             seen.push(line);
         }
         let _ = child.kill();
+        let _ = child.wait();
         panic!("the server stopped before listening:\n{}", seen.join("\n"));
     }
 

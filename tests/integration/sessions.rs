@@ -87,7 +87,7 @@ fn geometry(map: &pb::Map) -> Vec<([f64; 6], u32)> {
         .segments
         .iter()
         .map(|s| {
-            let (a, b) = (s.start.clone().unwrap(), s.end.clone().unwrap());
+            let (a, b) = (s.start.unwrap(), s.end.unwrap());
             ([a.x, a.y, a.z, b.x, b.y, b.z], s.observations)
         })
         .collect();
@@ -491,15 +491,19 @@ fn captures_upload_as_curl_sends_them() {
     });
 }
 
-/// Sends `captures` to `session` on `client`, `streams` at a time; returns the acknowledged
-/// capture indices (those answered OK) once `stop` says so or all are sent.
+/// Acknowledged capture indices, shared between the streams and whoever watches them.
+type Acked = std::sync::Arc<std::sync::Mutex<Vec<u64>>>;
+
+/// Sends `captures` to `session` at `addr`, `streams` at a time, recording in `acked` the
+/// index of each capture answered OK; a stream stops at its first error (the server went
+/// away). Returns the acknowledged indices.
 async fn stream_captures(
     addr: std::net::SocketAddr,
     session: &str,
     captures: &[pb::AddCaptureRequest],
     streams: usize,
+    acked: Acked,
 ) -> Vec<u64> {
-    let acked = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
     let mut tasks = Vec::new();
     for s in 0..streams {
         let mut client = connect(addr).await;
@@ -520,7 +524,7 @@ async fn stream_captures(
                         .lock()
                         .unwrap()
                         .push(answer.into_inner().capture_index),
-                    Err(_) => return, // the server went away
+                    Err(_) => return,
                 }
             }
         }));
@@ -535,8 +539,8 @@ async fn stream_captures(
 #[test]
 fn acknowledged_captures_survive_kill_9_and_restart() {
     let (calibration, captures) = panorama(12);
-    // Many captures, so the kill lands while some are being written.
-    let captures: Vec<_> = captures.iter().cycle().take(400).cloned().collect();
+    // More captures than can be sent before the kill, so it lands mid-stream.
+    let captures: Vec<_> = captures.iter().cycle().take(20_000).cloned().collect();
     let data = scratch_dir("kill9");
     let data_arg = data.to_str().unwrap().to_string();
     let rt = runtime();
@@ -550,11 +554,17 @@ fn acknowledged_captures_survive_kill_9_and_restart() {
     });
     let addr = server.grpc_addr;
     let (id, list) = (session.id.clone(), captures.clone());
+    let acked_so_far = Acked::default();
+    let watched = std::sync::Arc::clone(&acked_so_far);
     let sender = std::thread::spawn(move || {
-        runtime().block_on(async { stream_captures(addr, &id, &list, 4).await })
+        runtime().block_on(async { stream_captures(addr, &id, &list, 4, watched).await })
     });
     // Let some captures land, then kill the server mid-stream.
-    std::thread::sleep(Duration::from_millis(600));
+    let t0 = std::time::Instant::now();
+    while acked_so_far.lock().unwrap().len() < 60 {
+        assert!(t0.elapsed() < Duration::from_secs(60), "captures are not being acknowledged");
+        std::thread::sleep(Duration::from_millis(5));
+    }
     server.kill9();
     let acked = sender.join().unwrap();
     assert!(
@@ -646,8 +656,8 @@ fn two_replicas_on_one_redis_build_the_same_map_as_one_server() {
             .into_inner();
         // Every capture sent to both replicas at once, interleaved: 24 concurrent appends.
         let (to_a, to_b) = tokio::join!(
-            stream_captures(a.grpc_addr, &session.id, &captures, 6),
-            stream_captures(b.grpc_addr, &session.id, &captures, 6),
+            stream_captures(a.grpc_addr, &session.id, &captures, 6, Acked::default()),
+            stream_captures(b.grpc_addr, &session.id, &captures, 6, Acked::default()),
         );
         let mut indices: Vec<u64> = to_a.iter().chain(&to_b).copied().collect();
         indices.sort_unstable();

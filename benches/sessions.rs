@@ -1,10 +1,10 @@
 //! Session benchmarks (criterion, release), through the service layer in process (no
 //! transport), one compute thread:
-//! - `sessions/match`: a plain Match of one capture of the panoramic room (realistic
-//!   defects) — the peer;
-//! - `sessions/add_capture/{embedded,memory}`: the same capture added to a session that
-//!   holds 12 captures (the session is replaced by a fresh 12-capture one every 4 additions),
-//!   on the durable embedded store (redb, fsync per capture) and in memory;
+//! - `sessions/{match,add_capture}/{segments,images}/{embedded,memory}`: one capture of the
+//!   panoramic room — its segment lists (realistic defects), or its three rendered 512×512
+//!   PNGs — matched (the peer), and added to a session that holds 12 captures (replaced by a
+//!   fresh 12-capture session every 4 additions), on the durable embedded store (redb, fsync
+//!   per capture) and in memory. The two alternate, each timed in turn;
 //! - `sessions/get_map/50`: the map of a 50-capture session (read, decode, fuse).
 //!
 //!     cargo bench --bench sessions
@@ -16,18 +16,41 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use trinocular::api::{self, pb};
 use trinocular::service::store::{self, SessionStore};
 use trinocular::service::{Limits, Service};
-use trinocular::synth::{panoramic_session, Defects};
+use trinocular::synth::{panoramic_session, render_triplet, Defects, RenderParams, RigSpec};
 
 const TTL: Duration = Duration::from_secs(3600);
 
 struct Fixture {
     calibration: pb::Calibration,
     captures: Vec<pb::AddCaptureRequest>,
+    /// Capture 3 as its three rendered images.
+    images: pb::AddCaptureRequest,
 }
 
 fn fixture() -> Fixture {
-    let (_, rig, captures) = panoramic_session(1, 12, &Defects::realistic());
+    let (scene, rig, captures) = panoramic_session(1, 12, &Defects::realistic());
+    let (pose, _) = &captures[3];
+    let placed = RigSpec::non_collinear(1).build(pose).expect("preset rig");
+    let images = render_triplet(&scene, &placed, &RenderParams::default(), 1)
+        .iter()
+        .map(|image| pb::Image {
+            source: Some(pb::image::Source::Encoded(
+                trinocular::overlay::grey_png(image).expect("png"),
+            )),
+        })
+        .collect();
+    let m = pose.to_matrix();
+    let images = pb::AddCaptureRequest {
+        session_id: String::new(),
+        rig_to_world: Some(pb::Pose {
+            matrix: (0..16).map(|i| m[(i / 4, i % 4)]).collect(),
+        }),
+        input: Some(pb::add_capture_request::Input::Images(pb::ImageTriplet {
+            images,
+        })),
+    };
     Fixture {
+        images,
         calibration: api::calibration_to_pb(&rig),
         captures: captures
             .iter()
@@ -99,45 +122,58 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("sessions");
     group.measurement_time(Duration::from_secs(8));
 
-    let plain = service(Arc::new(store::MemoryStore::new(TTL)));
-    let request = match f.captures[3].input.clone() {
-        Some(pb::add_capture_request::Input::Segments(s)) => pb::MatchRequest {
+    let services: Vec<(&str, Service)> = stores
+        .into_iter()
+        .map(|(name, store)| (name, service(store)))
+        .collect();
+    for (mode, capture) in [("segments", &f.captures[3]), ("images", &f.images)] {
+        let request = pb::MatchRequest {
             calibration: Some(f.calibration.clone()),
             options: None,
-            input: Some(pb::match_request::Input::Segments(s)),
-        },
-        _ => unreachable!("segment captures"),
-    };
-    group.bench_function("match", |b| {
-        b.iter(|| {
-            let r = request.clone();
-            rt.block_on(plain.match_within(move || Ok(r), |_| (), None, "bench"))
-                .expect("match")
-        })
-    });
-
-    for (name, store) in stores {
-        let service = service(store);
-        group.bench_function(format!("add_capture/{name}"), |b| {
-            b.iter_custom(|iters| {
-                let mut total = Duration::ZERO;
-                let mut id = rt.block_on(session(&service, &f, 12));
-                for i in 0..iters {
-                    if i % 4 == 3 {
-                        id = rt.block_on(session(&service, &f, 12));
-                    }
-                    let capture = pb::AddCaptureRequest {
-                        session_id: id.clone(),
-                        ..f.captures[3].clone()
-                    };
-                    let t = Instant::now();
-                    rt.block_on(service.add_capture(capture, None, "bench"))
-                        .expect("capture");
-                    total += t.elapsed();
+            input: capture.input.clone().map(|input| match input {
+                pb::add_capture_request::Input::Segments(s) => {
+                    pb::match_request::Input::Segments(s)
                 }
-                total
-            })
-        });
+                pb::add_capture_request::Input::Images(i) => pb::match_request::Input::Images(i),
+            }),
+        };
+        for (name, service) in &services {
+            // Match and AddCapture alternate, each timed in turn, so that both run in the same
+            // state of caches and allocator (a Match repeated alone reuses warm buffers and
+            // looks faster than it is in a service doing other work in between).
+            for timed in ["match", "add_capture"] {
+                let label = format!("{timed}/{mode}/{name}");
+                group.bench_function(label, |b| {
+                    b.iter_custom(|iters| {
+                        let mut total = Duration::ZERO;
+                        let mut id = rt.block_on(session(service, &f, 12));
+                        for i in 0..iters {
+                            if i % 4 == 3 {
+                                id = rt.block_on(session(service, &f, 12));
+                            }
+                            let r = request.clone();
+                            let t = Instant::now();
+                            rt.block_on(service.match_within(move || Ok(r), |_| (), None, "bench"))
+                                .expect("match");
+                            if timed == "match" {
+                                total += t.elapsed();
+                            }
+                            let capture = pb::AddCaptureRequest {
+                                session_id: id.clone(),
+                                ..capture.clone()
+                            };
+                            let t = Instant::now();
+                            rt.block_on(service.add_capture(capture, None, "bench"))
+                                .expect("capture");
+                            if timed == "add_capture" {
+                                total += t.elapsed();
+                            }
+                        }
+                        total
+                    })
+                });
+            }
+        }
     }
 
     let service = service(Arc::new(store::MemoryStore::new(TTL)));

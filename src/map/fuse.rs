@@ -17,7 +17,7 @@
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 use rstar::primitives::{GeomWithData, Rectangle};
-use rstar::{RTree, RTreeObject};
+use rstar::RTree;
 
 use super::{Capture, FuseParams, MapSegment};
 
@@ -89,25 +89,21 @@ pub fn fuse(captures: &[Capture], params: &FuseParams) -> Vec<MapSegment> {
     let tree = RTree::bulk_load(boxes);
     let cos_max = params.angle_deg.to_radians().cos();
 
-    let neighbours: Vec<Vec<u32>> = (0..items.len())
+    // One simultaneous walk of the tree against itself finds every intersecting pair of
+    // boxes: far fewer node visits than one query per segment when boxes overlap a lot, as
+    // the repeated observations of one edge do.
+    let candidates: Vec<(u32, u32)> = tree
+        .intersection_candidates_with_other_tree(&tree)
+        .filter_map(|(p, q)| (p.data < q.data).then_some((p.data, q.data)))
+        .collect();
+    let links: Vec<(u32, u32)> = candidates
         .into_par_iter()
-        .map(|i| {
-            let s = &items[i];
-            let mut out: Vec<u32> = tree
-                .locate_in_envelope_intersecting(&envelope(s, inflate(s), spread).envelope())
-                .map(|g| g.data)
-                .filter(|&j| (j as usize) > i && linked(&items, i, j as usize, cos_max, params))
-                .collect();
-            out.sort_unstable();
-            out
-        })
+        .filter(|&(i, j)| linked(&items, i as usize, j as usize, cos_max, params))
         .collect();
 
     let mut sets = UnionFind::new(items.len());
-    for (i, js) in neighbours.iter().enumerate() {
-        for &j in js {
-            sets.union(i, j as usize);
-        }
+    for &(i, j) in &links {
+        sets.union(i as usize, j as usize);
     }
     let mut component_of = vec![usize::MAX; items.len()];
     let mut components: Vec<Vec<usize>> = Vec::new();

@@ -562,7 +562,10 @@ fn acknowledged_captures_survive_kill_9_and_restart() {
     // Let some captures land, then kill the server mid-stream.
     let t0 = std::time::Instant::now();
     while acked_so_far.lock().unwrap().len() < 60 {
-        assert!(t0.elapsed() < Duration::from_secs(60), "captures are not being acknowledged");
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "captures are not being acknowledged"
+        );
         std::thread::sleep(Duration::from_millis(5));
     }
     server.kill9();

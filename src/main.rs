@@ -163,7 +163,7 @@ impl From<anyhow::Error> for Failure {
 
 fn build_request(args: &MatchArgs) -> Result<pb::MatchRequest, Failure> {
     if let Some(path) = &args.request {
-        return Ok(api::from_json("request", &read(path)?)?);
+        return Ok(api::match_request_from_json(&read(path)?)?);
     }
     let Some(calibration) = &args.calibration else {
         return Err(Failure::Other(anyhow::anyhow!(

@@ -189,7 +189,15 @@ async fn match_handler(
         }
     } else {
         match Bytes::from_request(request, &()).await {
-            Ok(body) => Box::new(move || decode_body::<pb::MatchRequest>(&body, protobuf)),
+            Ok(body) => Box::new(move || {
+                if protobuf {
+                    decode_body::<pb::MatchRequest>(&body, true)
+                } else {
+                    std::str::from_utf8(&body)
+                        .map_err(|_| InputError::new("request", "the body is not UTF-8 JSON"))
+                        .and_then(super::match_request_from_json)
+                }
+            }),
             Err(e) => return refuse(body_error(e.status(), e.body_text(), max_bytes)),
         }
     };

@@ -6,6 +6,7 @@
 //! request (`calibration.cameras[2].projection`, `segments.lists[1].segments[17].u1`).
 
 mod convert;
+mod fast_json;
 pub mod grpc;
 pub mod http;
 pub mod session;
@@ -15,6 +16,7 @@ pub use convert::{
     rig_from_calibration, segment_list_to_pb, segment_lists, Executed, MatchInput, MatchSource,
     RequestLimits, RunError, MAX_SEGMENTS_PER_LIST,
 };
+pub use fast_json::match_request_from_json;
 
 /// The schema as an encoded `FileDescriptorSet`, for gRPC server reflection.
 pub const FILE_DESCRIPTOR_SET: &[u8] =

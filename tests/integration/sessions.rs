@@ -504,9 +504,14 @@ async fn stream_captures(
     streams: usize,
     acked: Acked,
 ) -> Vec<u64> {
+    // Every stream connects before any sends, so that a kill prompted by the first answers
+    // cannot land between two connections.
+    let mut clients = Vec::new();
+    for _ in 0..streams {
+        clients.push(connect(addr).await);
+    }
     let mut tasks = Vec::new();
-    for s in 0..streams {
-        let mut client = connect(addr).await;
+    for (s, mut client) in clients.into_iter().enumerate() {
         let mine: Vec<pb::AddCaptureRequest> = captures
             .iter()
             .skip(s)

@@ -12,6 +12,10 @@ use tonic::transport::server::TcpIncoming;
 use super::Service;
 use crate::api::{grpc, http, pb};
 
+/// HTTP/2 flow-control windows of the gRPC server, bytes.
+const H2_STREAM_WINDOW: u32 = 4 << 20;
+const H2_CONNECTION_WINDOW: u32 = 16 << 20;
+
 /// Two running servers.
 pub struct Running {
     pub grpc_addr: SocketAddr,
@@ -57,6 +61,11 @@ pub async fn start(
     let mut grpc_stop = stop.subscribe();
     let grpc = tokio::spawn(
         tonic::transport::Server::builder()
+            // HTTP/2's default 64 KiB windows make a client stop mid-request and wait a round
+            // trip for WINDOW_UPDATE whenever a request is larger (600 segments per list are
+            // 80 KiB, an image triplet megabytes): open them wide.
+            .initial_stream_window_size(Some(H2_STREAM_WINDOW))
+            .initial_connection_window_size(Some(H2_CONNECTION_WINDOW))
             .add_service(health_service)
             .add_service(reflection_v1)
             .add_service(reflection_v1alpha)

@@ -13,6 +13,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use trinocular::api::session::{pose_to_pb, segment_capture};
 use trinocular::api::{self, pb};
 use trinocular::service::store::{self, SessionStore};
 use trinocular::service::{Limits, Service};
@@ -39,12 +40,9 @@ fn fixture() -> Fixture {
             )),
         })
         .collect();
-    let m = pose.to_matrix();
     let images = pb::AddCaptureRequest {
         session_id: String::new(),
-        rig_to_world: Some(pb::Pose {
-            matrix: (0..16).map(|i| m[(i / 4, i % 4)]).collect(),
-        }),
+        rig_to_world: Some(pose_to_pb(&pose.to_isometry())),
         input: Some(pb::add_capture_request::Input::Images(pb::ImageTriplet {
             images,
         })),
@@ -54,20 +52,7 @@ fn fixture() -> Fixture {
         calibration: api::calibration_to_pb(&rig),
         captures: captures
             .iter()
-            .map(|(pose, obs)| {
-                let m = pose.to_matrix();
-                pb::AddCaptureRequest {
-                    session_id: String::new(),
-                    rig_to_world: Some(pb::Pose {
-                        matrix: (0..16).map(|i| m[(i / 4, i % 4)]).collect(),
-                    }),
-                    input: Some(pb::add_capture_request::Input::Segments(
-                        pb::SegmentTriplet {
-                            lists: obs.lists.iter().map(api::segment_list_to_pb).collect(),
-                        },
-                    )),
-                }
-            })
+            .map(|(pose, obs)| segment_capture(&pose.to_isometry(), &obs.lists))
             .collect(),
     }
 }

@@ -135,6 +135,22 @@ pub fn capture_match_request(
     }
 }
 
+/// An `AddCaptureRequest` (session id left empty) for segment lists seen from `rig_to_world`.
+pub fn segment_capture(
+    rig_to_world: &Isometry3<f64>,
+    lists: &[crate::segment::SegmentList; 3],
+) -> pb::AddCaptureRequest {
+    pb::AddCaptureRequest {
+        session_id: String::new(),
+        rig_to_world: Some(pose_to_pb(rig_to_world)),
+        input: Some(pb::add_capture_request::Input::Segments(
+            pb::SegmentTriplet {
+                lists: lists.iter().map(super::segment_list_to_pb).collect(),
+            },
+        )),
+    }
+}
+
 /// The rig-frame 3D segments of a stored capture, and its pose.
 pub fn stored_capture_segments(
     capture: &pb::StoredCapture,

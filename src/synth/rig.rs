@@ -61,6 +61,14 @@ impl Pose {
         self.rotation * rig + self.translation
     }
 
+    /// The same transform as an isometry.
+    pub fn to_isometry(&self) -> nalgebra::Isometry3<f64> {
+        nalgebra::Isometry3::from_parts(
+            nalgebra::Translation3::from(self.translation),
+            nalgebra::UnitQuaternion::from_rotation_matrix(&self.rotation),
+        )
+    }
+
     /// The 4x4 homogeneous matrix (DESIGN §1 `rig_to_world`).
     pub fn to_matrix(&self) -> Matrix4<f64> {
         let mut m = Matrix4::identity();
@@ -305,6 +313,13 @@ impl RigSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_poses_isometry_is_its_matrix() {
+        let pose = Pose::from_position_yaw(Point3::new(1.0, -2.0, 0.5), 0.7);
+        let diff = pose.to_isometry().to_homogeneous() - pose.to_matrix();
+        assert!(diff.abs().max() < 1e-15, "{diff}");
+    }
 
     #[test]
     fn rest_orientation_looks_along_y() {

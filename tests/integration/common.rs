@@ -163,3 +163,12 @@ impl JsonBody for reqwest::Response {
         serde_json::from_str(&self.text().await.expect("body")).expect("JSON body")
     }
 }
+
+/// The runtime of the tests' servers and clients.
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("runtime")
+}

@@ -7,15 +7,7 @@ use prost::Message;
 use trinocular::api::{self, pb};
 use trinocular::service::{server, Limits};
 
-use crate::common::JsonBody;
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .expect("runtime")
-}
+use crate::common::{runtime, JsonBody};
 
 async fn start(limits: Limits) -> server::Running {
     let any = "127.0.0.1:0".parse().unwrap();

@@ -5,19 +5,12 @@
 use std::time::Duration;
 
 use prost::Message;
+use trinocular::api::session::segment_capture;
 use trinocular::api::{self, pb};
 use trinocular::service::{server, Limits};
 use trinocular::synth::{panoramic_session, Defects};
 
-use crate::common::{embedded_service, scratch_dir, JsonBody, ServerProcess};
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .expect("runtime")
-}
+use crate::common::{embedded_service, runtime, scratch_dir, JsonBody, ServerProcess};
 
 fn limits() -> Limits {
     Limits {
@@ -49,24 +42,7 @@ fn panorama(poses: usize) -> (pb::Calibration, Vec<pb::AddCaptureRequest>) {
     let (_, rig, captures) = panoramic_session(3, poses, &Defects::clean());
     let requests = captures
         .iter()
-        .map(|(pose, observation)| {
-            let m = pose.to_matrix();
-            pb::AddCaptureRequest {
-                session_id: String::new(),
-                rig_to_world: Some(pb::Pose {
-                    matrix: (0..16).map(|i| m[(i / 4, i % 4)]).collect(),
-                }),
-                input: Some(pb::add_capture_request::Input::Segments(
-                    pb::SegmentTriplet {
-                        lists: observation
-                            .lists
-                            .iter()
-                            .map(api::segment_list_to_pb)
-                            .collect(),
-                    },
-                )),
-            }
-        })
+        .map(|(pose, observation)| segment_capture(&pose.to_isometry(), &observation.lists))
         .collect();
     (api::calibration_to_pb(&rig), requests)
 }
@@ -104,6 +80,34 @@ fn same_geometry(a: &pb::Map, b: &pb::Map) {
             assert!((x.0[k] - y.0[k]).abs() < 1e-9, "{x:?} vs {y:?}");
         }
     }
+}
+
+/// The map of a new session given `captures` one after the other.
+async fn map_of(
+    client: &mut Client,
+    calibration: &pb::Calibration,
+    captures: &[pb::AddCaptureRequest],
+) -> pb::Map {
+    let session = client
+        .create_session(create_request(calibration))
+        .await
+        .unwrap()
+        .into_inner();
+    for capture in captures {
+        let capture = pb::AddCaptureRequest {
+            session_id: session.id.clone(),
+            ..capture.clone()
+        };
+        client.add_capture(capture).await.unwrap();
+    }
+    client
+        .get_map(pb::GetMapRequest {
+            session_id: session.id,
+            min_observations: None,
+        })
+        .await
+        .unwrap()
+        .into_inner()
 }
 
 #[test]
@@ -272,27 +276,8 @@ fn the_map_does_not_depend_on_the_order_of_the_captures() {
             (0..12).collect::<Vec<usize>>(),
             vec![7, 3, 11, 0, 5, 9, 1, 10, 2, 8, 4, 6],
         ] {
-            let session = grpc
-                .create_session(create_request(&calibration))
-                .await
-                .unwrap()
-                .into_inner();
-            for &i in &order {
-                let capture = pb::AddCaptureRequest {
-                    session_id: session.id.clone(),
-                    ..captures[i].clone()
-                };
-                grpc.add_capture(capture).await.unwrap();
-            }
-            let map = grpc
-                .get_map(pb::GetMapRequest {
-                    session_id: session.id,
-                    min_observations: None,
-                })
-                .await
-                .unwrap()
-                .into_inner();
-            maps.push(map);
+            let in_order: Vec<_> = order.iter().map(|&i| captures[i].clone()).collect();
+            maps.push(map_of(&mut grpc, &calibration, &in_order).await);
         }
         same_geometry(&maps[0], &maps[1]);
         running.shutdown().await;
@@ -700,27 +685,8 @@ fn two_replicas_on_one_redis_build_the_same_map_as_one_server() {
         // One server, the same captures twice in order: the same map.
         let running = start().await;
         let mut one = connect(running.grpc_addr).await;
-        let alone = one
-            .create_session(create_request(&calibration))
-            .await
-            .unwrap()
-            .into_inner();
-        for capture in captures.iter().chain(&captures) {
-            one.add_capture(pb::AddCaptureRequest {
-                session_id: alone.id.clone(),
-                ..capture.clone()
-            })
-            .await
-            .unwrap();
-        }
-        let map_one = one
-            .get_map(pb::GetMapRequest {
-                session_id: alone.id,
-                min_observations: None,
-            })
-            .await
-            .unwrap()
-            .into_inner();
+        let twice: Vec<_> = captures.iter().chain(&captures).cloned().collect();
+        let map_one = map_of(&mut one, &calibration, &twice).await;
         same_geometry(&map_a, &map_one);
         grpc_a
             .delete_session(pb::DeleteSessionRequest {

@@ -15,6 +15,7 @@
 //! | [`matching`] | buckets, hypothesis prediction and verification, validation |
 //! | [`reconstruct`] | triplets to 3D segments, fragments merged |
 //! | [`map`] | session captures fused into a world-frame room map, exports |
+//! | [`calibrate`] | projection matrices from images of a known pattern, or from correspondences |
 //! | [`pipeline`] | the chain in one call, input checks, statistics |
 //! | [`synth`] | synthetic rooms with exact ground truth, and a scorer |
 //! | [`api`] | the protobuf schema and its conversion to the types above |
@@ -23,6 +24,7 @@
 //! transports; `api` depends on it, never the reverse.
 
 pub mod api;
+pub mod calibrate;
 pub mod demo;
 pub mod extract;
 pub mod geometry;

@@ -24,6 +24,7 @@
 
 pub mod bvh;
 pub mod defects;
+pub mod pattern;
 pub mod render;
 pub mod rig;
 pub mod rng;
@@ -34,6 +35,7 @@ pub mod visibility;
 
 pub use bvh::SceneIndex;
 pub use defects::{observe, Defects, Observation};
+pub use pattern::{pattern_scene, pattern_views};
 pub use render::{render, render_image, render_triplet, RenderParams};
 pub use rig::{cam_from_rig_rotation, CameraSpec, Pose, RigSpec, SynthError};
 pub use rng::Rng;

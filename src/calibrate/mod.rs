@@ -9,6 +9,8 @@
 //!                       estimate (normalised DLT → RQ → Levenberg–Marquardt) ─▶ Camera + error report
 //! ```
 
+pub mod detect;
 pub mod pattern;
 
+pub use detect::{detect, DetectError, Detection};
 pub use pattern::{CalibrationPattern, CornerId, GridBoard, PatternError};

@@ -13,6 +13,7 @@ use nalgebra::{Point3, Rotation3, Vector3};
 use super::rig::{Pose, RigSpec};
 use super::rng::Rng;
 use super::scene::{Box3, Scene};
+use crate::calibrate::detect::printed_side;
 use crate::calibrate::{CalibrationPattern, GridBoard};
 use crate::geometry::Rig;
 
@@ -30,33 +31,6 @@ const BOARD_MARGIN: f64 = 0.02;
 const FOCAL_SCALE: f64 = 0.75;
 /// Every reference point stays this far inside every image of [`pattern_views`], pixels.
 const VIEW_MARGIN_PX: f64 = 12.0;
-
-/// The side of `board` its squares are printed on, as a unit vector: the side facing the
-/// other boards (a concave pattern like the paper's object), or the normal for a lone board.
-pub fn printed_side(pattern: &CalibrationPattern, board: usize) -> Vector3<f64> {
-    let b = &pattern.boards[board];
-    let n = b.normal();
-    let others: Vec<Point3<f64>> = pattern
-        .boards
-        .iter()
-        .enumerate()
-        .filter(|&(i, _)| i != board)
-        .flat_map(|(_, o)| {
-            o.corners(0, 0)
-                .into_iter()
-                .chain(o.corners(o.rows - 1, o.cols - 1))
-        })
-        .collect();
-    if others.is_empty() {
-        return n;
-    }
-    let mean = others.iter().fold(Vector3::zeros(), |s, p| s + p.coords) / others.len() as f64;
-    if (mean - b.origin.coords).dot(&n) < 0.0 {
-        -n
-    } else {
-        n
-    }
-}
 
 /// Axis-aligned box spanning the points (the pattern's default boards are axis-aligned; a
 /// tilted board would need a renderer with oriented boxes).
@@ -244,6 +218,7 @@ mod tests {
 
     #[test]
     fn the_default_boards_are_printed_towards_each_other() {
+        // (printed_side lives with detection, which relies on it.)
         let p = CalibrationPattern::default();
         assert!((printed_side(&p, 0) - Vector3::y()).norm() < 1e-12);
         assert!((printed_side(&p, 1) - Vector3::x()).norm() < 1e-12);

@@ -174,7 +174,7 @@ pub fn pattern_views(seed: u64) -> (Scene, Rig, CalibrationPattern) {
             .fold(Vector3::zeros(), |s, (_, p)| s + p.coords)
             / points.len() as f64,
     );
-    let mut rng = Rng::new(seed).fork(0xCA11_B);
+    let mut rng = Rng::new(seed).fork(0xCA11B);
     let drawn = (0..32).find_map(|_| {
         let rig = aimed_rig(
             &spec,

@@ -12,3 +12,5 @@
 pub mod pattern;
 
 pub use pattern::{CalibrationPattern, CornerId, GridBoard, PatternError};
+pub mod estimate;
+pub use estimate::{estimate_camera, CameraFit, EstimateError, EstimateOptions};

@@ -19,8 +19,16 @@ fn camera(distortion: Option<Distortion>) -> Camera {
     let y = z.cross(&x);
     let rotation = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
     let k = Matrix3::new(560.0, 0.0, 258.0, 0.0, 563.0, 250.0, 0.0, 0.0, 1.0);
-    Camera::from_krt("bench", 512, 512, k, rotation, -(rotation * centre.coords), distortion)
-        .unwrap()
+    Camera::from_krt(
+        "bench",
+        512,
+        512,
+        k,
+        rotation,
+        -(rotation * centre.coords),
+        distortion,
+    )
+    .unwrap()
 }
 
 fn observations(camera: &Camera) -> (Vec<Point3<f64>>, Vec<Point2<f64>>) {
@@ -30,7 +38,10 @@ fn observations(camera: &Camera) -> (Vec<Point3<f64>>, Vec<Point2<f64>>) {
         .into_iter()
         .map(|(_, x)| {
             let p = camera.project(&x).unwrap();
-            (x, p + 0.2 * nalgebra::Vector2::new(rng.normal(), rng.normal()))
+            (
+                x,
+                p + 0.2 * nalgebra::Vector2::new(rng.normal(), rng.normal()),
+            )
         })
         .unzip()
 }

@@ -24,6 +24,12 @@
 //!   angle wrap-around.
 //! - Coplanar points are refused (`Coplanar`): the DLT of a plane has a two-dimensional null
 //!   space, so `P` is not determined. A planar method (Zhang) would need several views.
+//!
+//! Accuracy (tests, 50 random 512×512 cameras viewing the default pattern from 0.8–1.5 m,
+//! σ = 0.2 px): a pinhole fit reprojects held-out scene points within 0.10 px RMS (median),
+//! 0.21 px (worst). With distortion estimated the lens is pinned down where the pattern
+//! was seen (median 0.17 px) but extrapolated beyond it (median 0.32 px over the whole
+//! image): one view of one pattern does not constrain k1, k2 at radii it does not reach.
 
 use nalgebra::{Matrix3, Matrix3x4, Point2, Point3, Rotation3, SMatrix, SVector, Vector2, Vector3};
 use thiserror::Error;

@@ -14,3 +14,5 @@ pub mod pattern;
 
 pub use detect::{detect, DetectError, Detection};
 pub use pattern::{CalibrationPattern, CornerId, GridBoard, PatternError};
+pub mod estimate;
+pub use estimate::{estimate_camera, CameraFit, EstimateError, EstimateOptions};

@@ -30,8 +30,36 @@ enum Command {
     /// Match three images or segment lists and reconstruct 3D segments; prints a
     /// MatchResponse (JSON).
     Match(MatchArgs),
-    /// Serve Match over gRPC and HTTP/JSON until SIGTERM or SIGINT.
+    /// Serve Match, sessions and Calibrate over gRPC and HTTP/JSON until SIGTERM or SIGINT.
     Serve(ServeArgs),
+    /// Estimate the rig's three cameras from images of a known pattern (or from
+    /// correspondences); prints a Calibration (JSON) that Match and sessions take unchanged,
+    /// and each camera's reprojection error on stderr.
+    Calibrate(CalibrateArgs),
+}
+
+#[derive(Args)]
+struct CalibrateArgs {
+    /// A CalibrationPattern in proto3 JSON (default: the two-board pattern, see README).
+    #[arg(long)]
+    pattern: Option<PathBuf>,
+    /// The three images of the pattern, one per camera.
+    #[arg(long, num_args = 3, value_names = ["IMG1", "IMG2", "IMG3"], required_unless_present = "correspondences")]
+    images: Vec<PathBuf>,
+    /// Correspondences in proto3 JSON (points_3d and three lists of points_2d), instead of
+    /// images.
+    #[arg(long, conflicts_with = "images")]
+    correspondences: Option<PathBuf>,
+    /// CalibrateOptions in proto3 JSON (e.g. {"distortion": true}).
+    #[arg(long)]
+    options: Option<PathBuf>,
+    /// A Pose in proto3 JSON mapping pattern-frame points to the rig frame: the calibration
+    /// is then in the rig frame.
+    #[arg(long)]
+    rig_from_pattern: Option<PathBuf>,
+    /// Write the Calibration here instead of stdout.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -241,6 +269,61 @@ fn run_match(args: &MatchArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+fn run_calibrate(args: &CalibrateArgs) -> Result<(), Failure> {
+    let json = |what: &str, path: &Option<PathBuf>| -> Result<Option<String>, Failure> {
+        match path {
+            Some(p) => Ok(Some(read(p).with_context(|| format!("--{what}"))?)),
+            None => Ok(None),
+        }
+    };
+    let input = match &args.correspondences {
+        Some(path) => pb::calibrate_request::Input::Correspondences(api::from_json(
+            "correspondences",
+            &read(path)?,
+        )?),
+        None => pb::calibrate_request::Input::Images(pb::ImageTriplet {
+            images: args
+                .images
+                .iter()
+                .map(|p| {
+                    Ok(pb::Image {
+                        source: Some(pb::image::Source::Encoded(read_bytes(p)?)),
+                    })
+                })
+                .collect::<anyhow::Result<_>>()?,
+        }),
+    };
+    let request = pb::CalibrateRequest {
+        pattern: match json("pattern", &args.pattern)? {
+            Some(text) => Some(api::from_json("pattern", &text)?),
+            None => None,
+        },
+        input: Some(input),
+        rig_from_pattern: match json("rig-from-pattern", &args.rig_from_pattern)? {
+            Some(text) => Some(api::from_json("rig_from_pattern", &text)?),
+            None => None,
+        },
+        options: match json("options", &args.options)? {
+            Some(text) => Some(api::from_json("options", &text)?),
+            None => None,
+        },
+        camera_names: Vec::new(),
+    };
+    let response = api::calibrate::calibrate_request(&request, &DecodeLimits::default())?.run()?;
+    for r in &response.reports {
+        eprintln!(
+            "{}: {} points, reprojection RMS {:.3} px, max {:.3} px",
+            r.camera, r.points, r.rms_px, r.max_px
+        );
+    }
+    let calibration = api::to_json(&response.calibration.unwrap_or_default());
+    match &args.output {
+        Some(path) => write(path, (calibration + "\n").as_bytes())?,
+        None => println!("{calibration}"),
+    }
+    Ok(())
+}
+
 fn run_extract(args: &ExtractArgs) -> Result<(), Failure> {
     let bytes = read_bytes(&args.image)?;
     let image = decode::decode(&bytes, &DecodeLimits::default())
@@ -389,6 +472,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => run_demo(args),
         Command::Extract(args) => run_extract(args),
         Command::Match(args) => run_match(args),
+        Command::Calibrate(args) => run_calibrate(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -20,6 +20,20 @@ fn exactly<const N: usize>(field: String, values: &[f64]) -> Result<[f64; N], In
     })
 }
 
+/// How closely a projection given with K, R, t must agree with K [R | t], relative.
+const PROJECTION_AGREEMENT: f64 = 1e-6;
+
+/// The largest difference between two projection matrices, each scaled to unit Frobenius
+/// norm (a projection matrix is defined up to a positive scale: a negative one would put the
+/// scene behind the camera).
+fn projection_difference(a: &Matrix3x4<f64>, b: &Matrix3x4<f64>) -> f64 {
+    let (na, nb) = (a.norm(), b.norm());
+    if !(na > 0.0 && nb > 0.0) {
+        return f64::INFINITY;
+    }
+    (a / na - b / nb).abs().max()
+}
+
 fn camera_from_pb(i: usize, cam: &pb::Camera) -> Result<Camera, InputError> {
     let pb::Camera {
         name,
@@ -43,11 +57,33 @@ fn camera_from_pb(i: usize, cam: &pb::Camera) -> Result<Camera, InputError> {
     });
     let pinhole_given = !(intrinsics.is_empty() && rotation.is_empty() && translation.is_empty());
     let camera = match (projection.is_empty(), pinhole_given) {
+        // Both, as `Calibrate` answers: K, R, t make the camera, and P must agree with them.
         (false, true) => {
-            return Err(InputError::new(
-                at("projection"),
-                "give either projection or intrinsics + rotation + translation, not both",
-            ))
+            let p = exactly::<12>(at("projection"), projection)?;
+            let k = exactly::<9>(at("intrinsics"), intrinsics)?;
+            let r = exactly::<9>(at("rotation"), rotation)?;
+            let t = exactly::<3>(at("translation"), translation)?;
+            let camera = Camera::from_krt(
+                name,
+                *width,
+                *height,
+                Matrix3::from_row_slice(&k),
+                Matrix3::from_row_slice(&r),
+                Vector3::from_row_slice(&t),
+                distortion,
+            )
+            .map_err(|e: CameraError| InputError::new(at(e.field()), e.to_string()))?;
+            let difference = projection_difference(&Matrix3x4::from_row_slice(&p), camera.projection());
+            if difference.is_nan() || difference > PROJECTION_AGREEMENT {
+                return Err(InputError::new(
+                    at("projection"),
+                    format!(
+                        "disagrees with intrinsics, rotation and translation (relative difference \
+                         {difference:.2e} after scaling): give one model, or both consistent"
+                    ),
+                ));
+            }
+            Ok(camera)
         }
         (true, false) => {
             return Err(InputError::new(
@@ -113,17 +149,37 @@ pub fn calibration_to_pb(rig: &Rig) -> pb::Calibration {
         cameras: rig
             .cameras()
             .iter()
-            .map(|c| {
-                let p = c.projection();
-                pb::Camera {
-                    name: c.name().to_string(),
-                    width: c.width(),
-                    height: c.height(),
-                    projection: (0..12).map(|i| p[(i / 4, i % 4)]).collect(),
-                    ..Default::default()
-                }
-            })
+            .map(|c| camera_to_pb(c, false))
             .collect(),
+    }
+}
+
+/// A `Camera` message: its projection and distortion, and with `krt` also K, R and t (as
+/// `Calibrate` answers: both models, consistent, which every call accepts).
+pub fn camera_to_pb(c: &Camera, krt: bool) -> pb::Camera {
+    let rows = |m: &[f64], n: usize| -> Vec<f64> { m.iter().take(n).copied().collect() };
+    let p = c.projection();
+    let (k, r, t) = (c.intrinsics(), c.rotation(), c.translation());
+    let row_major3 = |m: &Matrix3<f64>| (0..9).map(|i| m[(i / 3, i % 3)]).collect::<Vec<f64>>();
+    pb::Camera {
+        name: c.name().to_string(),
+        width: c.width(),
+        height: c.height(),
+        projection: (0..12).map(|i| p[(i / 4, i % 4)]).collect(),
+        intrinsics: if krt { row_major3(k) } else { Vec::new() },
+        rotation: if krt { row_major3(r) } else { Vec::new() },
+        translation: if krt {
+            rows(t.as_slice(), 3)
+        } else {
+            Vec::new()
+        },
+        distortion: c.distortion().map(|d| pb::Distortion {
+            k1: d.k1,
+            k2: d.k2,
+            p1: d.p1,
+            p2: d.p2,
+            k3: d.k3,
+        }),
     }
 }
 

@@ -182,6 +182,20 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         respond(&id, answer)
     }
 
+    async fn calibrate(
+        &self,
+        request: Request<pb::CalibrateRequest>,
+    ) -> Result<Response<pb::CalibrateResponse>, Status> {
+        let (id, timeout) = (id_of(&request), deadline_of(&request));
+        let request = request.into_inner();
+        let answer = self
+            .service
+            .calibrate(move || Ok(request), timeout, "grpc")
+            .instrument(span(&id, "Calibrate"))
+            .await;
+        respond(&id, answer)
+    }
+
     async fn delete_session(
         &self,
         request: Request<pb::DeleteSessionRequest>,

@@ -4,6 +4,8 @@
 //! - `POST /v1/match[?timeout_ms=N]`: a `MatchRequest` → a `MatchResponse` (504
 //!   DEADLINE_EXCEEDED past the timeout); or a `multipart/form-data` upload (parts
 //!   `calibration`, `options`, and `segments` or `image1` `image2` `image3`), answered in JSON;
+//! - `POST /v1/calibrate[?timeout_ms=N]`: a `CalibrateRequest` → a `CalibrateResponse`, or a
+//!   multipart upload (parts `pattern`, `options`, `rig_from_pattern`, `image1..3`);
 //! - sessions: `POST /v1/sessions` (a `CreateSessionRequest`), `GET /v1/sessions`,
 //!   `GET|DELETE /v1/sessions/{id}`, `POST /v1/sessions/{id}/captures[?timeout_ms=N]` (an
 //!   `AddCaptureRequest`, or a multipart upload with parts `pose` and `segments` or
@@ -38,6 +40,7 @@ pub fn router(service: Arc<Service>) -> Router {
     let max = service.limits().max_message_bytes;
     Router::new()
         .route("/v1/match", post(match_handler))
+        .route("/v1/calibrate", post(calibrate))
         .route("/v1/sessions", post(create_session).get(list_sessions))
         .route("/v1/sessions/{id}", get(get_session).delete(delete_session))
         .route("/v1/sessions/{id}/captures", post(add_capture))
@@ -287,6 +290,33 @@ fn is_multipart(headers: &HeaderMap) -> bool {
         .is_some_and(|v| v.starts_with("multipart/form-data"))
 }
 
+async fn calibrate(
+    State(service): State<Arc<Service>>,
+    uri: Uri,
+    request: axum::extract::Request,
+) -> Response {
+    let protobuf = is_protobuf(request.headers());
+    let multipart = is_multipart(request.headers());
+    let max_bytes = service.limits().max_message_bytes;
+    let result = async {
+        let timeout = timeout_of(&uri)?;
+        type Read = Box<dyn FnOnce() -> Result<pb::CalibrateRequest, InputError> + Send>;
+        let read: Read = if multipart {
+            let parts = Multipart::from_request(request, &())
+                .await
+                .map_err(|e| ServiceError::Input(InputError::new("request", e.body_text())))?;
+            let request = Upload::read(parts, max_bytes).await?.calibrate_request()?;
+            Box::new(move || Ok(request))
+        } else {
+            let body = read_body(request, max_bytes).await?;
+            Box::new(move || decode_body::<pb::CalibrateRequest>(&body, protobuf))
+        };
+        service.calibrate(read, timeout, "http").await
+    }
+    .await;
+    answer(result, protobuf)
+}
+
 async fn create_session(
     State(service): State<Arc<Service>>,
     request: axum::extract::Request,
@@ -459,13 +489,17 @@ fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response
     })
 }
 
-/// The parts of a `multipart/form-data` upload, for curl: `calibration`, `options` (JSON,
-/// for `/v1/match`), `pose` (JSON, for captures: a `Pose` or its 16 numbers), and either
-/// `segments` (a `SegmentTriplet`, JSON) or `image1`, `image2`, `image3` (image files).
+/// The parts of a `multipart/form-data` upload, for curl: `calibration` and `options` (JSON,
+/// for `/v1/match`), `pose` (JSON, for captures: a `Pose` or its 16 numbers), `pattern`,
+/// `options` and `rig_from_pattern` (JSON, for `/v1/calibrate`), and either `segments` (a
+/// `SegmentTriplet`, JSON) or `image1`, `image2`, `image3` (image files).
 #[derive(Default)]
 struct Upload {
     calibration: Option<pb::Calibration>,
-    options: Option<pb::MatchOptions>,
+    /// Read when it is known which options these are.
+    options: Option<String>,
+    pattern: Option<pb::CalibrationPattern>,
+    rig_from_pattern: Option<pb::Pose>,
     pose: Option<pb::Pose>,
     segments: Option<pb::SegmentTriplet>,
     images: [Option<Vec<u8>>; 3],
@@ -494,20 +528,13 @@ impl Upload {
                 "calibration" => {
                     upload.calibration = Some(from_json("calibration", &text(&name, &bytes)?)?)
                 }
-                "options" => upload.options = Some(from_json("options", &text(&name, &bytes)?)?),
-                "segments" => upload.segments = Some(from_json("segments", &text(&name, &bytes)?)?),
-                "pose" => {
-                    let text = text(&name, &bytes)?;
-                    // A bare list of 16 numbers is accepted too: the easy thing to type.
-                    let pose = if text.trim_start().starts_with('[') {
-                        serde_json::from_str::<Vec<f64>>(&text)
-                            .map(|matrix| pb::Pose { matrix })
-                            .map_err(|e| bad("pose", format!("invalid JSON: {e}")))?
-                    } else {
-                        from_json("pose", &text)?
-                    };
-                    upload.pose = Some(pose);
+                "options" => upload.options = Some(text(&name, &bytes)?),
+                "pattern" => upload.pattern = Some(from_json("pattern", &text(&name, &bytes)?)?),
+                "rig_from_pattern" => {
+                    upload.rig_from_pattern = Some(pose_part(&name, &text(&name, &bytes)?)?)
                 }
+                "segments" => upload.segments = Some(from_json("segments", &text(&name, &bytes)?)?),
+                "pose" => upload.pose = Some(pose_part(&name, &text(&name, &bytes)?)?),
                 "image1" | "image2" | "image3" => {
                     let i = usize::from(name.as_bytes()[5] - b'1');
                     upload.images[i] = Some(bytes.to_vec());
@@ -515,8 +542,8 @@ impl Upload {
                 other => {
                     return Err(bad(
                         other,
-                        "unknown part: expected calibration, options, pose, segments or \
-                         image1..image3"
+                        "unknown part: expected calibration, options, pose, pattern, \
+                         rig_from_pattern, segments or image1..image3"
                             .into(),
                     ))
                 }
@@ -557,7 +584,21 @@ impl Upload {
                 "a match has no pose (captures of a session do)",
             )));
         }
-        let (calibration, options) = (self.calibration.take(), self.options.take());
+        if self.pattern.is_some() || self.rig_from_pattern.is_some() {
+            return Err(ServiceError::Input(InputError::new(
+                if self.pattern.is_some() {
+                    "pattern"
+                } else {
+                    "rig_from_pattern"
+                },
+                "a match has no pattern (calibrations do)",
+            )));
+        }
+        let calibration = self.calibration.take();
+        let options = match self.options.take() {
+            Some(text) => Some(from_json("options", &text)?),
+            None => None,
+        };
         let input = match self.input()? {
             Input::Segments(s) => pb::match_request::Input::Segments(s),
             Input::Images(i) => pb::match_request::Input::Images(i),
@@ -590,6 +631,53 @@ impl Upload {
             session_id: String::new(),
             rig_to_world,
             input: Some(input),
+        })
+    }
+}
+
+/// A pose part: a `Pose` in JSON, or its 16 numbers as a bare list (the easy thing to type).
+fn pose_part(name: &str, text: &str) -> Result<pb::Pose, ServiceError> {
+    if text.trim_start().starts_with('[') {
+        serde_json::from_str::<Vec<f64>>(text)
+            .map(|matrix| pb::Pose { matrix })
+            .map_err(|e| ServiceError::Input(InputError::new(name, format!("invalid JSON: {e}"))))
+    } else {
+        Ok(from_json(name, text)?)
+    }
+}
+
+impl Upload {
+    /// The upload as a `CalibrateRequest`: parts `pattern` (optional: the default pattern),
+    /// `options`, `rig_from_pattern`, and the three images.
+    fn calibrate_request(mut self) -> Result<pb::CalibrateRequest, ServiceError> {
+        if self.calibration.is_some() || self.pose.is_some() || self.segments.is_some() {
+            let part = if self.calibration.is_some() {
+                "calibration"
+            } else if self.pose.is_some() {
+                "pose"
+            } else {
+                "segments"
+            };
+            return Err(ServiceError::Input(InputError::new(
+                part,
+                "a calibration takes pattern, options, rig_from_pattern and image1..image3",
+            )));
+        }
+        let options = match self.options.take() {
+            Some(text) => Some(from_json("options", &text)?),
+            None => None,
+        };
+        let (pattern, rig_from_pattern) = (self.pattern.take(), self.rig_from_pattern.take());
+        let images = match self.input()? {
+            Input::Images(i) => i,
+            Input::Segments(_) => unreachable!("segments were refused above"),
+        };
+        Ok(pb::CalibrateRequest {
+            pattern,
+            input: Some(pb::calibrate_request::Input::Images(images)),
+            rig_from_pattern,
+            options,
+            camera_names: Vec::new(),
         })
     }
 }

@@ -5,6 +5,7 @@
 //! maps core errors to an [`InputError`] that names the offending field by its path in the
 //! request (`calibration.cameras[2].projection`, `segments.lists[1].segments[17].u1`).
 
+pub mod calibrate;
 mod convert;
 mod fast_json;
 pub mod grpc;
@@ -12,9 +13,9 @@ pub mod http;
 pub mod session;
 
 pub use convert::{
-    calibration_to_pb, extract_params, images, match_params, match_request, match_response,
-    rig_from_calibration, segment_list_to_pb, segment_lists, Executed, MatchInput, MatchSource,
-    RequestLimits, RunError, MAX_SEGMENTS_PER_LIST,
+    calibration_to_pb, camera_to_pb, extract_params, images, match_params, match_request,
+    match_response, rig_from_calibration, segment_list_to_pb, segment_lists, Executed, MatchInput,
+    MatchSource, RequestLimits, RunError, MAX_SEGMENTS_PER_LIST,
 };
 pub use fast_json::match_request_from_json;
 

@@ -8,6 +8,7 @@
 //! HTTP (axum) ──┘
 //! ```
 
+pub mod calibration;
 pub mod config;
 pub mod error;
 pub mod metrics;
@@ -196,18 +197,28 @@ impl Service {
             let encoded = encode(&response);
             Ok((response, encoded))
         });
-        let finished = |done: Result<Result<_, RunError>, PoolError>| {
-            done.map_err(ServiceError::from)
-                .and_then(|r| r.map_err(ServiceError::from))
-        };
-        match timeout {
-            None => finished(job.await),
-            Some(t) => match tokio::time::timeout(t, job).await {
-                Ok(done) => finished(done),
-                Err(_) => Err(ServiceError::DeadlineExceeded {
-                    timeout_ms: t.as_millis() as u64,
-                }),
-            },
-        }
+        within(job, timeout).await
+    }
+}
+
+/// Awaits a compute-pool job, or answers DEADLINE_EXCEEDED past `timeout` (none: no
+/// deadline) and drops the job: a queued job then never runs, a running one stops at its next
+/// checkpoint, if it has any.
+pub(crate) async fn within<T, E: Into<ServiceError>>(
+    job: impl std::future::Future<Output = Result<Result<T, E>, PoolError>>,
+    timeout: Option<std::time::Duration>,
+) -> Result<T, ServiceError> {
+    let finished = |done: Result<Result<T, E>, PoolError>| {
+        done.map_err(ServiceError::from)
+            .and_then(|r| r.map_err(Into::into))
+    };
+    match timeout {
+        None => finished(job.await),
+        Some(t) => match tokio::time::timeout(t, job).await {
+            Ok(done) => finished(done),
+            Err(_) => Err(ServiceError::DeadlineExceeded {
+                timeout_ms: t.as_millis() as u64,
+            }),
+        },
     }
 }

@@ -73,7 +73,7 @@ fn check_id(id: &str) -> Result<(), ServiceError> {
 
 impl Service {
     /// Counts and logs a session call under `route`.
-    fn observe<T>(
+    pub(super) fn observe<T>(
         &self,
         transport: &str,
         route: &str,

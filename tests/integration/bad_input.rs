@@ -199,3 +199,32 @@ fn cli_reports_the_field_and_exits_non_zero() {
     assert_eq!(strip(&a), strip(&b));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_camera_may_give_both_models_if_they_agree() {
+    let calibration: pb::Calibration =
+        api::from_json("calibration", &calibration_json().to_string()).unwrap();
+    let rig = api::rig_from_calibration(Some(&calibration)).unwrap();
+    let both = pb::Calibration {
+        cameras: rig
+            .cameras()
+            .iter()
+            .map(|c| api::camera_to_pb(c, true))
+            .collect(),
+    };
+    assert!(!both.cameras[0].projection.is_empty() && !both.cameras[0].intrinsics.is_empty());
+    let again = api::rig_from_calibration(Some(&both)).expect("consistent models are accepted");
+    assert_eq!(again.camera(2).projection(), rig.camera(2).projection());
+
+    let mut scaled = both.clone();
+    for v in &mut scaled.cameras[1].projection {
+        *v *= 3.5; // any positive scale
+    }
+    assert!(api::rig_from_calibration(Some(&scaled)).is_ok());
+
+    let mut off = both.clone();
+    off.cameras[1].projection[3] += 1.0;
+    let e = api::rig_from_calibration(Some(&off)).unwrap_err();
+    assert_eq!(e.field, "calibration.cameras[1].projection");
+    assert!(e.message.contains("disagrees"), "{e}");
+}

@@ -3,6 +3,7 @@
 
 mod accuracy;
 mod bad_input;
+mod calibration;
 mod common;
 mod images;
 mod service;

@@ -1,0 +1,32 @@
+//! The Calibrate use case: the rig's cameras from images of a pattern or from
+//! correspondences, on the compute pool like Match.
+
+use std::time::{Duration, Instant};
+
+use super::{Service, ServiceError};
+use crate::api::{self, pb, InputError};
+use crate::extract::DecodeLimits;
+
+impl Service {
+    /// Calibrate, recorded under `transport`. `read` produces the request on the compute
+    /// pool (so an HTTP body is parsed there); past `timeout` the answer is
+    /// DEADLINE_EXCEEDED and a queued job never runs.
+    pub async fn calibrate(
+        &self,
+        read: impl FnOnce() -> Result<pb::CalibrateRequest, InputError> + Send + 'static,
+        timeout: Option<Duration>,
+        transport: &str,
+    ) -> Result<pb::CalibrateResponse, ServiceError> {
+        let start = Instant::now();
+        let limits = DecodeLimits {
+            max_bytes: self.limits.max_message_bytes,
+            max_pixels: self.limits.max_image_pixels,
+        };
+        let job = self.pool.run(move |_| -> Result<_, InputError> {
+            api::calibrate::calibrate_request(&read()?, &limits)?.run()
+        });
+        let result = super::within(job, timeout).await;
+        self.observe(transport, "calibrate", start, &result);
+        result
+    }
+}

@@ -1,0 +1,324 @@
+//! Calibration end to end: rendered views of the pattern (noise and blur) from random rigs →
+//! `Calibrate` → projection matrices checked against the true ones on points of the scene,
+//! used unchanged in `Match`; the HTTP upload as curl sends it; degenerate inputs refused
+//! naming the field.
+
+use nalgebra::Point3;
+use prost::Message;
+use trinocular::api::{self, pb};
+use trinocular::geometry::Rig;
+use trinocular::service::Limits;
+use trinocular::synth::{pattern_views, render_triplet, RenderParams, Rng};
+
+use crate::common::{embedded_service, runtime, JsonBody};
+
+fn png_triplet(seed: u64) -> (Rig, Vec<pb::Image>) {
+    let (scene, rig, _) = pattern_views(seed);
+    let images = render_triplet(&scene, &rig, &RenderParams::default(), seed)
+        .iter()
+        .map(|image| pb::Image {
+            source: Some(pb::image::Source::Encoded(
+                trinocular::overlay::grey_png(image).expect("png"),
+            )),
+        })
+        .collect();
+    (rig, images)
+}
+
+fn request(images: Vec<pb::Image>) -> pb::CalibrateRequest {
+    pb::CalibrateRequest {
+        pattern: None,
+        input: Some(pb::calibrate_request::Input::Images(pb::ImageTriplet {
+            images,
+        })),
+        rig_from_pattern: None,
+        options: None,
+        camera_names: Vec::new(),
+    }
+}
+
+/// RMS distance, pixels, between where the true and the recovered cameras put points of the
+/// scene around the pattern (not its reference points) that the true camera sees.
+fn held_out_rms(truth: &Rig, recovered: &Rig, view: usize) -> f64 {
+    let mut rng = Rng::new(7 + view as u64);
+    let (t, r) = (truth.camera(view), recovered.camera(view));
+    let mut sum = 0.0;
+    let mut n = 0;
+    while n < 300 {
+        // The pattern spans about 0.5 m from the origin, in x, y ≥ 0, z 0.1–0.45 m.
+        let p = Point3::new(
+            rng.range(-0.1, 0.6),
+            rng.range(-0.1, 0.6),
+            rng.range(-0.1, 0.7),
+        );
+        let (Some(a), Some(b)) = (t.project(&p), r.project(&p)) else {
+            continue;
+        };
+        let inside = |q: &nalgebra::Point2<f64>| {
+            q.x >= 0.0 && q.y >= 0.0 && q.x < t.width() as f64 && q.y < t.height() as f64
+        };
+        if !inside(&a) {
+            continue;
+        }
+        sum += (a - b).norm_squared();
+        n += 1;
+    }
+    (sum / n as f64).sqrt()
+}
+
+#[test]
+fn rendered_pattern_views_calibrate_to_the_true_cameras_and_match_unchanged() {
+    let mut worst = 0.0f64;
+    for seed in [1u64, 2, 3] {
+        let (truth, images) = png_triplet(seed);
+        let req = request(images.clone());
+        let input = api::calibrate::calibrate_request(&req, &Default::default()).expect("valid");
+        let response = input.run().expect("calibrated");
+        assert_eq!(response.reports.len(), 3);
+        for r in &response.reports {
+            assert!(r.points >= 300, "{r:?}");
+            assert_eq!(r.boards_found, 2, "{r:?}");
+            assert!(r.rms_px < 0.3, "{r:?}");
+        }
+        let calibration = response.calibration.expect("a calibration");
+        let recovered = api::rig_from_calibration(Some(&calibration)).expect("usable as is");
+        for view in 0..3 {
+            let rms = held_out_rms(&truth, &recovered, view);
+            worst = worst.max(rms);
+            assert!(
+                rms <= 0.3,
+                "seed {seed}, camera {view}: {rms:.3} px RMS on scene points"
+            );
+        }
+
+        // The answer, unchanged, as the calibration of a Match of the same images.
+        let matched = api::match_request(
+            &pb::MatchRequest {
+                calibration: Some(calibration),
+                options: None,
+                input: Some(pb::match_request::Input::Images(pb::ImageTriplet {
+                    images,
+                })),
+            },
+            &Default::default(),
+        )
+        .expect("accepted")
+        .run()
+        .expect("matched");
+        assert!(
+            matched.segments_3d.len() > 50,
+            "{}",
+            matched.segments_3d.len()
+        );
+    }
+    eprintln!("worst held-out RMS over 3 rigs x 3 cameras: {worst:.3} px");
+}
+
+#[test]
+fn calibrate_over_http_as_curl_sends_it_and_over_grpc() {
+    let (_, images) = png_triplet(4);
+    runtime().block_on(async {
+        let any = "127.0.0.1:0".parse().unwrap();
+        let limits = Limits {
+            threads: 2,
+            max_jobs: 8,
+            ..Limits::default()
+        };
+        let running = trinocular::service::server::start(embedded_service(limits).await, any, any)
+            .await
+            .unwrap();
+        let bytes = |i: usize| match &images[i].source {
+            Some(pb::image::Source::Encoded(b)) => b.clone(),
+            _ => unreachable!("encoded"),
+        };
+        let form = reqwest::multipart::Form::new()
+            .part(
+                "image1",
+                reqwest::multipart::Part::bytes(bytes(0)).file_name("img1.png"),
+            )
+            .part(
+                "image2",
+                reqwest::multipart::Part::bytes(bytes(1)).file_name("img2.png"),
+            )
+            .part(
+                "image3",
+                reqwest::multipart::Part::bytes(bytes(2)).file_name("img3.png"),
+            );
+        let http = reqwest::Client::new();
+        let reply = http
+            .post(format!("http://{}/v1/calibrate", running.http_addr))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 200);
+        let answer: pb::CalibrateResponse =
+            api::from_json("answer", &reply.text().await.unwrap()).unwrap();
+        let calibration = answer.calibration.unwrap();
+        assert_eq!(calibration.cameras.len(), 3);
+        assert_eq!(calibration.cameras[0].intrinsics.len(), 9);
+
+        // The calibration as is starts a session.
+        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            running.grpc_addr
+        ))
+        .await
+        .unwrap()
+        .max_decoding_message_size(64 << 20);
+        let session = grpc
+            .create_session(pb::CreateSessionRequest {
+                name: "recalibrated".into(),
+                calibration: Some(calibration.clone()),
+                options: None,
+                map_options: None,
+            })
+            .await
+            .expect("the Calibrate answer works unchanged")
+            .into_inner();
+        assert_eq!(session.calibration.unwrap(), calibration);
+
+        // gRPC gives the same cameras.
+        let by_grpc = grpc
+            .calibrate(request(images.clone()))
+            .await
+            .unwrap()
+            .into_inner();
+        let a = api::rig_from_calibration(by_grpc.calibration.as_ref()).unwrap();
+        let b = api::rig_from_calibration(Some(&calibration)).unwrap();
+        assert_eq!(a.camera(1).projection(), b.camera(1).projection());
+
+        // A blank image: the board is not found, naming the image.
+        let mut blank = images.clone();
+        blank[2] = pb::Image {
+            source: Some(pb::image::Source::Raw(pb::RawImage {
+                width: 512,
+                height: 512,
+                data: vec![128; 512 * 512],
+            })),
+        };
+        let reply = http
+            .post(format!("http://{}/v1/calibrate", running.http_addr))
+            .header("content-type", "application/x-protobuf")
+            .body(request(blank).encode_to_vec())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        let body = reply.json_body().await;
+        assert_eq!(body["error"]["field"], "images.images[2]", "{body}");
+        running.shutdown().await;
+    });
+}
+
+/// Correspondences of the true cameras of `pattern_views(5)` for the given 3D points.
+fn correspondences(points: &[Point3<f64>]) -> pb::Correspondences {
+    let (_, rig, _) = pattern_views(5);
+    pb::Correspondences {
+        points_3d: points
+            .iter()
+            .map(|p| pb::Point3 {
+                x: p.x,
+                y: p.y,
+                z: p.z,
+            })
+            .collect(),
+        points_2d: rig
+            .cameras()
+            .iter()
+            .map(|c| pb::ImagePoints {
+                points: points
+                    .iter()
+                    .map(|p| {
+                        let q = c.project(p).unwrap();
+                        pb::Point2 { u: q.x, v: q.y }
+                    })
+                    .collect(),
+                width: c.width(),
+                height: c.height(),
+            })
+            .collect(),
+    }
+}
+
+fn calibrate_points(c: pb::Correspondences) -> Result<pb::CalibrateResponse, String> {
+    let req = pb::CalibrateRequest {
+        input: Some(pb::calibrate_request::Input::Correspondences(c)),
+        ..request(Vec::new())
+    };
+    api::calibrate::calibrate_request(&req, &Default::default())
+        .and_then(|input| input.run())
+        .map_err(|e| e.to_string())
+}
+
+#[test]
+fn correspondences_calibrate_and_degenerate_ones_are_refused_naming_the_field() {
+    let pattern = trinocular::calibrate::CalibrationPattern::default();
+    let all: Vec<Point3<f64>> = pattern
+        .reference_points()
+        .into_iter()
+        .map(|(_, p)| p)
+        .collect();
+    let fit = calibrate_points(correspondences(&all)).expect("exact correspondences");
+    assert!(
+        fit.reports.iter().all(|r| r.rms_px < 1e-6),
+        "{:?}",
+        fit.reports
+    );
+
+    // One board only: coplanar.
+    let one_board: Vec<Point3<f64>> = pattern
+        .reference_points()
+        .into_iter()
+        .filter(|(id, _)| id.board == 0)
+        .map(|(_, p)| p)
+        .collect();
+    let e = calibrate_points(correspondences(&one_board)).unwrap_err();
+    assert!(
+        e.starts_with("correspondences.points_2d[0]: ") && e.contains("plan"),
+        "{e}"
+    );
+    // Fewer than six points.
+    let e = calibrate_points(correspondences(&all[..5])).unwrap_err();
+    assert!(e.starts_with("correspondences.points_2d[0]: "), "{e}");
+    // NaN.
+    let mut nan = correspondences(&all);
+    nan.points_2d[1].points[7].v = f64::NAN;
+    let e = calibrate_points(nan).unwrap_err();
+    assert!(e.starts_with("correspondences.points_2d[1]: "), "{e}");
+    // Lists that do not pair up.
+    let mut short = correspondences(&all);
+    short.points_2d[2].points.pop();
+    let e = calibrate_points(short).unwrap_err();
+    assert!(
+        e.starts_with("correspondences.points_2d[2].points: "),
+        "{e}"
+    );
+
+    // A bad pattern names its field.
+    let bad = pb::CalibrateRequest {
+        pattern: Some(pb::CalibrationPattern {
+            boards: vec![pb::GridBoard {
+                origin: Some(pb::Point3::default()),
+                u_axis: Some(pb::Point3 {
+                    x: 1.0,
+                    y: 0.0,
+                    z: 0.0,
+                }),
+                v_axis: Some(pb::Point3 {
+                    x: 0.0,
+                    y: 0.0,
+                    z: -1.0,
+                }),
+                rows: 4,
+                cols: 4,
+                square: 0.04,
+                pitch: 0.03,
+                missing: vec![],
+            }],
+        }),
+        ..request(Vec::new())
+    };
+    let e = api::calibrate::calibrate_request(&bad, &Default::default()).unwrap_err();
+    assert_eq!(e.field, "pattern.boards[0].pitch");
+}

@@ -322,3 +322,52 @@ fn correspondences_calibrate_and_degenerate_ones_are_refused_naming_the_field() 
     let e = api::calibrate::calibrate_request(&bad, &Default::default()).unwrap_err();
     assert_eq!(e.field, "pattern.boards[0].pitch");
 }
+
+#[test]
+fn the_cli_calibrates_and_its_output_feeds_match() {
+    let (_, images) = png_triplet(6);
+    let dir = crate::common::scratch_dir("calibrate-cli");
+    let paths: Vec<_> = (0..3)
+        .map(|i| {
+            let path = dir.join(format!("img{}.png", i + 1));
+            match &images[i].source {
+                Some(pb::image::Source::Encoded(b)) => std::fs::write(&path, b).unwrap(),
+                _ => unreachable!("encoded"),
+            }
+            path
+        })
+        .collect();
+    let calibration = dir.join("calibration.json");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
+        .arg("calibrate")
+        .arg("--images")
+        .args(&paths)
+        .arg("-o")
+        .arg(&calibration)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(report.matches("reprojection RMS").count(), 3, "{report}");
+    let matched = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
+        .arg("match")
+        .arg("--calibration")
+        .arg(&calibration)
+        .arg("--images")
+        .args(&paths)
+        .output()
+        .unwrap();
+    assert!(
+        matched.status.success(),
+        "{}",
+        String::from_utf8_lossy(&matched.stderr)
+    );
+    let response: pb::MatchResponse =
+        api::from_json("response", &String::from_utf8(matched.stdout).unwrap()).unwrap();
+    assert!(!response.segments_3d.is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
+}

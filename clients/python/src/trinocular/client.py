@@ -1,0 +1,386 @@
+"""A friendly client over the generated gRPC stubs (trinocular.v1)."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Union
+
+import grpc
+import numpy as np
+from google.protobuf import json_format
+
+from .errors import from_rpc_error
+from .v1 import trinocular_pb2 as pb
+from .v1 import trinocular_pb2_grpc as pb_grpc
+
+ImageLike = Union[str, os.PathLike, bytes, bytearray, memoryview, np.ndarray, "pb.Image"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Conversions
+
+
+def _to_dict(msg) -> Dict[str, Any]:
+    return json_format.MessageToDict(msg)
+
+
+def load_calibration(calibration) -> "pb.Calibration":
+    """A Calibration message from a message, a proto3 JSON dict, a JSON string, or the path of
+    a JSON file."""
+    if isinstance(calibration, pb.Calibration):
+        return calibration
+    if isinstance(calibration, (str, os.PathLike)):
+        text = str(calibration)
+        if not text.lstrip().startswith("{"):
+            text = Path(calibration).read_text()
+        calibration = json.loads(text)
+    if isinstance(calibration, dict):
+        return json_format.ParseDict(calibration, pb.Calibration())
+    raise TypeError(f"calibration: expected a dict, a JSON path or a Calibration, got {type(calibration)!r}")
+
+
+def _parse(options, cls):
+    if options is None:
+        return None
+    if isinstance(options, cls):
+        return options
+    if isinstance(options, dict):
+        return json_format.ParseDict(options, cls())
+    raise TypeError(f"options: expected a dict or {cls.__name__}, got {type(options)!r}")
+
+
+def to_image(image: ImageLike) -> "pb.Image":
+    """An Image message: a path (encoded file), bytes (encoded), or a 2-D uint8 array (raw)."""
+    if isinstance(image, pb.Image):
+        return image
+    if isinstance(image, np.ndarray):
+        if image.ndim != 2 or image.dtype != np.uint8:
+            raise TypeError(
+                f"image arrays must be 2-D uint8 (grey), got shape {image.shape} dtype {image.dtype}"
+            )
+        h, w = image.shape
+        return pb.Image(raw=pb.RawImage(width=w, height=h, data=np.ascontiguousarray(image).tobytes()))
+    if isinstance(image, (bytes, bytearray, memoryview)):
+        return pb.Image(encoded=bytes(image))
+    if isinstance(image, (str, os.PathLike)):
+        return pb.Image(encoded=Path(image).read_bytes())
+    raise TypeError(f"image: expected a path, bytes or a numpy array, got {type(image)!r}")
+
+
+def _images(imgs: Sequence[ImageLike]) -> "pb.ImageTriplet":
+    if len(imgs) != 3:
+        raise ValueError(f"expected three images, got {len(imgs)}")
+    return pb.ImageTriplet(images=[to_image(i) for i in imgs])
+
+
+def to_segment_list(lst, oriented: bool = False) -> "pb.SegmentList":
+    """A SegmentList from a message, or N×4 (u1, v1, u2, v2) / N×5 (+ gradient, NaN: unknown)
+    numbers."""
+    if isinstance(lst, pb.SegmentList):
+        return lst
+    arr = np.asarray(lst, dtype=float)
+    if arr.size == 0:
+        return pb.SegmentList(oriented=oriented)
+    if arr.ndim != 2 or arr.shape[1] not in (4, 5):
+        raise ValueError(f"a segment list must be N×4 or N×5, got shape {arr.shape}")
+    segs = []
+    for row in arr:
+        s = pb.Segment(u1=row[0], v1=row[1], u2=row[2], v2=row[3])
+        if arr.shape[1] == 5 and np.isfinite(row[4]):
+            s.gradient = row[4]
+        segs.append(s)
+    return pb.SegmentList(segments=segs, oriented=oriented)
+
+
+def _segments(lists, oriented: bool) -> "pb.SegmentTriplet":
+    if isinstance(lists, pb.SegmentTriplet):
+        return lists
+    if len(lists) != 3:
+        raise ValueError(f"expected three segment lists, got {len(lists)}")
+    return pb.SegmentTriplet(lists=[to_segment_list(l, oriented) for l in lists])
+
+
+def segment_list_array(lst: "pb.SegmentList") -> np.ndarray:
+    """N×5 array (u1, v1, u2, v2, gradient — NaN when absent)."""
+    out = np.full((len(lst.segments), 5), np.nan)
+    for i, s in enumerate(lst.segments):
+        out[i, :4] = (s.u1, s.v1, s.u2, s.v2)
+        if s.HasField("gradient"):
+            out[i, 4] = s.gradient
+    return out
+
+
+def _pose(matrix) -> "pb.Pose":
+    if isinstance(matrix, pb.Pose):
+        return matrix
+    m = np.asarray(matrix, dtype=float)
+    if m.shape not in ((4, 4), (16,)):
+        raise ValueError(f"rig_to_world must be a 4x4 matrix, got shape {m.shape}")
+    return pb.Pose(matrix=m.reshape(16).tolist())
+
+
+def _points(pairs) -> np.ndarray:
+    """M×2×3 array from messages with .start and .end Point3."""
+    arr = np.empty((len(pairs), 2, 3))
+    for i, s in enumerate(pairs):
+        arr[i, 0] = (s.start.x, s.start.y, s.start.z)
+        arr[i, 1] = (s.end.x, s.end.y, s.end.z)
+    return arr
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+
+
+@dataclass
+class MatchResult:
+    """One capture's match. `triplets`: N×3 indices into the three input (or extracted) lists;
+    `segments_3d`: M×2×3 endpoints, metres, rig frame; `residual_px`: M reprojection residuals
+    of the 3D segments; `extracted`: the three extracted lists as N×5 arrays (image input with
+    options {"returnExtracted": true}), `extracted_lists` the same as SegmentList messages."""
+
+    triplets: np.ndarray
+    segments_3d: np.ndarray
+    residual_px: np.ndarray
+    stats: Dict[str, Any]
+    triplet_residual_px: np.ndarray = None
+    direction_sigma_deg: np.ndarray = None
+    extracted: List[np.ndarray] = field(default_factory=list)
+    extracted_lists: List[Any] = field(default_factory=list)
+    raw: Any = None
+
+    @classmethod
+    def from_pb(cls, r: "pb.MatchResponse") -> "MatchResult":
+        tri = np.array([(t.s1, t.s2, t.s3) for t in r.triplets], dtype=np.int64).reshape(-1, 3)
+        return cls(
+            triplets=tri,
+            segments_3d=_points(r.segments_3d),
+            residual_px=np.array([s.residual_px for s in r.segments_3d], dtype=float),
+            stats=_to_dict(r.stats),
+            triplet_residual_px=np.array([t.residual_px for t in r.triplets], dtype=float),
+            direction_sigma_deg=np.array([s.direction_sigma_deg for s in r.segments_3d], dtype=float),
+            extracted=[segment_list_array(l) for l in r.extracted],
+            extracted_lists=list(r.extracted),
+            raw=r,
+        )
+
+
+@dataclass
+class Map:
+    """A session's fused map, world frame: `segments` M×2×3, `observations` M captures
+    counts, `captures` per-segment capture indices, `poses` K×4×4 rig poses."""
+
+    session_id: str
+    segments: np.ndarray
+    observations: np.ndarray
+    captures: List[List[int]]
+    poses: np.ndarray
+    fuse_ms: float = 0.0
+    raw: Any = None
+
+    @classmethod
+    def from_pb(cls, m: "pb.Map") -> "Map":
+        return cls(
+            session_id=m.session_id,
+            segments=_points(m.segments),
+            observations=np.array([s.observations for s in m.segments], dtype=np.int64),
+            captures=[list(s.captures) for s in m.segments],
+            poses=np.array([list(p.matrix) for p in m.poses], dtype=float).reshape(-1, 4, 4),
+            fuse_ms=m.fuse_ms,
+            raw=m,
+        )
+
+    def summary(self) -> str:
+        if len(self.segments) == 0:
+            return f"map {self.session_id}: 0 segments, {len(self.poses)} poses"
+        lengths = np.linalg.norm(self.segments[:, 1] - self.segments[:, 0], axis=1)
+        multi = int((self.observations >= 2).sum())
+        return (
+            f"map {self.session_id}: {len(self.segments)} segments ({multi} seen by 2+ captures), "
+            f"total length {lengths.sum():.2f} m, {len(self.poses)} poses, fused in {self.fuse_ms:.1f} ms"
+        )
+
+
+@dataclass
+class Session:
+    id: str
+    name: str
+    created_unix_ms: int
+    last_used_unix_ms: int
+    captures: int
+    idle_ttl_s: int
+    calibration: Optional[Dict[str, Any]] = None
+    options: Optional[Dict[str, Any]] = None
+    map_options: Optional[Dict[str, Any]] = None
+    raw: Any = None
+
+    @classmethod
+    def from_pb(cls, s: "pb.Session") -> "Session":
+        return cls(
+            id=s.id,
+            name=s.name,
+            created_unix_ms=s.created_unix_ms,
+            last_used_unix_ms=s.last_used_unix_ms,
+            captures=s.captures,
+            idle_ttl_s=s.idle_ttl_s,
+            calibration=_to_dict(s.calibration) if s.HasField("calibration") else None,
+            options=_to_dict(s.options) if s.HasField("options") else None,
+            map_options=_to_dict(s.map_options) if s.HasField("map_options") else None,
+            raw=s,
+        )
+
+
+@dataclass
+class CaptureResult:
+    """AddCapture's answer: this capture's match (rig frame), its index, the capture count."""
+
+    capture_index: int
+    captures: int
+    match: MatchResult
+
+
+@dataclass
+class CalibrationResult:
+    """`calibration`: proto3 JSON dict usable as the `calibration` of every call; `reports`:
+    per camera {camera, rmsPx, maxPx, points, boardsFound}."""
+
+    calibration: Dict[str, Any]
+    reports: List[Dict[str, Any]]
+    total_ms: float = 0.0
+    raw: Any = None
+
+
+# ---------------------------------------------------------------------------------------------
+# Client
+
+
+class Client:
+    """A connection to a Trinocular server's gRPC port.
+
+    >>> c = Client("localhost:50051")
+    >>> r = c.match_images("demo/calibration.json", "demo/img1.png", "demo/img2.png", "demo/img3.png")
+    >>> r.segments_3d.shape  # (M, 2, 3)
+    """
+
+    def __init__(self, target: str = "localhost:50051", timeout: Optional[float] = None,
+                 max_message_mib: int = 64, channel: Optional[grpc.Channel] = None):
+        self.target = target
+        self.timeout = timeout
+        n = max_message_mib * 1024 * 1024
+        self._channel = channel or grpc.insecure_channel(
+            target,
+            options=[("grpc.max_send_message_length", n), ("grpc.max_receive_message_length", n)],
+        )
+        self._stub = pb_grpc.TrinocularStub(self._channel)
+
+    def close(self) -> None:
+        self._channel.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _call(self, name: str, request, default_field: Optional[str] = None):
+        try:
+            return getattr(self._stub, name)(request, timeout=self.timeout)
+        except grpc.RpcError as e:
+            raise from_rpc_error(e, default_field) from None
+
+    # -- matching ------------------------------------------------------------------------------
+
+    def match_images(self, calibration, img1: ImageLike, img2: ImageLike, img3: ImageLike,
+                     options=None) -> MatchResult:
+        """Extracts segments from three images and matches them. Images: paths, encoded bytes,
+        or 2-D uint8 numpy arrays. `options`: MatchOptions as proto3 JSON dict or message."""
+        req = pb.MatchRequest(calibration=load_calibration(calibration),
+                              images=_images([img1, img2, img3]))
+        opts = _parse(options, pb.MatchOptions)
+        if opts is not None:
+            req.options.CopyFrom(opts)
+        return MatchResult.from_pb(self._call("Match", req))
+
+    def match_segments(self, calibration, lists, options=None, oriented: bool = False) -> MatchResult:
+        """Matches three segment lists (each N×4 (u1, v1, u2, v2), N×5 with gradient, or a
+        SegmentList); `oriented`: the lists are oriented by contrast. `MatchResult.extracted`
+        of an image match can be passed back with oriented=True."""
+        req = pb.MatchRequest(calibration=load_calibration(calibration),
+                              segments=_segments(lists, oriented))
+        opts = _parse(options, pb.MatchOptions)
+        if opts is not None:
+            req.options.CopyFrom(opts)
+        return MatchResult.from_pb(self._call("Match", req))
+
+    # -- calibration ---------------------------------------------------------------------------
+
+    def calibrate(self, img1: ImageLike, img2: ImageLike, img3: ImageLike, pattern=None,
+                  distortion: bool = False, rig_from_pattern=None,
+                  camera_names: Optional[Sequence[str]] = None, extract=None) -> CalibrationResult:
+        """Estimates the three cameras from images of the pattern (default: the README's)."""
+        req = pb.CalibrateRequest(images=_images([img1, img2, img3]))
+        pat = _parse(pattern, pb.CalibrationPattern)
+        if pat is not None:
+            req.pattern.CopyFrom(pat)
+        if rig_from_pattern is not None:
+            req.rig_from_pattern.CopyFrom(_pose(rig_from_pattern))
+        req.options.distortion = bool(distortion)
+        ext = _parse(extract, pb.ExtractOptions)
+        if ext is not None:
+            req.options.extract.CopyFrom(ext)
+        if camera_names:
+            req.camera_names.extend(camera_names)
+        r = self._call("Calibrate", req)
+        return CalibrationResult(
+            calibration=_to_dict(r.calibration),
+            reports=[_to_dict(x) for x in r.reports],
+            total_ms=r.total_ms,
+            raw=r,
+        )
+
+    # -- sessions ------------------------------------------------------------------------------
+
+    def create_session(self, calibration, name: str = "", options=None,
+                       min_observations: Optional[int] = None) -> Session:
+        req = pb.CreateSessionRequest(name=name, calibration=load_calibration(calibration))
+        opts = _parse(options, pb.MatchOptions)
+        if opts is not None:
+            req.options.CopyFrom(opts)
+        if min_observations is not None:
+            req.map_options.min_observations = int(min_observations)
+        return Session.from_pb(self._call("CreateSession", req))
+
+    def add_capture(self, session_id: str, rig_to_world, images: Optional[Sequence[ImageLike]] = None,
+                    segments=None, oriented: bool = False) -> CaptureResult:
+        """Adds one capture taken from `rig_to_world` (4x4): `images` (three) or `segments`
+        (three lists), not both."""
+        if (images is None) == (segments is None):
+            raise ValueError("give exactly one of images= or segments=")
+        req = pb.AddCaptureRequest(session_id=session_id, rig_to_world=_pose(rig_to_world))
+        if images is not None:
+            req.images.CopyFrom(_images(list(images)))
+        else:
+            req.segments.CopyFrom(_segments(segments, oriented))
+        r = self._call("AddCapture", req, "session_id")
+        return CaptureResult(capture_index=r.capture_index, captures=r.map.captures,
+                             match=MatchResult.from_pb(r.match))
+
+    def get_map(self, session_id: str, min_observations: Optional[int] = None) -> Map:
+        req = pb.GetMapRequest(session_id=session_id)
+        if min_observations is not None:
+            req.min_observations = int(min_observations)
+        return Map.from_pb(self._call("GetMap", req, "session_id"))
+
+    def get_session(self, session_id: str) -> Session:
+        return Session.from_pb(self._call("GetSession", pb.GetSessionRequest(session_id=session_id),
+                                          "session_id"))
+
+    def list_sessions(self) -> List[Session]:
+        r = self._call("ListSessions", pb.ListSessionsRequest())
+        return [Session.from_pb(s) for s in r.sessions]
+
+    def delete_session(self, session_id: str) -> None:
+        self._call("DeleteSession", pb.DeleteSessionRequest(session_id=session_id), "session_id")

@@ -1,0 +1,232 @@
+"""The client against a live server: $TRINOCULAR_BIN (default <repo>/target/release/trinocular)."""
+
+import json
+import os
+import re
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import trinocular
+from trinocular import Client, InvalidArgument, NotFound, TrinocularError
+
+REPO = Path(__file__).resolve().parents[3]
+IDENTITY = np.eye(4)
+
+
+def _binary() -> Path:
+    b = Path(os.environ.get("TRINOCULAR_BIN", REPO / "target" / "release" / "trinocular"))
+    if not b.is_file():
+        pytest.fail(f"no server binary at {b}: run `cargo build --release` or set TRINOCULAR_BIN")
+    return b
+
+
+@pytest.fixture(scope="session")
+def server():
+    """Starts `trinocular serve` on ephemeral ports; yields (grpc_addr, http_addr)."""
+    proc = subprocess.Popen(
+        [str(_binary()), "serve", "--grpc-addr", "127.0.0.1:0", "--http-addr", "127.0.0.1:0",
+         "--store", "memory", "--threads", "2"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )
+    found = {}
+    ready = threading.Event()
+    log = []
+
+    def read():
+        for line in proc.stderr:
+            log.append(line)
+            m = re.search(r"listening.*grpc=(\S+) http=(\S+)", re.sub(r"\x1b\[[0-9;]*m", "", line))
+            if m and not ready.is_set():
+                found["grpc"], found["http"] = m.group(1), m.group(2)
+                ready.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    try:
+        if not ready.wait(30):
+            pytest.fail("server did not report `listening`:\n" + "".join(log))
+        yield found["grpc"], found["http"]
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="session")
+def client(server):
+    with Client(server[0], timeout=60) as c:
+        yield c
+
+
+@pytest.fixture(scope="session")
+def demo(tmp_path_factory):
+    """`trinocular demo --out DIR`: img1..3.png and calibration.json."""
+    out = tmp_path_factory.mktemp("demo")
+    subprocess.run([str(_binary()), "demo", "--out", str(out)], check=True,
+                   stdout=subprocess.DEVNULL)
+    return out
+
+
+def _grey(path: Path) -> np.ndarray:
+    """A PNG decoded to a 2-D uint8 array by the server itself is not available, so decode it
+    with the standard library (8-bit grey or RGB, non-interlaced PNG)."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, w = 8, b"", 0
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            w, h, depth, colour = struct.unpack(">IIBB", body[:10])
+            assert depth == 8 and colour in (0, 2, 4, 6), (depth, colour)
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    channels = {0: 1, 2: 3, 4: 2, 6: 4}[colour]
+    raw = zlib.decompress(idat)
+    stride = w * channels
+    out = np.zeros((h, stride), dtype=np.int32)
+    prev = np.zeros(stride, dtype=np.int32)
+    for y in range(h):
+        f = raw[y * (stride + 1)]
+        line = np.frombuffer(raw, np.uint8, stride, y * (stride + 1) + 1).astype(np.int32)
+        if f == 0:
+            cur = line.copy()
+        elif f == 2:
+            cur = (line + prev) & 0xFF
+        elif f == 1:
+            cur = (np.cumsum(line.reshape(-1, channels), axis=0) & 0xFF).reshape(-1)
+        else:
+            cur = np.zeros(stride, dtype=np.int32)
+            for x in range(stride):
+                a = cur[x - channels] if x >= channels else 0
+                b = prev[x]
+                c = prev[x - channels] if x >= channels else 0
+                if f == 3:
+                    p = (a + b) // 2
+                else:
+                    pa, pb_, pc = abs(b - c), abs(a - c), abs(a + b - 2 * c)
+                    p = a if pa <= pb_ and pa <= pc else (b if pb_ <= pc else c)
+                cur[x] = (line[x] + p) & 0xFF
+        out[y] = cur
+        prev = cur
+    img = out.reshape(h, w, channels)
+    if channels == 1:
+        return img[:, :, 0].astype(np.uint8)
+    return img[:, :, 0].astype(np.uint8) if channels == 2 else np.round(
+        img[:, :, :3] @ [0.299, 0.587, 0.114]).astype(np.uint8)
+
+
+def _paths(demo):
+    return [demo / f"img{i}.png" for i in (1, 2, 3)]
+
+
+def test_match_images_paths_bytes_arrays_agree(client, demo):
+    cal = demo / "calibration.json"
+    by_path = client.match_images(cal, *_paths(demo))
+    assert by_path.segments_3d.ndim == 3 and by_path.segments_3d.shape[1:] == (2, 3)
+    assert len(by_path.segments_3d) > 10
+    assert by_path.triplets.shape[1] == 3 and by_path.triplets.dtype.kind == "i"
+    assert by_path.stats["triplets"] == len(by_path.triplets)
+    by_bytes = client.match_images(json.loads(cal.read_text()),
+                                   *[p.read_bytes() for p in _paths(demo)])
+    np.testing.assert_array_equal(by_path.segments_3d, by_bytes.segments_3d)
+    np.testing.assert_array_equal(by_path.triplets, by_bytes.triplets)
+
+
+def test_match_images_numpy_raw(client, demo):
+    cal = demo / "calibration.json"
+    arrays = [_grey(p) for p in _paths(demo)]
+    if any(a.ndim != 2 for a in arrays):  # pragma: no cover
+        pytest.skip("unexpected PNG layout")
+    by_path = client.match_images(cal, *_paths(demo))
+    by_array = client.match_images(cal, *arrays)
+    # Grey PNGs decode to the same pixels; colour ones may differ by rounding of the grey.
+    if all(_is_grey_png(p) for p in _paths(demo)):
+        np.testing.assert_array_equal(by_path.segments_3d, by_array.segments_3d)
+    else:
+        assert abs(len(by_array.segments_3d) - len(by_path.segments_3d)) <= 0.1 * len(by_path.segments_3d) + 2
+
+
+def _is_grey_png(p: Path) -> bool:
+    return p.read_bytes()[25] == 0
+
+
+def test_match_segments_from_extracted(client, demo):
+    cal = demo / "calibration.json"
+    images = client.match_images(cal, *_paths(demo), options={"returnExtracted": True})
+    assert len(images.extracted) == 3 and all(e.shape[1] == 5 for e in images.extracted)
+    oriented = all(l.oriented for l in images.extracted_lists)
+    segs = client.match_segments(cal, images.extracted, oriented=oriented)
+    np.testing.assert_allclose(segs.segments_3d, images.segments_3d)
+    np.testing.assert_array_equal(segs.triplets, images.triplets)
+    # plain (u1, v1, u2, v2) lists work too
+    plain = client.match_segments(cal, [e[:, :4].tolist() for e in images.extracted])
+    assert len(plain.segments_3d) > 0
+
+
+def test_invalid_calibration_names_the_field(client, demo):
+    cal = json.loads((demo / "calibration.json").read_text())
+    cam = cal["cameras"][2]
+    for k in ("intrinsics", "rotation", "translation"):
+        cam.pop(k, None)
+    cam["projection"] = [1.0, 2.0, 3.0]
+    with pytest.raises(InvalidArgument) as e:
+        client.match_images(cal, *_paths(demo))
+    assert e.value.field == "calibration.cameras[2].projection", e.value.message
+    assert isinstance(e.value, TrinocularError)
+
+
+def test_session_lifecycle(client, demo):
+    cal = demo / "calibration.json"
+    s = client.create_session(cal, name="py-test", min_observations=1)
+    assert re.fullmatch(r"[0-9a-f]{32}", s.id) and s.name == "py-test"
+    for i in range(2):
+        r = client.add_capture(s.id, IDENTITY, images=_paths(demo))
+        assert r.capture_index == i and r.captures == i + 1
+        assert len(r.match.segments_3d) > 0
+    m = client.get_map(s.id)
+    assert m.segments.shape[1:] == (2, 3) and len(m.segments) > 0
+    assert m.poses.shape == (2, 4, 4)
+    np.testing.assert_array_equal(m.poses[0], IDENTITY)
+    assert m.observations.max() == 2
+    assert len(client.get_map(s.id, min_observations=3).segments) == 0
+    assert client.get_session(s.id).captures == 2
+    assert s.id in [x.id for x in client.list_sessions()]
+    client.delete_session(s.id)
+    with pytest.raises(NotFound) as e:
+        client.get_session(s.id)
+    assert e.value.field == "session_id"
+    with pytest.raises(NotFound):
+        client.get_map(s.id)
+
+
+def test_bad_pose_is_invalid(client, demo):
+    s = client.create_session(demo / "calibration.json")
+    bad = np.eye(4)
+    bad[0, 0] = 2.0
+    with pytest.raises(InvalidArgument) as e:
+        client.add_capture(s.id, bad, images=_paths(demo))
+    assert e.value.field.startswith("rig_to_world.matrix"), e.value.message
+    client.delete_session(s.id)
+
+
+def test_calibrate_blank_images(client):
+    blank = np.full((240, 320), 128, dtype=np.uint8)
+    with pytest.raises(InvalidArgument) as e:
+        client.calibrate(blank, blank, blank)
+    assert e.value.field is not None and e.value.field.startswith("images.images[0]"), e.value.message
+
+
+def test_version():
+    assert trinocular.__version__

@@ -552,6 +552,34 @@ impl Upload {
         Ok(upload)
     }
 
+    fn given(&self, part: &str) -> bool {
+        match part {
+            "calibration" => self.calibration.is_some(),
+            "options" => self.options.is_some(),
+            "pose" => self.pose.is_some(),
+            "pattern" => self.pattern.is_some(),
+            "rig_from_pattern" => self.rig_from_pattern.is_some(),
+            "segments" => self.segments.is_some(),
+            _ => false,
+        }
+    }
+
+    /// An error naming the first of `parts` that was uploaded (they do not belong here).
+    fn refuse(&self, parts: &[&str], why: &str) -> Result<(), ServiceError> {
+        match parts.iter().find(|p| self.given(p)) {
+            Some(part) => Err(ServiceError::Input(InputError::new(*part, why))),
+            None => Ok(()),
+        }
+    }
+
+    /// The `options` part, read as the options of the call at hand (match or calibrate).
+    fn options<T: serde::de::DeserializeOwned>(&mut self) -> Result<Option<T>, ServiceError> {
+        match self.options.take() {
+            Some(text) => Ok(Some(from_json("options", &text)?)),
+            None => Ok(None),
+        }
+    }
+
     /// The input: segments, or the three images.
     fn input(self) -> Result<Input, ServiceError> {
         let bad =
@@ -578,27 +606,13 @@ impl Upload {
 
     /// The upload as a `MatchRequest`.
     fn match_request(mut self) -> Result<pb::MatchRequest, ServiceError> {
-        if self.pose.is_some() {
-            return Err(ServiceError::Input(InputError::new(
-                "pose",
-                "a match has no pose (captures of a session do)",
-            )));
-        }
-        if self.pattern.is_some() || self.rig_from_pattern.is_some() {
-            return Err(ServiceError::Input(InputError::new(
-                if self.pattern.is_some() {
-                    "pattern"
-                } else {
-                    "rig_from_pattern"
-                },
-                "a match has no pattern (calibrations do)",
-            )));
-        }
+        self.refuse(&["pose"], "a match has no pose (captures of a session do)")?;
+        self.refuse(
+            &["pattern", "rig_from_pattern"],
+            "a match has no pattern (calibrations do)",
+        )?;
         let calibration = self.calibration.take();
-        let options = match self.options.take() {
-            Some(text) => Some(from_json("options", &text)?),
-            None => None,
-        };
+        let options = self.options()?;
         let input = match self.input()? {
             Input::Segments(s) => pb::match_request::Input::Segments(s),
             Input::Images(i) => pb::match_request::Input::Images(i),
@@ -612,16 +626,10 @@ impl Upload {
 
     /// The upload as an `AddCaptureRequest` (its session from the URL).
     fn capture(mut self) -> Result<pb::AddCaptureRequest, ServiceError> {
-        if self.calibration.is_some() || self.options.is_some() {
-            return Err(ServiceError::Input(InputError::new(
-                if self.calibration.is_some() {
-                    "calibration"
-                } else {
-                    "options"
-                },
-                "a session's captures use the calibration and options given when it was created",
-            )));
-        }
+        self.refuse(
+            &["calibration", "options"],
+            "a session's captures use the calibration and options given when it was created",
+        )?;
         let rig_to_world = self.pose.take();
         let input = match self.input()? {
             Input::Segments(s) => pb::add_capture_request::Input::Segments(s),
@@ -650,23 +658,11 @@ impl Upload {
     /// The upload as a `CalibrateRequest`: parts `pattern` (optional: the default pattern),
     /// `options`, `rig_from_pattern`, and the three images.
     fn calibrate_request(mut self) -> Result<pb::CalibrateRequest, ServiceError> {
-        if self.calibration.is_some() || self.pose.is_some() || self.segments.is_some() {
-            let part = if self.calibration.is_some() {
-                "calibration"
-            } else if self.pose.is_some() {
-                "pose"
-            } else {
-                "segments"
-            };
-            return Err(ServiceError::Input(InputError::new(
-                part,
-                "a calibration takes pattern, options, rig_from_pattern and image1..image3",
-            )));
-        }
-        let options = match self.options.take() {
-            Some(text) => Some(from_json("options", &text)?),
-            None => None,
-        };
+        self.refuse(
+            &["calibration", "pose", "segments"],
+            "a calibration takes pattern, options, rig_from_pattern and image1..image3",
+        )?;
+        let options = self.options()?;
         let (pattern, rig_from_pattern) = (self.pattern.take(), self.rig_from_pattern.take());
         let images = match self.input()? {
             Input::Images(i) => i,

@@ -3,6 +3,8 @@
 //!
 //!     cargo run --release --example accuracy [-- SEEDS [param=value ...]]
 //!
+//! e.g. `-- 5 include_uncertain=1` for every segment, not only those that meet the gate.
+//!
 //! Two views of the same output, pooled over the seeds:
 //! - *match*: the paper's criterion — a 3D segment is wrong when its image segments are not
 //!   images of one ground-truth edge; completeness is the eligible length its right segments
@@ -63,6 +65,8 @@ fn main() {
             "max_residual_px" => params.max_residual_px = value,
             "angle_tolerance_deg" => params.angle_tolerance_deg = value,
             "min_length_px" => params.min_length_px = value,
+            "include_uncertain" => params.include_uncertain = value != 0.0,
+            "gate_confidence" => params.gate_confidence = value,
             "neighbour_radius_px" => params.neighbour_radius_px = value,
             other => panic!("unknown parameter {other}"),
         }

@@ -53,7 +53,7 @@ fn read_json(path: &Path) -> Result<Value, Error> {
     Ok(serde_json::from_str(&text)?)
 }
 
-/// The `MatchRequest` of one capture, as `tools/eval_shared.py` builds it.
+/// The `MatchRequest` of one capture, as `tools/eval_rooms.py` builds it.
 fn request(dir: &Path, images: bool, options: &Option<Value>) -> Result<pb::MatchRequest, Error> {
     let calib = read_json(&dir.join("calib.json"))?;
     let cameras: Vec<Value> = calib["cameras"]

@@ -16,10 +16,10 @@ use nalgebra::Point2;
 use thiserror::Error;
 
 use crate::extract::{self, Adjacent, Extraction, GreyImage};
-use crate::geometry::{Line3Fit, Rectification, RectifyError, Rig};
+use crate::geometry::{Line3Estimate, LineObservation, Rectification, RectifyError, Rig};
 use crate::matching::{self, Hypothesis, MatchParams, ParamError, RectSegment, Views};
 use crate::reconstruct::{reconstruct, reconstruct_pieces};
-use crate::segment::{Segment3, SegmentList};
+use crate::segment::{LineNoise, Segment3, SegmentList};
 
 /// How far outside the image a segment endpoint may lie, in image sizes: farther is not a
 /// detector's imprecision but a unit or index mix-up.
@@ -124,8 +124,8 @@ pub fn match_images_until(
     })
 }
 
-/// A reconstructed 3D segment with its predicted direction uncertainty, degrees.
-type Fit = Option<(Line3Fit, f64)>;
+/// A reconstructed 3D segment with how it measures up, or `None` when rejected.
+type Fit = Option<(Line3Estimate, Quality)>;
 /// Segments shorter than this are zero-length: dropped and counted.
 const ZERO_LENGTH_PX: f64 = 1e-9;
 
@@ -145,10 +145,18 @@ pub struct Reconstructed {
     pub triplet: u32,
     /// Every triplet it comes from: several when collinear fragments were merged.
     pub triplets: Vec<u32>,
-    /// RMS reprojection residual, pixels.
+    /// RMS distance of the image lines from the reprojected 3D line, pixels.
     pub residual_px: f64,
-    /// Predicted 1σ uncertainty of the segment's direction, degrees.
+    /// Covariance of the two endpoints `(start, end)` stacked, metres² (see
+    /// [`Line3Estimate::covariance`]).
+    pub covariance: nalgebra::Matrix6<f64>,
+    /// 1σ uncertainty of the direction (largest across the line), degrees.
     pub direction_sigma_deg: f64,
+    /// 1σ uncertainty of the midpoint's position across the line (largest), metres.
+    pub position_sigma_m: f64,
+    /// The segment does not meet the accuracy asked for (`MatchParams::gate_*`): reported
+    /// only when `include_uncertain` is set.
+    pub uncertain: bool,
 }
 
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -159,6 +167,11 @@ pub struct MatchStats {
     pub hypotheses: u32,
     pub triplets: u32,
     pub segments_3d: u32,
+    /// 3D segments left out of the answer because they do not meet the accuracy asked for
+    /// (counted whether or not `include_uncertain` brought them back).
+    pub uncertain: u32,
+    /// Hypotheses whose three image lines are not one 3D line within their noise (χ² test).
+    pub inconsistent: u32,
     pub rectify_ms: f64,
     pub predict_ms: f64,
     pub validate_ms: f64,
@@ -240,16 +253,22 @@ pub enum MatchError {
         index: usize,
         value: f64,
     },
+    #[error("list {list}, segment {index}: {field} must be a finite number greater than 0")]
+    NonPositiveSigma {
+        list: usize,
+        index: usize,
+        field: &'static str,
+    },
     /// The [`Checkpoint`] said the result was no longer wanted.
     #[error("stopped before {stage}: the result is no longer wanted")]
     Stopped { stage: &'static str },
 }
 
-/// Segments of one view after checking: kept for matching, with their undistorted endpoints.
+/// Segments of one view after checking: kept for matching, with their undistorted lines.
 struct Prepared {
     rect: Vec<RectSegment>,
-    /// Undistorted image endpoints, parallel to `rect`.
-    undistorted: Vec<(Point2<f64>, Point2<f64>)>,
+    /// Undistorted image segments with their noise, parallel to `rect`.
+    observed: Vec<LineObservation>,
     zero_length: u32,
 }
 
@@ -299,6 +318,21 @@ fn check_list(rig: &Rig, list_index: usize, list: &SegmentList) -> Result<u32, M
                 });
             }
         }
+        if let Some(n) = s.noise {
+            let valid = |x: f64| x.is_finite() && x > 0.0;
+            for (field, value) in [
+                ("offset_sigma_px", n.offset_px),
+                ("angle_sigma_deg", n.angle_rad),
+            ] {
+                if !valid(value) {
+                    return Err(MatchError::NonPositiveSigma {
+                        list: list_index,
+                        index,
+                        field,
+                    });
+                }
+            }
+        }
         if s.length() < ZERO_LENGTH_PX {
             zero += 1;
         }
@@ -317,7 +351,7 @@ fn prepare(
     let cam = rig.camera(view);
     let mut out = Prepared {
         rect: Vec::with_capacity(list.segments.len()),
-        undistorted: Vec::with_capacity(list.segments.len()),
+        observed: Vec::with_capacity(list.segments.len()),
         zero_length,
     };
     for (index, s) in list.segments.iter().enumerate() {
@@ -332,13 +366,54 @@ fn prepare(
         let gradient = s.gradient.unwrap_or(f64::NAN);
         out.rect
             .push(RectSegment::new(a, b, gradient, index as u32));
-        out.undistorted.push((p, q));
+        // Crowding is added later, only for the segments that reach reconstruction.
+        let noise = s
+            .noise
+            .unwrap_or_else(|| LineNoise::for_list(params.line_noise_px, (q - p).norm()));
+        out.observed.push(LineObservation {
+            view,
+            start: p,
+            end: q,
+            noise,
+        });
     }
     out
 }
 
 fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
+}
+
+/// Adds to the model noise of list segments (those that did not state their own) the
+/// disturbance of their parallel neighbours ([`crate::segment::crowding`]); a list that
+/// states its noise is taken at its word. Only the segments some hypothesis uses are asked
+/// about: nothing else is reconstructed.
+fn add_crowding(
+    rect: [&[RectSegment]; 3],
+    observed: &mut [Vec<LineObservation>],
+    lists: &[SegmentList; 3],
+    hypotheses: &[Hypothesis],
+) {
+    for (v, (view, list)) in observed.iter_mut().zip(lists).enumerate() {
+        let rect = rect[v];
+        let mut used = vec![false; rect.len()];
+        for h in hypotheses {
+            used[h.segments[v] as usize] = true;
+        }
+        let asked: Vec<(usize, usize)> = (0..rect.len())
+            .filter(|&i| used[i] && list.segments[rect[i].index as usize].noise.is_none())
+            .map(|i| (i, rect[i].index as usize))
+            .collect();
+        if asked.is_empty() {
+            continue;
+        }
+        let queries: Vec<usize> = asked.iter().map(|&(_, index)| index).collect();
+        let distances = crate::segment::crowding_of(&list.segments, &queries);
+        for (&(i, _), distance) in asked.iter().zip(distances) {
+            let o = &mut view[i];
+            o.noise = o.noise.crowded(distance, (o.end - o.start).norm());
+        }
+    }
 }
 
 /// Matches three segment lists seen by `rig` and reconstructs the 3D segments.
@@ -378,8 +453,14 @@ pub fn match_segments_until(
         zero[i] = check_list(rig, i, list)?;
     }
     let rect = Rectification::new(rig)?;
-    let prepared: Vec<Prepared> = (0..3)
+    let mut prepared: Vec<Prepared> = (0..3)
         .map(|v| prepare(rig, &rect, v, &lists[v], zero[v], params))
+        .collect();
+    // The noise of each observation gains its crowding after prediction, while the views
+    // borrow the rectified segments: keep the two apart.
+    let mut observed: Vec<Vec<LineObservation>> = prepared
+        .iter_mut()
+        .map(|p| std::mem::take(&mut p.observed))
         .collect();
     let mut stats = MatchStats {
         segments_in: std::array::from_fn(|v| lists[v].segments.len() as u32),
@@ -399,12 +480,15 @@ pub fn match_segments_until(
     let hypotheses = matching::predict(&rect, &views, params);
     stats.predict_ms = ms(t);
     stats.hypotheses = hypotheses.len() as u32;
+    let t = Instant::now();
+    add_crowding(views.segments, &mut observed, lists, &hypotheses);
+    stats.rectify_ms += ms(t);
 
     let kept = validate_and_reconstruct(
         rig,
         &rect,
         &views,
-        &prepared,
+        &observed,
         &hypotheses,
         graph,
         params,
@@ -414,7 +498,15 @@ pub fn match_segments_until(
 
     checkpoint.before("assemble")?;
     let t = Instant::now();
-    let output = assemble(rig, &rect, &views, &prepared, &hypotheses, &kept, params);
+    let output = assemble(
+        rig,
+        &views,
+        &observed,
+        &hypotheses,
+        &kept,
+        params,
+        &mut stats,
+    );
     stats.reconstruct_ms += ms(t);
     stats.triplets = output.triplets.len() as u32;
     stats.segments_3d = output.segments_3d.len() as u32;
@@ -422,14 +514,88 @@ pub fn match_segments_until(
     Ok(MatchOutput { stats, ..output })
 }
 
-/// A reconstruction kept when its residual and predicted direction uncertainty are within
-/// bounds, with that uncertainty in degrees.
-fn accept(fit: Option<Line3Fit>, rect: &Rectification, params: &MatchParams) -> Fit {
-    let fit = fit.filter(|f| f.residual_px <= params.max_residual_px)?;
-    let sigma = rect
-        .direction_sigma(&fit.start, &fit.end, params.line_noise_px)
-        .to_degrees();
-    (sigma <= params.max_direction_sigma_deg).then_some((fit, sigma))
+/// How a reconstruction measures up, in the units its users think in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Quality {
+    direction_sigma_deg: f64,
+    position_sigma_m: f64,
+    certain: bool,
+}
+
+/// The largest variance across the line of a 3x3 covariance whose part along the line is
+/// not asked for: its largest eigenvalue in the plane `basis` spans (closed form for 2x2).
+fn worst_variance(m: &nalgebra::Matrix3<f64>, basis: &nalgebra::Matrix3x2<f64>) -> f64 {
+    let c = basis.transpose() * m * basis;
+    let (a, b, d) = (c[(0, 0)], 0.5 * (c[(0, 1)] + c[(1, 0)]), c[(1, 1)]);
+    (0.5 * (a + d) + (0.25 * (a - d) * (a - d) + b * b).sqrt()).max(0.0)
+}
+
+/// Upper `z`-standard-deviation quantile of χ² with `dof` degrees of freedom
+/// (Wilson–Hilferty; within 3% of the exact value from 1 degree of freedom up).
+fn chi2_quantile(dof: usize, z: f64) -> f64 {
+    let k = dof.max(1) as f64;
+    let a = 2.0 / (9.0 * k);
+    k * (1.0 - a + z * a.sqrt()).powi(3)
+}
+
+/// How far off its line of image lines a triplet may be before it is not one 3D line: the
+/// χ² of its residuals beyond this many standard deviations of a normal (about 1 in 1,000
+/// true triplets refused).
+const CONSISTENCY_Z: f64 = 3.09;
+
+/// True when the observations are images of one 3D line within their stated noise.
+fn consistent(est: &Line3Estimate) -> bool {
+    est.chi2 <= chi2_quantile(est.dof, CONSISTENCY_Z)
+}
+
+/// A reconstruction kept when it is one line within its noise (χ² test) and its residual
+/// within bounds, with how it measures up.
+fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
+    let est = est.filter(|e| e.residual_px <= params.max_residual_px && consistent(e))?;
+    let u = est.direction();
+    let helper = if u.x.abs() < 0.9 {
+        nalgebra::Vector3::x()
+    } else {
+        nalgebra::Vector3::y()
+    };
+    let e1 = u.cross(&helper).normalize();
+    let basis = nalgebra::Matrix3x2::from_columns(&[e1, u.cross(&e1)]);
+    let direction_var = worst_variance(&est.direction_covariance(), &basis);
+    let direction_sigma_deg = direction_var.sqrt().to_degrees();
+    if direction_sigma_deg > params.max_direction_sigma_deg {
+        return None;
+    }
+    let position_sigma_m = worst_variance(&est.midpoint_covariance(), &basis).sqrt();
+    // The promise: at the gate's confidence, the direction within its bound, and the midpoint
+    // and both ends across the line within the position bound at their range.
+    let k = (-2.0 * (1.0 - params.gate_confidence).ln()).sqrt();
+    let centre = rig.centroid();
+    let tolerance = |p: &nalgebra::Point3<f64>| {
+        params
+            .gate_position_m
+            .max(params.gate_position_rel * (p - centre).norm())
+    };
+    let mid = nalgebra::center(&est.start, &est.end);
+    let start_var = worst_variance(
+        &est.covariance.fixed_view::<3, 3>(0, 0).into_owned(),
+        &basis,
+    );
+    let end_var = worst_variance(
+        &est.covariance.fixed_view::<3, 3>(3, 3).into_owned(),
+        &basis,
+    );
+    let certain = k * direction_var.sqrt() <= params.gate_direction_deg.to_radians()
+        && k * position_sigma_m <= tolerance(&mid)
+        && k * start_var.sqrt() <= tolerance(&est.start)
+        && k * end_var.sqrt() <= tolerance(&est.end);
+    Some((
+        est,
+        Quality {
+            direction_sigma_deg,
+            position_sigma_m,
+            certain,
+        },
+    ))
 }
 
 /// Validation ranks hypotheses and resolves rivalries; only its winners are reconstructed.
@@ -441,20 +607,16 @@ fn validate_and_reconstruct(
     rig: &Rig,
     rect: &Rectification,
     views: &Views,
-    prepared: &[Prepared],
+    observed: &[Vec<LineObservation>],
     hypotheses: &[Hypothesis],
     graph: &[Adjacent],
     params: &MatchParams,
     checkpoint: Checkpoint,
     stats: &mut MatchStats,
-) -> Result<Vec<(usize, Line3Fit, f64)>, MatchError> {
+) -> Result<Vec<(usize, Line3Estimate, Quality)>, MatchError> {
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
-    let undistorted = [
-        &prepared[0].undistorted[..],
-        &prepared[1].undistorted[..],
-        &prepared[2].undistorted[..],
-    ];
+    let observed = [&observed[0][..], &observed[1][..], &observed[2][..]];
     checkpoint.before("validate")?;
     let t = Instant::now();
     let ranking = if params.validate {
@@ -483,8 +645,11 @@ fn validate_and_reconstruct(
             .filter(|&h| fits[h].is_none())
             .collect();
         let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
-        for (&h, fit) in todo.iter().zip(reconstruct(rig, undistorted, &triplets)) {
-            fits[h] = Some(accept(fit, rect, params));
+        for (&h, est) in todo.iter().zip(reconstruct(rig, observed, &triplets)) {
+            if est.is_some_and(|e| !consistent(&e)) {
+                stats.inconsistent += 1;
+            }
+            fits[h] = Some(accept(est, rig, params));
         }
         stats.reconstruct_ms += ms(t);
         let mut rejected = false;
@@ -500,7 +665,7 @@ fn validate_and_reconstruct(
     }
     Ok(kept
         .into_iter()
-        .filter_map(|h| fits[h].flatten().map(|(fit, sigma)| (h, fit, sigma)))
+        .filter_map(|h| fits[h].flatten().map(|(est, quality)| (h, est, quality)))
         .collect())
 }
 
@@ -540,47 +705,51 @@ fn add_graph(
 }
 
 /// The output: collinear fragments accepted together (they share a segment) make one 3D
-/// segment, fitted to all their pieces — longer, so better determined, than each piece
-/// alone; if that joint fit is rejected, the best-determined piece stands for the group.
+/// segment, estimated from all their pieces — longer, so better determined, than each piece
+/// alone; if that joint estimate is rejected, the best-determined piece stands for the
+/// group. Segments that miss the accuracy asked for are left out (and counted) unless
+/// `include_uncertain` asks for them, flagged.
+#[allow(clippy::too_many_arguments)]
 fn assemble(
     rig: &Rig,
-    rect: &Rectification,
     views: &Views,
-    prepared: &[Prepared],
+    observed: &[Vec<LineObservation>],
     hypotheses: &[Hypothesis],
-    kept: &[(usize, Line3Fit, f64)],
+    kept: &[(usize, Line3Estimate, Quality)],
     params: &MatchParams,
+    stats: &mut MatchStats,
 ) -> MatchOutput {
     let indices: Vec<usize> = kept.iter().map(|k| k.0).collect();
     let mut output = MatchOutput::default();
     for group in fragment_groups(hypotheses, &indices) {
         let merged = (group.len() > 1).then(|| {
-            let pieces: [Vec<(Point2<f64>, Point2<f64>)>; 3] = std::array::from_fn(|v| {
+            let mut pieces: Vec<LineObservation> = Vec::new();
+            for (v, view) in observed.iter().enumerate() {
                 let mut ids: Vec<u32> = group
                     .iter()
                     .map(|&k| hypotheses[indices[k]].segments[v])
                     .collect();
                 ids.sort_unstable();
                 ids.dedup();
-                ids.iter()
-                    .map(|&i| prepared[v].undistorted[i as usize])
-                    .collect()
-            });
-            accept(
-                reconstruct_pieces(rig, [&pieces[0], &pieces[1], &pieces[2]]),
-                rect,
-                params,
-            )
+                pieces.extend(ids.iter().map(|&i| view[i as usize]));
+            }
+            accept(reconstruct_pieces(rig, &pieces), rig, params)
         });
         let best_piece = || {
             group
                 .iter()
                 .map(|&k| (kept[k].1, kept[k].2))
-                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .min_by(|a, b| a.1.direction_sigma_deg.total_cmp(&b.1.direction_sigma_deg))
         };
-        let Some((fit, direction_sigma_deg)) = merged.flatten().or_else(best_piece) else {
+        let Some((est, quality)) = merged.flatten().or_else(best_piece) else {
             continue;
         };
+        if !quality.certain {
+            stats.uncertain += 1;
+            if !params.include_uncertain {
+                continue;
+            }
+        }
         let first_triplet = output.triplets.len() as u32;
         for &k in &group {
             let hyp = &hypotheses[indices[k]];
@@ -593,13 +762,16 @@ fn assemble(
         }
         output.segments_3d.push(Reconstructed {
             segment: Segment3 {
-                start: fit.start,
-                end: fit.end,
+                start: est.start,
+                end: est.end,
             },
             triplet: first_triplet,
             triplets: (first_triplet..output.triplets.len() as u32).collect(),
-            residual_px: fit.residual_px,
-            direction_sigma_deg,
+            residual_px: est.residual_px,
+            covariance: est.covariance,
+            direction_sigma_deg: quality.direction_sigma_deg,
+            position_sigma_m: quality.position_sigma_m,
+            uncertain: !quality.certain,
         });
     }
     output

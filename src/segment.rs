@@ -14,6 +14,57 @@ pub struct Segment2 {
     pub end: Point2<f64>,
     /// Mean gradient magnitude along the segment, grey levels per pixel, when known.
     pub gradient: Option<f64>,
+    /// How precisely the segment's line is known, when its source says (the extractor
+    /// measures it from the edge points; a client may give it). `None`: the matcher's
+    /// documented model for lists applies ([`LineNoise::for_list`]).
+    pub noise: Option<LineNoise>,
+}
+
+/// The 1σ uncertainty of a 2D segment's line, in (undistorted) pixels: of its perpendicular
+/// position at the segment's midpoint, and of its direction. The two are independent for a
+/// least-squares line through points spread evenly along the segment, which is what both
+/// sources below describe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LineNoise {
+    pub offset_px: f64,
+    pub angle_rad: f64,
+}
+
+impl LineNoise {
+    /// Pixels of segment per independent edge point, for lists that do not say how precise
+    /// their segments are: detectors fit a line to the edge pixels along the segment, whose
+    /// errors are correlated over about this span.
+    pub const LIST_POINT_SPACING_PX: f64 = 2.0;
+
+    /// The line through two endpoints each off by an independent `sigma_px` across it, on a
+    /// segment `length_px` long: for a source that knows only "endpoints good to σ".
+    pub fn from_endpoint_sigma(sigma_px: f64, length_px: f64) -> LineNoise {
+        LineNoise {
+            offset_px: sigma_px / std::f64::consts::SQRT_2,
+            angle_rad: std::f64::consts::SQRT_2 * sigma_px / length_px.max(1e-9),
+        }
+    }
+
+    /// The line fitted by least squares to `points` edge points spread evenly over
+    /// `length_px`, each off the line by independent noise `sigma_px`.
+    pub fn from_point_fit(sigma_px: f64, points: f64, length_px: f64) -> LineNoise {
+        let n = points.max(2.0);
+        LineNoise {
+            offset_px: sigma_px / n.sqrt(),
+            angle_rad: sigma_px * (12.0 / n).sqrt() / length_px.max(1e-9),
+        }
+    }
+
+    /// The model for a segment of a list that gives no noise of its own: a line fitted to
+    /// one independent point every [`LineNoise::LIST_POINT_SPACING_PX`], each off by
+    /// `point_sigma_px` (`MatchOptions.line_noise_px`).
+    pub fn for_list(point_sigma_px: f64, length_px: f64) -> LineNoise {
+        LineNoise::from_point_fit(
+            point_sigma_px,
+            length_px / Self::LIST_POINT_SPACING_PX,
+            length_px,
+        )
+    }
 }
 
 impl Segment2 {
@@ -22,6 +73,7 @@ impl Segment2 {
             start,
             end,
             gradient: None,
+            noise: None,
         }
     }
 
@@ -48,5 +100,216 @@ pub struct Segment3 {
 impl Segment3 {
     pub fn length(&self) -> f64 {
         (self.end - self.start).norm()
+    }
+}
+
+/// Farthest a parallel neighbour may be to disturb a segment's line, pixels.
+pub const CROWDING_RADIUS_PX: f64 = 8.0;
+/// Two edges closer than a few pixels blur into each other before they are located, and
+/// each pulls the other's line off by up to about a pixel. Measured on the rendered rooms
+/// (`tools/line_noise_study.py`): segments longer than 40 px with a parallel neighbour within
+/// 3 px are off their true line by a median 0.58 px, within 3–5 px 0.15 px, beyond 5 px 0.01 px.
+/// Modelled as an extra offset σ of `CROWDING_PEAK_PX · exp(−d² / 2·CROWDING_SPREAD_PX²)`.
+const CROWDING_PEAK_PX: f64 = 1.35;
+const CROWDING_SPREAD_PX: f64 = 2.2;
+/// Segments closer to each other than this across are pieces of one line, not neighbours.
+const COLLINEAR_PX: f64 = 0.3;
+/// Largest angle between two segments that count as parallel neighbours.
+const PARALLEL_COS: f64 = 0.985; // 10°
+
+impl LineNoise {
+    /// This noise with the disturbance of a parallel neighbour `distance_px` away added
+    /// (nothing beyond [`CROWDING_RADIUS_PX`]). The neighbour shifts the line by a varying
+    /// amount where it runs alongside, so the direction suffers as if both ends moved.
+    pub fn crowded(self, distance_px: f64, length_px: f64) -> LineNoise {
+        if distance_px.is_nan() || distance_px >= CROWDING_RADIUS_PX {
+            return self;
+        }
+        let extra = CROWDING_PEAK_PX
+            * (-(distance_px * distance_px) / (2.0 * CROWDING_SPREAD_PX * CROWDING_SPREAD_PX))
+                .exp();
+        let other = LineNoise::from_endpoint_sigma(extra, length_px);
+        LineNoise {
+            offset_px: self.offset_px.hypot(other.offset_px),
+            angle_rad: self.angle_rad.hypot(other.angle_rad),
+        }
+    }
+}
+
+/// The distance at which a full-strength neighbour pulls as much as one at `distance_px`
+/// whose gradient is `pull` times this segment's (the pull is proportional to it).
+fn equivalent_distance(distance_px: f64, pull: f64) -> f64 {
+    let spread2 = 2.0 * CROWDING_SPREAD_PX * CROWDING_SPREAD_PX;
+    (distance_px * distance_px - spread2 * pull.ln()).sqrt()
+}
+
+/// Orientation bins of [`crowding`]: parallel neighbours (within 10°) share a bin or sit in
+/// the next one.
+const CROWDING_BINS: usize = 18;
+
+/// For each segment, the distance to its nearest parallel neighbour that runs alongside it
+/// (the neighbour's midpoint projects onto the segment), pixels across — lengthened for a
+/// neighbour of weaker gradient, which pulls less (both gradients known); `f64::INFINITY` when
+/// none is within [`CROWDING_RADIUS_PX`]. Segments on one line (closer than a third of a
+/// pixel) are pieces, not neighbours.
+///
+/// Segments are sorted into 10° orientation bins, each by its position across the bin's
+/// direction; a segment looks in its bin and the two next to it, in the window of positions
+/// a neighbour alongside can have (O(n log n), no image-sized structure).
+pub fn crowding(segments: &[Segment2]) -> Vec<f64> {
+    let all: Vec<usize> = (0..segments.len()).collect();
+    crowding_of(segments, &all)
+}
+
+/// [`crowding`] of the segments at `queries` only, among all of `segments`.
+pub fn crowding_of(segments: &[Segment2], queries: &[usize]) -> Vec<f64> {
+    let radius = CROWDING_RADIUS_PX;
+    let bin_width = std::f64::consts::PI / CROWDING_BINS as f64;
+    let normals: [nalgebra::Vector2<f64>; CROWDING_BINS] = std::array::from_fn(|b| {
+        let theta = (b as f64 + 0.5) * bin_width;
+        nalgebra::Vector2::new(-theta.sin(), theta.cos())
+    });
+    let normal_of_bin = |b: usize| normals[b];
+    // What each query asks of a neighbour, computed once.
+    struct Shape {
+        dir: nalgebra::Vector2<f64>,
+        mid: Point2<f64>,
+        len: f64,
+        bin: usize,
+    }
+    let shapes: Vec<Option<Shape>> = segments
+        .iter()
+        .map(|s| {
+            let len = s.length();
+            if !(len > 0.0 && len.is_finite()) {
+                return None;
+            }
+            let dir = (s.end - s.start) / len;
+            let theta = dir.y.atan2(dir.x).rem_euclid(std::f64::consts::PI);
+            let bin = ((theta / bin_width) as usize).min(CROWDING_BINS - 1);
+            Some(Shape {
+                dir,
+                mid: nalgebra::center(&s.start, &s.end),
+                len,
+                bin,
+            })
+        })
+        .collect();
+    // Per bin, sorted by position across the bin: what a query reads, laid out in a row.
+    #[derive(Clone, Copy)]
+    struct Entry {
+        rho: f64,
+        dir: nalgebra::Vector2<f64>,
+        mid: Point2<f64>,
+        index: u32,
+    }
+    let mut bins: Vec<Vec<Entry>> = vec![Vec::new(); CROWDING_BINS];
+    for (i, shape) in shapes.iter().enumerate() {
+        if let Some(sh) = shape {
+            bins[sh.bin].push(Entry {
+                rho: sh.mid.coords.dot(&normal_of_bin(sh.bin)),
+                dir: sh.dir,
+                mid: sh.mid,
+                index: i as u32,
+            });
+        }
+    }
+    for b in &mut bins {
+        b.sort_unstable_by(|x, y| x.rho.total_cmp(&y.rho));
+    }
+    // A neighbour's midpoint is within `radius` across and the segment's half length along
+    // of this one's; measured across a bin direction up to 15° off, its position moves by at
+    // most sin(15°)·that distance more (2·sin(7.5°) ≈ 0.26 bounds the normals' difference).
+    const NORMAL_SLACK: f64 = 0.27;
+    queries
+        .iter()
+        .map(|&i| {
+            let Some(sh) = &shapes[i] else {
+                return f64::INFINITY;
+            };
+            let s = &segments[i];
+            let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
+            let window = radius + NORMAL_SLACK * (0.25 * sh.len * sh.len + radius * radius).sqrt();
+            let mut best = f64::INFINITY;
+            for db in [CROWDING_BINS - 1, 0, 1] {
+                let b = (sh.bin + db) % CROWDING_BINS;
+                let rho = sh.mid.coords.dot(&normal_of_bin(b));
+                let list = &bins[b];
+                let from = list.partition_point(|e| e.rho < rho - window);
+                for other in &list[from..] {
+                    if other.rho > rho + window {
+                        break;
+                    }
+                    let j = other.index as usize;
+                    if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
+                        continue;
+                    }
+                    let along = (other.mid - s.start).dot(&sh.dir);
+                    let across = (other.mid - s.start).dot(&n).abs();
+                    if along > 0.0 && along < sh.len && across > COLLINEAR_PX && across <= radius {
+                        // A weaker neighbour pulls less: as if it were farther.
+                        let pull = match (s.gradient, segments[j].gradient) {
+                            (Some(mine), Some(theirs)) if mine > 0.0 => {
+                                (theirs / mine).clamp(1e-3, 1.0)
+                            }
+                            _ => 1.0,
+                        };
+                        best = best.min(equivalent_distance(across, pull));
+                    }
+                }
+            }
+            if best <= radius {
+                best
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seg(a: (f64, f64), b: (f64, f64)) -> Segment2 {
+        Segment2::new(Point2::new(a.0, a.1), Point2::new(b.0, b.1))
+    }
+
+    #[test]
+    fn crowding_finds_parallel_neighbours_alongside_and_nothing_else() {
+        let segments = [
+            seg((0.0, 0.0), (100.0, 0.0)),
+            seg((10.0, 3.0), (60.0, 3.5)), // parallel, alongside, 3 px away
+            seg((0.0, 40.0), (100.0, 40.0)), // parallel but far
+            seg((50.0, 5.0), (50.0, 30.0)), // close but perpendicular
+            seg((120.0, 0.0), (160.0, 0.0)), // collinear piece
+        ];
+        let d = crowding(&segments);
+        assert!((d[0] - 3.25).abs() < 0.1, "{d:?}");
+        assert!((d[1] - 3.4).abs() < 0.01, "{d:?}");
+        assert!(
+            d[2].is_infinite() && d[3].is_infinite() && d[4].is_infinite(),
+            "{d:?}"
+        );
+        // A weaker neighbour counts as farther away.
+        let mut weak = segments;
+        weak[0].gradient = Some(40.0);
+        weak[1].gradient = Some(4.0);
+        let d = crowding(&weak);
+        assert!(d[0] > 5.0 && (d[1] - 3.4).abs() < 0.01, "{d:?}");
+    }
+
+    #[test]
+    fn crowded_noise_grows_near_a_neighbour_and_not_far_away() {
+        let base = LineNoise::for_list(0.3, 50.0);
+        assert_eq!(base.crowded(f64::INFINITY, 50.0), base);
+        assert_eq!(base.crowded(CROWDING_RADIUS_PX + 1.0, 50.0), base);
+        let near = base.crowded(2.0, 50.0);
+        let farther = base.crowded(5.0, 50.0);
+        assert!(near.offset_px > farther.offset_px && farther.offset_px > base.offset_px);
+        assert!(
+            near.offset_px > 0.5,
+            "a neighbour 2 px away moves a line by most of a pixel"
+        );
     }
 }

@@ -9,7 +9,7 @@ use crate::extract::{self, Extraction, GreyImage};
 use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
 use crate::matching::MatchParams;
 use crate::pipeline::{self, Checkpoint, MatchError, MatchOutput};
-use crate::segment::{Segment2, SegmentList};
+use crate::segment::{LineNoise, Segment2, SegmentList};
 
 fn exactly<const N: usize>(field: String, values: &[f64]) -> Result<[f64; N], InputError> {
     <[f64; N]>::try_from(values).map_err(|_| {
@@ -202,6 +202,11 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         max_residual_px,
         line_noise_px,
         max_direction_sigma_deg,
+        gate_direction_deg,
+        gate_position_m,
+        gate_position_rel,
+        gate_confidence,
+        include_uncertain,
         // Read by `extract_params` and `match_request`.
         extract: _,
         return_extracted: _,
@@ -220,6 +225,11 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         max_residual_px: max_residual_px.unwrap_or(d.max_residual_px),
         line_noise_px: line_noise_px.unwrap_or(d.line_noise_px),
         max_direction_sigma_deg: max_direction_sigma_deg.unwrap_or(d.max_direction_sigma_deg),
+        gate_direction_deg: gate_direction_deg.unwrap_or(d.gate_direction_deg),
+        gate_position_m: gate_position_m.unwrap_or(d.gate_position_m),
+        gate_position_rel: gate_position_rel.unwrap_or(d.gate_position_rel),
+        gate_confidence: gate_confidence.unwrap_or(d.gate_confidence),
+        include_uncertain: include_uncertain.unwrap_or(d.include_uncertain),
     }
 }
 
@@ -340,11 +350,20 @@ pub fn segment_lists(
                         u2,
                         v2,
                         gradient,
+                        offset_sigma_px,
+                        angle_sigma_deg,
                     } = *s;
                     Segment2 {
                         start: Point2::new(u1, v1),
                         end: Point2::new(u2, v2),
                         gradient,
+                        noise: match (offset_sigma_px, angle_sigma_deg) {
+                            (Some(offset_px), Some(angle)) => Some(LineNoise {
+                                offset_px,
+                                angle_rad: angle.to_radians(),
+                            }),
+                            _ => None,
+                        },
                     }
                 })
                 .collect(),
@@ -488,6 +507,8 @@ pub fn segment_list_to_pb(list: &SegmentList) -> pb::SegmentList {
                 u2: s.end.x,
                 v2: s.end.y,
                 gradient: s.gradient,
+                offset_sigma_px: s.noise.map(|n| n.offset_px),
+                angle_sigma_deg: s.noise.map(|n| n.angle_rad.to_degrees()),
             })
             .collect(),
     }
@@ -526,6 +547,9 @@ impl From<MatchError> for RunError {
             ),
             MatchError::NegativeGradient { list, index, .. } => {
                 format!("segments.lists[{list}].segments[{index}].gradient")
+            }
+            MatchError::NonPositiveSigma { list, index, field } => {
+                format!("segments.lists[{list}].segments[{index}].{field}")
             }
             MatchError::Extract(p) => format!("options.extract.{}", p.field),
             MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),
@@ -572,6 +596,9 @@ pub fn match_response(
                 triplets: r.triplets.clone(),
                 residual_px: r.residual_px,
                 direction_sigma_deg: r.direction_sigma_deg,
+                covariance: r.covariance.transpose().as_slice().to_vec(),
+                position_sigma_m: r.position_sigma_m,
+                uncertain: r.uncertain,
             })
             .collect(),
         stats: Some(pb::MatchStats {
@@ -588,6 +615,8 @@ pub fn match_response(
             total_ms: s.total_ms,
             collinear_rig: s.collinear_rig,
             extract_ms: s.extract_ms.map_or_else(Vec::new, |m| m.to_vec()),
+            uncertain: s.uncertain,
+            inconsistent: s.inconsistent,
         }),
         extracted: extracted
             .map(|e| e.iter().map(|x| segment_list_to_pb(&x.segments)).collect())

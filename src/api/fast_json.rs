@@ -50,6 +50,10 @@ struct Segment {
     v2: Plain,
     #[serde(default)]
     gradient: Option<Plain>,
+    #[serde(default, rename = "offsetSigmaPx")]
+    offset_sigma_px: Option<Plain>,
+    #[serde(default, rename = "angleSigmaDeg")]
+    angle_sigma_deg: Option<Plain>,
 }
 
 #[derive(Deserialize)]
@@ -129,6 +133,8 @@ fn triplet_to_pb(t: SegmentTriplet) -> pb::SegmentTriplet {
                         u2: s.u2.0,
                         v2: s.v2.0,
                         gradient: s.gradient.map(|g| g.0),
+                        offset_sigma_px: s.offset_sigma_px.map(|g| g.0),
+                        angle_sigma_deg: s.angle_sigma_deg.map(|g| g.0),
                     })
                     .collect(),
             })

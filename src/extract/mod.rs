@@ -30,7 +30,7 @@ use nalgebra::Point2;
 use thiserror::Error;
 
 use crate::geometry::Camera;
-use crate::segment::{Segment2, SegmentList};
+use crate::segment::{LineNoise, Segment2, SegmentList};
 
 pub use self::image::GreyImage;
 pub use decode::{check_size, decode, from_raw, DecodeError, DecodeLimits};
@@ -220,6 +220,62 @@ fn loop_corner(chain: &[u32], map: &edges::EdgeMap) -> usize {
         .unwrap_or(0)
 }
 
+/// Edge points closer than this along a chain share their noise (the smoothing and the
+/// gradient stencil span a few pixels at σ = 1): the fit has one independent point per this
+/// many pixels of chain. With the two constants below, measured on the rendered office and
+/// lab against the projected ground truth (`tools/line_noise_study.py`; docs/ACCURACY.md).
+const EDGE_POINT_CORRELATION: f64 = 3.0;
+/// The spread of the fitted points about their line understates the line's true error by
+/// this factor (the points were smoothed together before they were located).
+const SPREAD_SCALE: f64 = 1.3;
+/// Weight, in fitted points, of the image's typical edge-point spread when a segment's own
+/// spread is measured on few points.
+const PRIOR_POINTS: f64 = 8.0;
+/// Systematic error of an extracted line that no number of points averages away (aliasing,
+/// blur shared with a nearby edge, the rounding of corners): added to the offset, pixels, and
+/// to the direction, as pixels over the length.
+const SYSTEMATIC_OFFSET_PX: f64 = 0.08;
+const SYSTEMATIC_ANGLE_PX: f64 = 0.1;
+
+/// Sets each segment's [`LineNoise`] from its own edge points: their spread about the line,
+/// pooled with the image's typical spread at that contrast when they are few (the spread of
+/// an edge point is inversely proportional to the gradient across it).
+fn measure_noise(segments: &mut [Segment2], fits: &[(polygon::FitSpread, f64)]) {
+    // The image's edge-point spread times gradient, over the segments with enough points.
+    let mut scaled: Vec<f64> = segments
+        .iter()
+        .zip(fits)
+        .filter(|(_, (fit, _))| fit.points >= 20)
+        .filter_map(|(s, (fit, _))| Some(fit.rms_px * s.gradient?))
+        .collect();
+    scaled.sort_by(f64::total_cmp);
+    let typical = scaled.get(scaled.len() / 2).copied();
+    for (segment, &(fit, centre_offset)) in segments.iter_mut().zip(fits) {
+        let dof = fit.points.saturating_sub(2) as f64;
+        let own = if dof > 0.0 {
+            fit.rms_px.powi(2) * fit.points as f64 / dof
+        } else {
+            0.0
+        };
+        let prior = match (typical, segment.gradient) {
+            (Some(t), Some(g)) if g > 0.0 => (t / g).powi(2),
+            _ => own,
+        };
+        let variance =
+            (dof * own + PRIOR_POINTS * prior) / (dof + PRIOR_POINTS) * SPREAD_SCALE * SPREAD_SCALE;
+        let independent = (fit.span_px.max(1.0) / EDGE_POINT_CORRELATION)
+            .min(fit.points as f64)
+            .max(2.0);
+        let fitted = LineNoise::from_point_fit(variance.sqrt(), independent, fit.span_px.max(1.0));
+        let length = segment.length().max(1.0);
+        let offset = fitted.offset_px.hypot(centre_offset * fitted.angle_rad);
+        segment.noise = Some(LineNoise {
+            offset_px: offset.hypot(SYSTEMATIC_OFFSET_PX),
+            angle_rad: fitted.angle_rad.hypot(SYSTEMATIC_ANGLE_PX / length),
+        });
+    }
+}
+
 /// Extracts the oriented segments of `image` and their graph. `camera` (if given) supplies
 /// the lens distortion removed from edge points before the polygon fit. Parameters must
 /// have passed [`Params::check`].
@@ -252,6 +308,8 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
     let distort = |p: Point2<f64>| camera.map_or(p, |c| c.distort(p));
     let trim = corner_trim(params);
     let mut segments = Vec::new();
+    // Per segment: its fit, and how far its midpoint lies from the fitted points' centroid.
+    let mut fits: Vec<(polygon::FitSpread, f64)> = Vec::new();
     let mut graph = Vec::new();
     // Per chain: (first point position, last point position, segment index) of its kept pieces.
     let mut kept: Vec<Vec<(usize, usize, u32)>> = Vec::with_capacity(chains.chains.len());
@@ -339,10 +397,16 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
                 continue;
             }
             let id = segments.len() as u32;
+            let mid = nalgebra::center(&piece.start, &piece.end);
+            fits.push((
+                piece.fit,
+                (mid - piece.line.centroid).dot(&piece.line.direction),
+            ));
             segments.push(Segment2 {
                 start: a,
                 end: b,
                 gradient: Some(magnitude / count),
+                noise: None,
             });
             // Positions in the chain's own order (undo the loop's rotation).
             let to_chain = |k: usize| (k + rotation) % ids.len();
@@ -392,6 +456,12 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
         .collect();
     graph.sort_by_key(|e| (e.a, e.b));
     graph.dedup_by_key(|e| (e.a, e.b));
+    measure_noise(&mut segments, &fits);
+    let distances = crate::segment::crowding(&segments);
+    for (segment, distance) in segments.iter_mut().zip(distances) {
+        let length = segment.length();
+        segment.noise = segment.noise.map(|n| n.crowded(distance, length));
+    }
     stats.polygon_ms = ms(t);
     stats.total_ms = ms(start);
     Extraction {

@@ -179,6 +179,34 @@ pub struct Piece {
     /// Whether `start` / `end` is the corner shared with the previous / next piece (the
     /// intersection of their lines); otherwise it is the projection of the extreme point.
     pub joined: (bool, bool),
+    /// The points the line was fitted to: how many, their RMS distance from it, and the
+    /// length they span along it (pixels). The segment's precision is measured from these.
+    pub fit: FitSpread,
+}
+
+/// What a line fit saw of its points.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FitSpread {
+    pub points: usize,
+    pub rms_px: f64,
+    pub span_px: f64,
+}
+
+/// The spread of `points` about `line`.
+pub fn fit_spread(points: &[Point2<f64>], line: &Line) -> FitSpread {
+    let (mut sum2, mut lo, mut hi) = (0.0, f64::INFINITY, f64::NEG_INFINITY);
+    for &p in points {
+        sum2 += line.distance(p).powi(2);
+        let t = (p - line.centroid).dot(&line.direction);
+        lo = lo.min(t);
+        hi = hi.max(t);
+    }
+    let n = points.len();
+    FitSpread {
+        points: n,
+        rms_px: if n > 0 { (sum2 / n as f64).sqrt() } else { 0.0 },
+        span_px: if n > 0 { hi - lo } else { 0.0 },
+    }
 }
 
 /// Steps 1–3 for one chain of points (undistorted pixels, in walking order).
@@ -215,8 +243,12 @@ pub fn approximate(
         } else {
             all
         };
-        let Some(line) = fit_line(core).or_else(|| fit_line(all)) else {
-            continue;
+        let (line, fitted) = match fit_line(core) {
+            Some(line) => (line, core),
+            None => match fit_line(all) {
+                Some(line) => (line, all),
+                None => continue,
+            },
         };
         break_at.push(last);
         pieces.push(Piece {
@@ -226,6 +258,7 @@ pub fn approximate(
             start: line.project(all[0]),
             end: line.project(all[all.len() - 1]),
             joined: (false, false),
+            fit: fit_spread(fitted, &line),
         });
     }
     // Corners: neighbours in the chain share the intersection of their lines.

@@ -430,6 +430,17 @@ impl Rig {
     pub fn camera(&self, i: usize) -> &Camera {
         &self.cameras[i]
     }
+
+    /// The centroid of the three optical centres: where "distance from the rig" is measured.
+    pub fn centroid(&self) -> Point3<f64> {
+        Point3::from(
+            self.cameras
+                .iter()
+                .map(|c| c.centre().coords)
+                .sum::<Vector3<f64>>()
+                / 3.0,
+        )
+    }
 }
 
 #[cfg(test)]

@@ -7,9 +7,10 @@
 //! the reprojection-error fit up to a common scale. The 3D segment is the part of that line
 //! which all views' segments cover (their back-projected endpoints, intersected).
 
-use nalgebra::{Matrix3, Point2, Point3, SymmetricEigen, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector3, Vector4};
 
 use super::camera::Camera;
+use crate::segment::LineNoise;
 
 /// Smallest ratio of the middle to the largest eigenvalue of the plane normals' scatter: below
 /// it the planes (nearly) coincide and the line is not determined.
@@ -130,5 +131,366 @@ pub fn triangulate_line(
         start,
         end,
         residual_px,
+    })
+}
+
+/// One image line seen by camera `view` (undistorted pixels), with how well it is known.
+/// A view may contribute several observations (collinear pieces of one line).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LineObservation {
+    pub view: usize,
+    pub start: Point2<f64>,
+    pub end: Point2<f64>,
+    pub noise: LineNoise,
+}
+
+/// A maximum-likelihood 3D segment with its first-order uncertainty, rig frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Line3Estimate {
+    /// Endpoint on the side of the first observation's start.
+    pub start: Point3<f64>,
+    pub end: Point3<f64>,
+    /// Covariance of `(start, end)` stacked (metres²). Across the line it is the propagated
+    /// image-line noise; along it, the endpoints' own spread (see [`estimate_line`]).
+    pub covariance: Matrix6<f64>,
+    /// Sum of squared normalised image residuals at the optimum, and its degrees of freedom
+    /// (2 per observation, less the line's 4): a χ² variable when the observations are images
+    /// of one line with the stated noise.
+    pub chi2: f64,
+    pub dof: usize,
+    /// RMS image distance of the observations from the reprojected line, pixels.
+    pub residual_px: f64,
+}
+
+impl Line3Estimate {
+    pub fn direction(&self) -> Vector3<f64> {
+        (self.end - self.start).normalize()
+    }
+
+    /// Covariance of the unit direction (rank 2, across the line).
+    pub fn direction_covariance(&self) -> Matrix3<f64> {
+        let l = (self.end - self.start).norm().max(1e-12);
+        let mut j = nalgebra::Matrix3x6::zeros();
+        let across = across_projector(&self.direction());
+        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-across / l));
+        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(across / l));
+        j * self.covariance * j.transpose()
+    }
+
+    /// Covariance of the midpoint's position across the line (rank 2).
+    pub fn midpoint_covariance(&self) -> Matrix3<f64> {
+        let mut j = nalgebra::Matrix3x6::zeros();
+        let across = across_projector(&self.direction()) * 0.5;
+        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&across);
+        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&across);
+        j * self.covariance * j.transpose()
+    }
+}
+
+fn across_projector(u: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::identity() - u * u.transpose()
+}
+
+/// Largest Gauss–Newton steps; the linear start is close, two or three suffice.
+const MAX_ML_ITERATIONS: usize = 4;
+/// Converged when no parameter moves by more than this (metres, radians): far below what
+/// the image noise allows.
+const ML_STEP_TOLERANCE: f64 = 1e-8;
+
+/// Two pixels on an observed line, each with its σ across the line.
+type VirtualPoints = [(Point2<f64>, f64); 2];
+
+/// Two points on each observed line that carry all it says: at its midpoint ± h along it,
+/// each off the line by an independent σ, give the line's offset and direction variances.
+fn virtual_points(o: &LineObservation) -> Option<VirtualPoints> {
+    let d = o.end - o.start;
+    let len = d.norm();
+    if len < 1e-9 || !(o.noise.offset_px > 0.0 && o.noise.angle_rad > 0.0) {
+        return None;
+    }
+    let u = d / len;
+    let mid = nalgebra::center(&o.start, &o.end);
+    let h = o.noise.offset_px / o.noise.angle_rad;
+    let sigma = std::f64::consts::SQRT_2 * o.noise.offset_px;
+    Some([(mid - u * h, sigma), (mid + u * h, sigma)])
+}
+
+/// Signed distance of pixel `q` from the image of the 3D line through `x0` along `d`, and
+/// its gradient with respect to `x0` and `d`; `None` when the line's image degenerates.
+fn distance_and_gradient(
+    p: &nalgebra::Matrix3x4<f64>,
+    x0: &Vector3<f64>,
+    d: &Vector3<f64>,
+    q: Point2<f64>,
+) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+    let m = p.fixed_view::<3, 3>(0, 0);
+    let a = m * x0 + p.column(3);
+    let b = m * d;
+    let l = a.cross(&b);
+    let n2 = l.x * l.x + l.y * l.y;
+    if n2 < 1e-24 {
+        return None;
+    }
+    let n = n2.sqrt();
+    let qh = Vector3::new(q.x, q.y, 1.0);
+    let dot = l.dot(&qh);
+    let r = dot / n;
+    // dr/dl = q̃/n − dot·(l₀, l₁, 0)/n³; l = a × b, so dl·g = g·(a × b) variations:
+    // d(a×b)/da applied as (δa × b), d/db as (a × δb): gᵀ(δa × b) = δaᵀ(b × g), gᵀ(a × δb) = δbᵀ(g × a).
+    let g = qh / n - Vector3::new(l.x, l.y, 0.0) * (dot / (n2 * n));
+    let grad_a = b.cross(&g);
+    let grad_b = g.cross(&a);
+    Some((r, m.transpose() * grad_a, m.transpose() * grad_b))
+}
+
+/// Two unit vectors across `d`, forming a right-handed frame with it.
+fn across_basis(d: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let helper = if d.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = d.cross(&helper).normalize();
+    (e1, d.cross(&e1))
+}
+
+/// The linear start of [`estimate_line`]: the line where the back-projection planes of the
+/// two most different observations meet (their normals' cross product), through the
+/// least-squares point of all the planes, pinned near the cameras' centroid along the line.
+/// Gauss–Newton then weighs every observation by its noise, so the start only needs to be
+/// close.
+fn linear_start(
+    cameras: &[&Camera; 3],
+    obs: &[LineObservation],
+) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    let mut planes = Vec::with_capacity(obs.len());
+    for o in obs {
+        let l = image_line(o.start, o.end)?;
+        let pi: Vector4<f64> = cameras[o.view].projection().transpose() * l;
+        let n = Vector3::new(pi.x, pi.y, pi.z);
+        let norm = n.norm();
+        if !(norm > 0.0 && norm.is_finite()) {
+            return None;
+        }
+        planes.push((n / norm, pi.w / norm, o.view));
+    }
+    let mut best: Option<(f64, Vector3<f64>)> = None;
+    for (i, a) in planes.iter().enumerate() {
+        for b in &planes[i + 1..] {
+            if a.2 == b.2 {
+                continue;
+            }
+            let c = a.0.cross(&b.0);
+            let sin = c.norm();
+            if best.is_none_or(|(s, _)| sin > s) {
+                best = Some((sin, c));
+            }
+        }
+    }
+    let (sin, cross) = best?;
+    // The planes (nearly) coincide: the line is not determined.
+    if sin * sin < MIN_PLANE_SPREAD {
+        return None;
+    }
+    let dir = cross / sin;
+    let centroid: Vector3<f64> = cameras
+        .iter()
+        .map(|c| c.centre().coords)
+        .sum::<Vector3<f64>>()
+        / 3.0;
+    let mut normal_matrix = dir * dir.transpose();
+    let mut rhs = dir * dir.dot(&centroid);
+    for (n, d, _) in &planes {
+        normal_matrix += n * n.transpose();
+        rhs -= n * *d;
+    }
+    let x0 = normal_matrix.lu().solve(&rhs)?;
+    Some((x0, dir))
+}
+
+/// The maximum-likelihood 3D line of image-line observations in the three views, with its
+/// covariance, its χ² and its extent.
+///
+/// 1. **Line**: Gauss–Newton on the 4 parameters of a 3D line (a point moved across the
+///    line, the direction turned), minimising the squared image distances of each
+///    observation's two virtual points (see [`LineNoise`]) divided by their σ, started from
+///    the linear intersection of the back-projection planes.
+/// 2. **Covariance**: the inverse of the normal matrix at the optimum (first order),
+///    mapped onto the two endpoints; along the line each endpoint gets the spread of the
+///    views' own ends around it (at least `end_sigma_px` back-projected), since where a
+///    segment stops is decided by occlusion and contrast as much as by noise.
+/// 3. **Extent**: each view's observed ends back-projected onto the line; each end of the 3D
+///    segment is the median of the views' (with three views, the middle one), so one view
+///    whose segment is cut short or runs on does not decide it.
+///
+/// `None` when the line is undetermined, passes behind a camera, or the views share no part.
+pub fn estimate_line(
+    cameras: &[&Camera; 3],
+    obs: &[LineObservation],
+    end_sigma_px: f64,
+) -> Option<Line3Estimate> {
+    let (mut x0, mut d) = linear_start(cameras, obs)?;
+    let points: Vec<(usize, VirtualPoints)> = obs
+        .iter()
+        .map(|o| virtual_points(o).map(|v| (o.view, v)))
+        .collect::<Option<_>>()?;
+    let normal = |x0: &Vector3<f64>, d: &Vector3<f64>| {
+        let (e1, e2) = across_basis(d);
+        let mut h = nalgebra::Matrix4::<f64>::zeros();
+        let mut g = Vector4::<f64>::zeros();
+        let mut chi2 = 0.0;
+        let mut sum_px = 0.0;
+        for (view, pts) in &points {
+            for &(q, sigma) in pts {
+                let (r, ga, gb) = distance_and_gradient(cameras[*view].projection(), x0, d, q)?;
+                let j = Vector4::new(ga.dot(&e1), ga.dot(&e2), gb.dot(&e1), gb.dot(&e2)) / sigma;
+                let rn = r / sigma;
+                h += j * j.transpose();
+                g += j * rn;
+                chi2 += rn * rn;
+                sum_px += r * r;
+            }
+        }
+        Some((h, g, chi2, sum_px, e1, e2))
+    };
+    // The normal equations at the optimum: a step below the tolerance is not taken, and the
+    // last evaluation serves for the covariance.
+    let mut at_optimum = None;
+    for _ in 0..MAX_ML_ITERATIONS {
+        let (h, g, chi2, sum_px, e1, e2) = normal(&x0, &d)?;
+        let step = h.cholesky()?.solve(&(-g));
+        if step.amax() < ML_STEP_TOLERANCE {
+            at_optimum = Some((h, chi2, sum_px, e1, e2));
+            break;
+        }
+        x0 += e1 * step[0] + e2 * step[1];
+        d = (d + e1 * step[2] + e2 * step[3]).normalize();
+    }
+    let (h, chi2, sum_px, e1, e2) = match at_optimum {
+        Some(found) => found,
+        None => {
+            let (h, _, chi2, sum_px, e1, e2) = normal(&x0, &d)?;
+            (h, chi2, sum_px, e1, e2)
+        }
+    };
+    // Extent: the median, over views, of each view's ends along the line.
+    let mut ends: Vec<(f64, f64)> = Vec::with_capacity(3);
+    let mut first_sign = 0.0;
+    for (view, cam) in cameras.iter().enumerate() {
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for o in obs.iter().filter(|o| o.view == view) {
+            let mut ts = [0.0; 2];
+            for (slot, p) in ts.iter_mut().zip([o.start, o.end]) {
+                let ray = cam.ray(p).normalize();
+                let w0 = x0 - cam.centre().coords;
+                let b = d.dot(&ray);
+                let denom = 1.0 - b * b;
+                if denom < MIN_RAY_LINE_SIN * MIN_RAY_LINE_SIN {
+                    return None;
+                }
+                *slot = (b * ray.dot(&w0) - d.dot(&w0)) / denom;
+            }
+            if first_sign == 0.0 {
+                first_sign = if ts[1] >= ts[0] { 1.0 } else { -1.0 };
+            }
+            lo = lo.min(ts[0].min(ts[1]));
+            hi = hi.max(ts[0].max(ts[1]));
+        }
+        if lo.is_finite() && hi.is_finite() {
+            ends.push((lo, hi));
+        }
+    }
+    if ends.len() < 2 {
+        return None;
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        }
+    };
+    let lo = median(ends.iter().map(|e| e.0).collect());
+    let hi = median(ends.iter().map(|e| e.1).collect());
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    // Re-centre the line's point on the segment: moving the pivot by m along the line maps
+    // the parameters (a, b) to (a + m·b, b), so the covariance follows without re-evaluating.
+    let mid = 0.5 * (lo + hi);
+    x0 += d * mid;
+    let (lo, hi) = (lo - mid, hi - mid);
+    let mut shift = nalgebra::Matrix4::<f64>::identity();
+    shift[(0, 2)] = mid;
+    shift[(1, 3)] = mid;
+    let line_cov = shift * h.try_inverse()? * shift.transpose();
+    let (t_start, t_end) = if first_sign >= 0.0 {
+        (lo, hi)
+    } else {
+        (hi, lo)
+    };
+    let start = Point3::from(x0 + d * t_start);
+    let end = Point3::from(x0 + d * t_end);
+    for cam in cameras {
+        for p in [start, end] {
+            let hz = cam.projection() * p.to_homogeneous();
+            if hz.z <= 0.0 {
+                return None;
+            }
+        }
+    }
+    let mut j = nalgebra::Matrix6x4::<f64>::zeros();
+    for (row, t) in [(0, t_start), (3, t_end)] {
+        for k in 0..3 {
+            j[(row + k, 0)] = e1[k];
+            j[(row + k, 1)] = e2[k];
+            j[(row + k, 2)] = t * e1[k];
+            j[(row + k, 3)] = t * e2[k];
+        }
+    }
+    // With more observations than the line's 4 parameters, their scatter says whether the
+    // stated noise was too small for this line: scale up (never down) by the χ² per degree
+    // of freedom.
+    let n_obs = points.len() * 2;
+    let dof = n_obs.saturating_sub(4);
+    let posterior = if dof > 0 {
+        (chi2 / dof as f64).max(1.0)
+    } else {
+        1.0
+    };
+    let mut covariance = j * line_cov * j.transpose() * posterior;
+    // Along the line: the spread of the views' ends, floored by end_sigma_px at each end's
+    // depth.
+    let along = |t: f64, pick: fn(&(f64, f64)) -> f64| {
+        let p = x0 + d * t;
+        let floor = cameras
+            .iter()
+            .map(|c| end_sigma_px * (p - c.centre().coords).norm() / c.focal_px())
+            .fold(0.0, f64::max);
+        let spread = ends.iter().map(|e| (pick(e) - t).powi(2)).sum::<f64>() / ends.len() as f64;
+        (spread + floor * floor).max(1e-12)
+    };
+    let (var_lo, var_hi) = (along(lo, |e| e.0), along(hi, |e| e.1));
+    let (var_start, var_end) = if first_sign >= 0.0 {
+        (var_lo, var_hi)
+    } else {
+        (var_hi, var_lo)
+    };
+    let ddt = d * d.transpose();
+    let mut block = covariance.fixed_view_mut::<3, 3>(0, 0);
+    block += ddt * var_start;
+    let mut block = covariance.fixed_view_mut::<3, 3>(3, 3);
+    block += ddt * var_end;
+    // Symmetric by construction; make it so to the last bit, for clients that check.
+    let covariance = (covariance + covariance.transpose()) * 0.5;
+    Some(Line3Estimate {
+        start,
+        end,
+        covariance,
+        chi2,
+        dof,
+        residual_px: (sum_px / n_obs as f64).sqrt(),
     })
 }

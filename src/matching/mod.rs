@@ -39,11 +39,22 @@ pub struct MatchParams {
     pub neighbour_radius_px: f64,
     /// Largest RMS reprojection residual of a reconstructed 3D segment, pixels.
     pub max_residual_px: f64,
-    /// Nominal noise of the input image lines, pixels: scales the predicted direction
-    /// uncertainty of each 3D segment.
+    /// 1σ noise across the line at each endpoint of a segment whose list does not say how
+    /// precise it is (`LineNoise::from_endpoint_sigma`), pixels. Extracted segments carry
+    /// their own, measured from their edge points.
     pub line_noise_px: f64,
-    /// 3D segments whose predicted direction uncertainty exceeds this are dropped, degrees.
+    /// 3D segments whose direction σ exceeds this are dropped, degrees.
     pub max_direction_sigma_deg: f64,
+    /// The accuracy a 3D segment must meet, at `gate_confidence`, to be in the answer by
+    /// default: its direction within `gate_direction_deg`, and its midpoint and both ends
+    /// across the line within max(`gate_position_m`, `gate_position_rel` × distance from the
+    /// rig).
+    pub gate_direction_deg: f64,
+    pub gate_position_m: f64,
+    pub gate_position_rel: f64,
+    pub gate_confidence: f64,
+    /// Also answer with the 3D segments that miss that accuracy, flagged `uncertain`.
+    pub include_uncertain: bool,
 }
 
 impl Default for MatchParams {
@@ -59,8 +70,13 @@ impl Default for MatchParams {
             validate: true,
             neighbour_radius_px: 8.0,
             max_residual_px: 1.5,
-            line_noise_px: 0.1,
+            line_noise_px: 0.3,
             max_direction_sigma_deg: 180.0,
+            gate_direction_deg: 5.0,
+            gate_position_m: 0.02,
+            gate_position_rel: 0.01,
+            gate_confidence: 0.95,
+            include_uncertain: false,
         }
     }
 }
@@ -89,7 +105,7 @@ impl ParamError {
 impl MatchParams {
     /// Checks every field; reports the first problem.
     pub fn check(&self) -> Result<(), ParamError> {
-        let fields: [(&'static str, f64); 11] = [
+        let fields: [(&'static str, f64); 15] = [
             ("depth_min_m", self.depth_min_m),
             ("depth_max_m", self.depth_max_m),
             ("tolerance_px", self.tolerance_px),
@@ -104,6 +120,10 @@ impl MatchParams {
             ("max_residual_px", self.max_residual_px),
             ("line_noise_px", self.line_noise_px),
             ("max_direction_sigma_deg", self.max_direction_sigma_deg),
+            ("gate_direction_deg", self.gate_direction_deg),
+            ("gate_position_m", self.gate_position_m),
+            ("gate_position_rel", self.gate_position_rel),
+            ("gate_confidence", self.gate_confidence),
         ];
         for (field, value) in fields {
             if !value.is_finite() {
@@ -187,6 +207,30 @@ impl MatchParams {
             "max_direction_sigma_deg",
             self.max_direction_sigma_deg,
             positive,
+        )?;
+        check(
+            self.gate_direction_deg > 0.0 && self.gate_direction_deg <= 180.0,
+            "gate_direction_deg",
+            self.gate_direction_deg,
+            "in (0, 180]",
+        )?;
+        check(
+            self.gate_position_m > 0.0,
+            "gate_position_m",
+            self.gate_position_m,
+            positive,
+        )?;
+        check(
+            self.gate_position_rel >= 0.0,
+            "gate_position_rel",
+            self.gate_position_rel,
+            "at least 0",
+        )?;
+        check(
+            self.gate_confidence > 0.0 && self.gate_confidence < 1.0,
+            "gate_confidence",
+            self.gate_confidence,
+            "in (0, 1)",
         )
     }
 }

@@ -30,7 +30,7 @@ use super::rng::Rng;
 use super::scene::{Scene, Tracer};
 use super::visibility::{rig_visibility, EdgeVisibility, FlatCamera, Interval, MIN_CONTRAST};
 use crate::geometry::{Camera, Rig};
-use crate::segment::{Segment2, Segment3, SegmentList};
+use crate::segment::{LineNoise, Segment2, Segment3, SegmentList};
 
 /// Spacing of contrast probes along a visible piece, pixels.
 pub const RUN_SAMPLE_PX: f64 = 4.0;
@@ -449,6 +449,14 @@ fn apply_defects(
                     start,
                     end,
                     gradient: Some(cand.contrast / CONTRAST_SPAN_PX),
+                    // The generator knows its endpoint noise and says so, as an extractor
+                    // that measures its lines would; exact lists leave it to the default.
+                    noise: (defects.endpoint_noise_px > 0.0).then(|| {
+                        LineNoise::from_endpoint_sigma(
+                            defects.endpoint_noise_px,
+                            (end - start).norm(),
+                        )
+                    }),
                 },
                 Some(cand.edge),
             ));
@@ -479,6 +487,7 @@ fn apply_defects(
                 start,
                 end,
                 gradient: Some(contrast / CONTRAST_SPAN_PX),
+                noise: None,
             },
             None,
         ));

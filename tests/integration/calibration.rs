@@ -95,7 +95,10 @@ fn rendered_pattern_views_calibrate_to_the_true_cameras_and_match_unchanged() {
         let matched = api::match_request(
             &pb::MatchRequest {
                 calibration: Some(calibration),
-                options: None,
+                options: Some(pb::MatchOptions {
+                    include_uncertain: Some(true),
+                    ..Default::default()
+                }),
                 input: Some(pb::match_request::Input::Images(pb::ImageTriplet {
                     images,
                 })),

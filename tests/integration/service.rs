@@ -646,7 +646,10 @@ fn curl_style_multipart_uploads_match_images() {
             .post(&url)
             .multipart(form(
                 &[0, 1, 2],
-                Some(("options", "{\"returnExtracted\": true}".into())),
+                Some((
+                    "options",
+                    "{\"returnExtracted\": true, \"includeUncertain\": true}".into(),
+                )),
             ))
             .send()
             .await

@@ -27,6 +27,18 @@ def _to_dict(msg) -> Dict[str, Any]:
     return json_format.MessageToDict(msg)
 
 
+def _stats_dict(msg) -> Dict[str, Any]:
+    """Proto3 JSON of a stats message with every scalar and repeated field present (proto3
+    JSON leaves out zeros, so `stats["uncertain"]` would otherwise be missing when none)."""
+    out = _to_dict(msg)
+    for f in msg.DESCRIPTOR.fields:
+        if f.json_name in out or f.message_type is not None:
+            continue
+        value = getattr(msg, f.name)  # the default: 0, 0.0, False, "" or an empty container
+        out[f.json_name] = value if isinstance(value, (bool, int, float, str, bytes)) else list(value)
+    return out
+
+
 def load_calibration(calibration) -> "pb.Calibration":
     """A Calibration message from a message, a proto3 JSON dict, a JSON string, or the path of
     a JSON file."""
@@ -77,20 +89,31 @@ def _images(imgs: Sequence[ImageLike]) -> "pb.ImageTriplet":
 
 
 def to_segment_list(lst, oriented: bool = False) -> "pb.SegmentList":
-    """A SegmentList from a message, or N×4 (u1, v1, u2, v2) / N×5 (+ gradient, NaN: unknown)
-    numbers."""
+    """A SegmentList from a message, or N×4 (u1, v1, u2, v2) / N×5 (+ gradient) / N×7
+    (+ gradient, offset_sigma_px, angle_sigma_deg) numbers; NaN: absent. The two sigmas (1σ of
+    the line's position across itself at the midpoint, pixels, and of its direction, degrees)
+    go together: both or neither per segment (neither: the server's line_noise_px model)."""
     if isinstance(lst, pb.SegmentList):
         return lst
     arr = np.asarray(lst, dtype=float)
     if arr.size == 0:
         return pb.SegmentList(oriented=oriented)
-    if arr.ndim != 2 or arr.shape[1] not in (4, 5):
-        raise ValueError(f"a segment list must be N×4 or N×5, got shape {arr.shape}")
+    if arr.ndim != 2 or arr.shape[1] not in (4, 5, 7):
+        raise ValueError(f"a segment list must be N×4, N×5 or N×7, got shape {arr.shape}")
     segs = []
-    for row in arr:
+    for i, row in enumerate(arr):
         s = pb.Segment(u1=row[0], v1=row[1], u2=row[2], v2=row[3])
-        if arr.shape[1] == 5 and np.isfinite(row[4]):
+        if arr.shape[1] >= 5 and np.isfinite(row[4]):
             s.gradient = row[4]
+        if arr.shape[1] == 7:
+            known = np.isfinite(row[5:7])
+            if known.all():
+                s.offset_sigma_px, s.angle_sigma_deg = row[5], row[6]
+            elif known.any():
+                raise ValueError(
+                    f"segment {i}: give both offset_sigma_px and angle_sigma_deg or neither "
+                    f"(NaN), got {row[5]}, {row[6]}"
+                )
         segs.append(s)
     return pb.SegmentList(segments=segs, oriented=oriented)
 
@@ -104,12 +127,17 @@ def _segments(lists, oriented: bool) -> "pb.SegmentTriplet":
 
 
 def segment_list_array(lst: "pb.SegmentList") -> np.ndarray:
-    """N×5 array (u1, v1, u2, v2, gradient — NaN when absent)."""
-    out = np.full((len(lst.segments), 5), np.nan)
+    """N×7 array (u1, v1, u2, v2, gradient, offset_sigma_px, angle_sigma_deg — NaN when
+    absent); the form `to_segment_list` takes back."""
+    out = np.full((len(lst.segments), 7), np.nan)
     for i, s in enumerate(lst.segments):
         out[i, :4] = (s.u1, s.v1, s.u2, s.v2)
         if s.HasField("gradient"):
             out[i, 4] = s.gradient
+        if s.HasField("offset_sigma_px"):
+            out[i, 5] = s.offset_sigma_px
+        if s.HasField("angle_sigma_deg"):
+            out[i, 6] = s.angle_sigma_deg
     return out
 
 
@@ -120,6 +148,15 @@ def _pose(matrix) -> "pb.Pose":
     if m.shape not in ((4, 4), (16,)):
         raise ValueError(f"rig_to_world must be a 4x4 matrix, got shape {m.shape}")
     return pb.Pose(matrix=m.reshape(16).tolist())
+
+
+def _covariances(segments) -> np.ndarray:
+    """M×6×6 from Segment3 messages' row-major `covariance` (NaN where a server sent none)."""
+    out = np.full((len(segments), 6, 6), np.nan)
+    for i, s in enumerate(segments):
+        if len(s.covariance) == 36:
+            out[i] = np.asarray(s.covariance, dtype=float).reshape(6, 6)
+    return out
 
 
 def _points(pairs) -> np.ndarray:
@@ -139,8 +176,16 @@ def _points(pairs) -> np.ndarray:
 class MatchResult:
     """One capture's match. `triplets`: N×3 indices into the three input (or extracted) lists;
     `segments_3d`: M×2×3 endpoints, metres, rig frame; `residual_px`: M reprojection residuals
-    of the 3D segments; `extracted`: the three extracted lists as N×5 arrays (image input with
-    options {"returnExtracted": true}), `extracted_lists` the same as SegmentList messages."""
+    of the 3D segments; `extracted`: the three extracted lists as N×7 arrays (image input with
+    options {"returnExtracted": true}; see `segment_list_array`), `extracted_lists` the same as
+    SegmentList messages.
+
+    Per 3D segment: `covariance` M×6×6, of the two endpoints stacked (x1 y1 z1 x2 y2 z2),
+    metres² (NaN from a server that sends none); `direction_sigma_deg` and `position_sigma_m`
+    M, the 1σ of the direction (degrees) and of the midpoint across the line (metres), largest
+    axis; `uncertain` M bools, True for the segments that miss the accuracy gate (returned only
+    with options {"includeUncertain": true}). `stats` has every MatchStats field (zeros
+    included), e.g. `stats["uncertain"]`, `stats["inconsistent"]`."""
 
     triplets: np.ndarray
     segments_3d: np.ndarray
@@ -148,6 +193,9 @@ class MatchResult:
     stats: Dict[str, Any]
     triplet_residual_px: np.ndarray = None
     direction_sigma_deg: np.ndarray = None
+    covariance: np.ndarray = None
+    position_sigma_m: np.ndarray = None
+    uncertain: np.ndarray = None
     extracted: List[np.ndarray] = field(default_factory=list)
     extracted_lists: List[Any] = field(default_factory=list)
     raw: Any = None
@@ -155,17 +203,47 @@ class MatchResult:
     @classmethod
     def from_pb(cls, r: "pb.MatchResponse") -> "MatchResult":
         tri = np.array([(t.s1, t.s2, t.s3) for t in r.triplets], dtype=np.int64).reshape(-1, 3)
+        segs = r.segments_3d
         return cls(
             triplets=tri,
-            segments_3d=_points(r.segments_3d),
-            residual_px=np.array([s.residual_px for s in r.segments_3d], dtype=float),
-            stats=_to_dict(r.stats),
+            segments_3d=_points(segs),
+            residual_px=np.array([s.residual_px for s in segs], dtype=float),
+            stats=_stats_dict(r.stats),
             triplet_residual_px=np.array([t.residual_px for t in r.triplets], dtype=float),
-            direction_sigma_deg=np.array([s.direction_sigma_deg for s in r.segments_3d], dtype=float),
+            direction_sigma_deg=np.array([s.direction_sigma_deg for s in segs], dtype=float),
+            covariance=_covariances(segs),
+            position_sigma_m=np.array([s.position_sigma_m for s in segs], dtype=float),
+            uncertain=np.array([s.uncertain for s in segs], dtype=bool),
             extracted=[segment_list_array(l) for l in r.extracted],
             extracted_lists=list(r.extracted),
             raw=r,
         )
+
+    def _across(self):
+        """Per segment: P = I - u uᵀ (M×3×3, u the unit direction) and the length L (M)."""
+        d = self.segments_3d[:, 1] - self.segments_3d[:, 0]
+        length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+        u = d / length[:, None]
+        return np.eye(3) - u[:, :, None] * u[:, None, :], length
+
+    def _propagate(self, j: np.ndarray) -> np.ndarray:
+        return j @ self.covariance @ np.swapaxes(j, 1, 2)
+
+    def direction_covariance(self) -> np.ndarray:
+        """M×3×3 covariance of each segment's unit direction u = (end - start) / L, radians²:
+        J C Jᵀ with J = [-P/L, P/L], P = I - u uᵀ (rank 2, across the line; the square root
+        of its largest eigenvalue is `direction_sigma_deg`, in radians)."""
+        p, length = self._across()
+        p = p / length[:, None, None]
+        return self._propagate(np.concatenate([-p, p], axis=2))
+
+    def midpoint_covariance(self) -> np.ndarray:
+        """M×3×3 covariance of each segment's midpoint across the line, metres²: J C Jᵀ with
+        J = [P/2, P/2] (rank 2; the square root of its largest eigenvalue is
+        `position_sigma_m`). Along the line the endpoints' spread is not Gaussian and is left
+        out."""
+        p, _ = self._across()
+        return self._propagate(np.concatenate([p / 2, p / 2], axis=2))
 
 
 @dataclass
@@ -296,7 +374,8 @@ class Client:
     def match_images(self, calibration, img1: ImageLike, img2: ImageLike, img3: ImageLike,
                      options=None) -> MatchResult:
         """Extracts segments from three images and matches them. Images: paths, encoded bytes,
-        or 2-D uint8 numpy arrays. `options`: MatchOptions as proto3 JSON dict or message."""
+        or 2-D uint8 numpy arrays. `options`: MatchOptions as proto3 JSON dict (camelCase or
+        snake_case names, e.g. {"includeUncertain": True, "gatePositionM": 0.05}) or message."""
         req = pb.MatchRequest(calibration=load_calibration(calibration),
                               images=_images([img1, img2, img3]))
         opts = _parse(options, pb.MatchOptions)
@@ -305,9 +384,10 @@ class Client:
         return MatchResult.from_pb(self._call("Match", req))
 
     def match_segments(self, calibration, lists, options=None, oriented: bool = False) -> MatchResult:
-        """Matches three segment lists (each N×4 (u1, v1, u2, v2), N×5 with gradient, or a
-        SegmentList); `oriented`: the lists are oriented by contrast. `MatchResult.extracted`
-        of an image match can be passed back with oriented=True."""
+        """Matches three segment lists (each N×4 (u1, v1, u2, v2), N×5 with gradient, N×7
+        with gradient, offset_sigma_px and angle_sigma_deg, or a SegmentList; NaN: absent);
+        `oriented`: the lists are oriented by contrast. `MatchResult.extracted` of an image
+        match can be passed back with oriented=True."""
         req = pb.MatchRequest(calibration=load_calibration(calibration),
                               segments=_segments(lists, oriented))
         opts = _parse(options, pb.MatchOptions)

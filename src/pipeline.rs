@@ -172,6 +172,10 @@ pub struct MatchStats {
     pub uncertain: u32,
     /// Hypotheses whose three image lines are not one 3D line within their noise (χ² test).
     pub inconsistent: u32,
+    /// How much larger than stated the image-line noise turned out to be in this capture (a
+    /// factor on σ, at least 1; read off the first reconstructions: mostly the calibration's
+    /// own error).
+    pub noise_scale: f64,
     pub rectify_ms: f64,
     pub predict_ms: f64,
     pub validate_ms: f64,
@@ -385,31 +389,33 @@ fn ms(since: Instant) -> f64 {
 }
 
 /// Adds to the model noise of list segments (those that did not state their own) the
-/// disturbance of their parallel neighbours ([`crate::segment::crowding`]); a list that
-/// states its noise is taken at its word. Only the segments some hypothesis uses are asked
-/// about: nothing else is reconstructed.
+/// disturbance of their parallel neighbours ([`crate::segment::crowding_of`]); a list that
+/// states its noise is taken at its word. Asked only for the segments of `triplets` not
+/// `done` yet: only what is reconstructed needs it.
 fn add_crowding(
     rect: [&[RectSegment]; 3],
     observed: &mut [Vec<LineObservation>],
+    done: &mut [Vec<bool>; 3],
     lists: &[SegmentList; 3],
-    hypotheses: &[Hypothesis],
+    triplets: &[[u32; 3]],
 ) {
     for (v, (view, list)) in observed.iter_mut().zip(lists).enumerate() {
-        let rect = rect[v];
-        let mut used = vec![false; rect.len()];
-        for h in hypotheses {
-            used[h.segments[v] as usize] = true;
+        let mut asked: Vec<usize> = Vec::new();
+        for t in triplets {
+            let i = t[v] as usize;
+            if !done[v][i] {
+                done[v][i] = true;
+                if list.segments[rect[v][i].index as usize].noise.is_none() {
+                    asked.push(i);
+                }
+            }
         }
-        let asked: Vec<(usize, usize)> = (0..rect.len())
-            .filter(|&i| used[i] && list.segments[rect[i].index as usize].noise.is_none())
-            .map(|i| (i, rect[i].index as usize))
-            .collect();
         if asked.is_empty() {
             continue;
         }
-        let queries: Vec<usize> = asked.iter().map(|&(_, index)| index).collect();
+        let queries: Vec<usize> = asked.iter().map(|&i| rect[v][i].index as usize).collect();
         let distances = crate::segment::crowding_of(&list.segments, &queries);
-        for (&(i, _), distance) in asked.iter().zip(distances) {
+        for (&i, distance) in asked.iter().zip(distances) {
             let o = &mut view[i];
             o.noise = o.noise.crowded(distance, (o.end - o.start).norm());
         }
@@ -463,6 +469,7 @@ pub fn match_segments_until(
         .map(|p| std::mem::take(&mut p.observed))
         .collect();
     let mut stats = MatchStats {
+        noise_scale: 1.0,
         segments_in: std::array::from_fn(|v| lists[v].segments.len() as u32),
         segments_used: std::array::from_fn(|v| prepared[v].rect.len() as u32),
         zero_length_dropped: std::array::from_fn(|v| prepared[v].zero_length),
@@ -480,15 +487,13 @@ pub fn match_segments_until(
     let hypotheses = matching::predict(&rect, &views, params);
     stats.predict_ms = ms(t);
     stats.hypotheses = hypotheses.len() as u32;
-    let t = Instant::now();
-    add_crowding(views.segments, &mut observed, lists, &hypotheses);
-    stats.rectify_ms += ms(t);
 
     let kept = validate_and_reconstruct(
         rig,
         &rect,
         &views,
-        &observed,
+        &mut observed,
+        lists,
         &hypotheses,
         graph,
         params,
@@ -542,6 +547,51 @@ fn chi2_quantile(dof: usize, z: f64) -> f64 {
 /// χ² of its residuals beyond this many standard deviations of a normal (about 1 in 1,000
 /// true triplets refused).
 const CONSISTENCY_Z: f64 = 3.09;
+
+/// Fewest first-round reconstructions from which the capture's noise scale is estimated.
+const MIN_FOR_NOISE_SCALE: usize = 20;
+/// The upper quartile of a standard normal. The noise scale is read at the upper quartile of
+/// the winners' χ²: many true triplets test nothing (a line in an epipolar plane of one pair
+/// is fitted exactly by the other two views, whatever the calibration), so the lower half
+/// says little; wrong matches, whose χ² is large, are mostly rejected by then or fewer than a
+/// quarter of the winners on a scene the matcher handles.
+const QUARTILE_Z: f64 = 0.674;
+
+/// How much larger than stated this capture's image-line noise really is, as a variance
+/// factor (at least 1): the upper quartile of the first winners' χ² over the quartile a χ²
+/// of their degrees of freedom would have. An image line's own noise is measured, but the
+/// calibration's error is not: a real rig's cameras disagree by a few tenths of a pixel, which
+/// this reads off the data (the a-posteriori variance of unit weight, made robust).
+fn variance_factor(estimates: &[Option<Line3Estimate>]) -> f64 {
+    let mut ratios: Vec<f64> = estimates
+        .iter()
+        .flatten()
+        .filter(|e| e.dof > 0)
+        .map(|e| e.chi2 / chi2_quantile(e.dof, QUARTILE_Z))
+        .collect();
+    if ratios.len() < MIN_FOR_NOISE_SCALE {
+        return 1.0;
+    }
+    let k = ratios.len() * 3 / 4;
+    let (_, quartile, _) = ratios.select_nth_unstable_by(k, f64::total_cmp);
+    quartile.max(1.0)
+}
+
+/// An estimate with its image-line noise scaled by `factor` (variance): χ² shrinks by it, and
+/// the covariance grows by it where the estimate's own scatter had not already grown it more
+/// (see `geometry::estimate_line`).
+fn rescaled(mut est: Line3Estimate, factor: f64) -> Line3Estimate {
+    if factor > 1.0 {
+        let own = if est.dof > 0 {
+            (est.chi2 / est.dof as f64).max(1.0)
+        } else {
+            1.0
+        };
+        est.covariance *= factor.max(own) / own;
+        est.chi2 /= factor;
+    }
+    est
+}
 
 /// True when the observations are images of one 3D line within their stated noise.
 fn consistent(est: &Line3Estimate) -> bool {
@@ -607,7 +657,8 @@ fn validate_and_reconstruct(
     rig: &Rig,
     rect: &Rectification,
     views: &Views,
-    observed: &[Vec<LineObservation>],
+    observed: &mut [Vec<LineObservation>],
+    lists: &[SegmentList; 3],
     hypotheses: &[Hypothesis],
     graph: &[Adjacent],
     params: &MatchParams,
@@ -616,7 +667,7 @@ fn validate_and_reconstruct(
 ) -> Result<Vec<(usize, Line3Estimate, Quality)>, MatchError> {
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
-    let observed = [&observed[0][..], &observed[1][..], &observed[2][..]];
+    let mut crowded: [Vec<bool>; 3] = std::array::from_fn(|v| vec![false; observed[v].len()]);
     checkpoint.before("validate")?;
     let t = Instant::now();
     let ranking = if params.validate {
@@ -645,7 +696,18 @@ fn validate_and_reconstruct(
             .filter(|&h| fits[h].is_none())
             .collect();
         let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
-        for (&h, est) in todo.iter().zip(reconstruct(rig, observed, &triplets)) {
+        add_crowding(views.segments, observed, &mut crowded, lists, &triplets);
+        let estimates = reconstruct(
+            rig,
+            [&observed[0][..], &observed[1][..], &observed[2][..]],
+            &triplets,
+        );
+        if round == 0 {
+            stats.noise_scale = variance_factor(&estimates).sqrt();
+        }
+        let factor = stats.noise_scale.powi(2);
+        for (&h, est) in todo.iter().zip(estimates) {
+            let est = est.map(|e| rescaled(e, factor));
             if est.is_some_and(|e| !consistent(&e)) {
                 stats.inconsistent += 1;
             }
@@ -733,7 +795,12 @@ fn assemble(
                 ids.dedup();
                 pieces.extend(ids.iter().map(|&i| view[i as usize]));
             }
-            accept(reconstruct_pieces(rig, &pieces), rig, params)
+            let factor = stats.noise_scale.powi(2);
+            accept(
+                reconstruct_pieces(rig, &pieces).map(|e| rescaled(e, factor)),
+                rig,
+                params,
+            )
         });
         let best_piece = || {
             group

@@ -109,7 +109,8 @@ pub const CROWDING_RADIUS_PX: f64 = 8.0;
 /// each pulls the other's line off by up to about a pixel. Measured on the rendered rooms
 /// (`tools/line_noise_study.py`): segments longer than 40 px with a parallel neighbour within
 /// 3 px are off their true line by a median 0.58 px, within 3–5 px 0.15 px, beyond 5 px 0.01 px.
-/// Modelled as an extra offset σ of `CROWDING_PEAK_PX · exp(−d² / 2·CROWDING_SPREAD_PX²)`.
+/// Modelled as an extra offset σ of `CROWDING_PEAK_PX · exp(−d² / 2·CROWDING_SPREAD_PX²)`,
+/// at most d/2 (two edges closer than that are seen as one, between them).
 const CROWDING_PEAK_PX: f64 = 1.35;
 const CROWDING_SPREAD_PX: f64 = 2.2;
 /// Segments closer to each other than this across are pieces of one line, not neighbours.
@@ -125,9 +126,11 @@ impl LineNoise {
         if distance_px.is_nan() || distance_px >= CROWDING_RADIUS_PX {
             return self;
         }
-        let extra = CROWDING_PEAK_PX
+        // No edge is pulled past the middle between the two: closer than that they are one.
+        let extra = (CROWDING_PEAK_PX
             * (-(distance_px * distance_px) / (2.0 * CROWDING_SPREAD_PX * CROWDING_SPREAD_PX))
-                .exp();
+                .exp())
+        .min(0.5 * distance_px);
         let other = LineNoise::from_endpoint_sigma(extra, length_px);
         LineNoise {
             offset_px: self.offset_px.hypot(other.offset_px),

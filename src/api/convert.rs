@@ -617,6 +617,7 @@ pub fn match_response(
             extract_ms: s.extract_ms.map_or_else(Vec::new, |m| m.to_vec()),
             uncertain: s.uncertain,
             inconsistent: s.inconsistent,
+            noise_scale: s.noise_scale,
         }),
         extracted: extracted
             .map(|e| e.iter().map(|x| segment_list_to_pb(&x.segments)).collect())

@@ -221,35 +221,4 @@ impl Rectification {
         let delta = self.focal_px / r.z;
         Some((Point2::new((r.x - c.x) * delta, (r.y - c.y) * delta), delta))
     }
-
-    /// Predicted 1σ uncertainty of the direction of the 3D segment `start`–`end` (rig frame),
-    /// radians, when image lines are known to `noise_px`.
-    ///
-    /// Depth comes from disparity, measured where view 1's line crosses the other views'
-    /// lines along the epipolar directions: its precision is `noise_px / (|c1 − cj|·sin θj)`
-    /// per pair, θj the angle between the line and the epipolar direction. Each endpoint's
-    /// depth error moves it along its line of sight; over the extent the segment spans
-    /// *across* the line of sight (its image length at its depth), that is the angular error.
-    /// The estimated direction itself is not used: a noisy estimate turned towards the line of
-    /// sight would otherwise vouch for itself.
-    pub fn direction_sigma(&self, start: &Point3<f64>, end: &Point3<f64>, noise_px: f64) -> f64 {
-        let rs = self.rect_from_rig * (start - self.origin);
-        let re = self.rect_from_rig * (end - self.origin);
-        if rs.z <= 0.0 || re.z <= 0.0 {
-            return f64::INFINITY;
-        }
-        let image = |r: &Vector3<f64>| Vector2::new(r.x / r.z, r.y / r.z) * self.focal_px;
-        let span = image(&re) - image(&rs);
-        let Some(u) = span.try_normalize(1e-12) else {
-            return f64::INFINITY;
-        };
-        let information: f64 = (1..3).map(|j| u.perp(&self.epipolar(0, j)).powi(2)).sum();
-        if information <= 0.0 {
-            return f64::INFINITY;
-        }
-        let sigma_disparity = noise_px / information.sqrt();
-        let sigma_depth = |z: f64| z * z * sigma_disparity / self.focal_px;
-        let across_m = span.norm() * 0.5 * (rs.z + re.z) / self.focal_px;
-        sigma_depth(rs.z).hypot(sigma_depth(re.z)).atan2(across_m)
-    }
 }

@@ -194,14 +194,18 @@ fn rendered_triplets_match_end_to_end() {
     );
     assert!(n > 20 && gated_error <= 0.1 * error.max(0.1) + 0.05);
     assert!(gated_completeness >= 0.5 * completeness);
-    // Only well-determined directions: few wrong segments.
+    // Every match, but only well-determined directions (the older, direction-only filter):
+    // few wrong segments.
     let precise = MatchParams {
         max_direction_sigma_deg: 2.0,
+        include_uncertain: true,
         ..MatchParams::default()
     };
     let (error, completeness, n) = end_to_end(1, &precise);
     println!("sigma <= 2 deg: {n} segments, error {error:.3}, completeness {completeness:.3}");
-    assert!(n > 40 && completeness > 0.25 && error < 0.15);
+    // (The direction σ is the covariance's now, from measured noise, wider than the old
+    // nominal 0.1 px model: 41 segments pass 2° on this seed, 80 before.)
+    assert!(n > 30 && completeness > 0.25 && error < 0.15);
 }
 
 // ---- golden files --------------------------------------------------------------------

@@ -389,13 +389,15 @@ fn ms(since: Instant) -> f64 {
 }
 
 /// Adds to the model noise of list segments (those that did not state their own) the
-/// disturbance of their parallel neighbours ([`crate::segment::crowding_of`]); a list that
+/// disturbance of their parallel neighbours ([`crate::segment::Crowding`], each view's built
+/// once, when first asked); a list that
 /// states its noise is taken at its word. Asked only for the segments of `triplets` not
 /// `done` yet: only what is reconstructed needs it.
 fn add_crowding(
     rect: [&[RectSegment]; 3],
     observed: &mut [Vec<LineObservation>],
     done: &mut [Vec<bool>; 3],
+    index: &mut [Option<crate::segment::Crowding>; 3],
     lists: &[SegmentList; 3],
     triplets: &[[u32; 3]],
 ) {
@@ -414,7 +416,9 @@ fn add_crowding(
             continue;
         }
         let queries: Vec<usize> = asked.iter().map(|&i| rect[v][i].index as usize).collect();
-        let distances = crate::segment::crowding_of(&list.segments, &queries);
+        let distances = index[v]
+            .get_or_insert_with(|| crate::segment::Crowding::new(&list.segments))
+            .distances(&list.segments, &queries);
         for (&i, distance) in asked.iter().zip(distances) {
             let o = &mut view[i];
             o.noise = o.noise.crowded(distance, (o.end - o.start).norm());
@@ -625,6 +629,23 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
             .gate_position_m
             .max(params.gate_position_rel * (p - centre).norm())
     };
+    // An end that may lie past the true end by more than the tolerance (a receding line, whose
+    // ends the images place poorly) is pulled in to where it may not: the answer reports the
+    // part of the line it is sure of.
+    let mut est = est;
+    let length = (est.end - est.start).norm();
+    let trim = |sigma: f64, at: &nalgebra::Point3<f64>| (k * sigma - tolerance(at)).max(0.0);
+    let (trim_start, trim_end) = (
+        trim(est.end_along_sigma_m[0], &est.start),
+        trim(est.end_along_sigma_m[1], &est.end),
+    );
+    let trimmed = trim_start + trim_end;
+    let long_enough = trimmed < length;
+    if trimmed > 0.0 && long_enough {
+        let (a, b) = (est.start, est.end);
+        est.start = a + u * trim_start;
+        est.end = b - u * trim_end;
+    }
     let mid = nalgebra::center(&est.start, &est.end);
     let start_var = worst_variance(
         &est.covariance.fixed_view::<3, 3>(0, 0).into_owned(),
@@ -634,7 +655,8 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
         &est.covariance.fixed_view::<3, 3>(3, 3).into_owned(),
         &basis,
     );
-    let certain = k * direction_var.sqrt() <= params.gate_direction_deg.to_radians()
+    let certain = long_enough
+        && k * direction_var.sqrt() <= params.gate_direction_deg.to_radians()
         && k * position_sigma_m <= tolerance(&mid)
         && k * start_var.sqrt() <= tolerance(&est.start)
         && k * end_var.sqrt() <= tolerance(&est.end);
@@ -668,6 +690,7 @@ fn validate_and_reconstruct(
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
     let mut crowded: [Vec<bool>; 3] = std::array::from_fn(|v| vec![false; observed[v].len()]);
+    let mut crowding_index: [Option<crate::segment::Crowding>; 3] = [None, None, None];
     checkpoint.before("validate")?;
     let t = Instant::now();
     let ranking = if params.validate {
@@ -696,7 +719,14 @@ fn validate_and_reconstruct(
             .filter(|&h| fits[h].is_none())
             .collect();
         let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
-        add_crowding(views.segments, observed, &mut crowded, lists, &triplets);
+        add_crowding(
+            views.segments,
+            observed,
+            &mut crowded,
+            &mut crowding_index,
+            lists,
+            &triplets,
+        );
         let estimates = reconstruct(
             rig,
             [&observed[0][..], &observed[1][..], &observed[2][..]],

@@ -166,108 +166,141 @@ pub fn crowding(segments: &[Segment2]) -> Vec<f64> {
 
 /// [`crowding`] of the segments at `queries` only, among all of `segments`.
 pub fn crowding_of(segments: &[Segment2], queries: &[usize]) -> Vec<f64> {
-    let radius = CROWDING_RADIUS_PX;
-    let bin_width = std::f64::consts::PI / CROWDING_BINS as f64;
-    let normals: [nalgebra::Vector2<f64>; CROWDING_BINS] = std::array::from_fn(|b| {
-        let theta = (b as f64 + 0.5) * bin_width;
-        nalgebra::Vector2::new(-theta.sin(), theta.cos())
-    });
-    let normal_of_bin = |b: usize| normals[b];
-    // What each query asks of a neighbour, computed once.
-    struct Shape {
-        dir: nalgebra::Vector2<f64>,
-        mid: Point2<f64>,
-        len: f64,
-        bin: usize,
-    }
-    let shapes: Vec<Option<Shape>> = segments
-        .iter()
-        .map(|s| {
-            let len = s.length();
-            if !(len > 0.0 && len.is_finite()) {
-                return None;
-            }
-            let dir = (s.end - s.start) / len;
-            let theta = dir.y.atan2(dir.x).rem_euclid(std::f64::consts::PI);
-            let bin = ((theta / bin_width) as usize).min(CROWDING_BINS - 1);
-            Some(Shape {
-                dir,
-                mid: nalgebra::center(&s.start, &s.end),
-                len,
-                bin,
+    Crowding::new(segments).distances(segments, queries)
+}
+
+/// What a crowding query asks of a segment, computed once.
+struct Shape {
+    dir: nalgebra::Vector2<f64>,
+    mid: Point2<f64>,
+    len: f64,
+    bin: usize,
+}
+
+/// One segment in its orientation bin, sorted by position across the bin: what a query
+/// reads, laid out in a row.
+#[derive(Clone, Copy)]
+struct Entry {
+    rho: f64,
+    dir: nalgebra::Vector2<f64>,
+    mid: Point2<f64>,
+    index: u32,
+}
+
+/// The index behind [`crowding`]: built once per list, asked as often as needed.
+pub struct Crowding {
+    normals: [nalgebra::Vector2<f64>; CROWDING_BINS],
+    shapes: Vec<Option<Shape>>,
+    bins: Vec<Vec<Entry>>,
+}
+
+impl Crowding {
+    pub fn new(segments: &[Segment2]) -> Crowding {
+        let bin_width = std::f64::consts::PI / CROWDING_BINS as f64;
+        let normals: [nalgebra::Vector2<f64>; CROWDING_BINS] = std::array::from_fn(|b| {
+            let theta = (b as f64 + 0.5) * bin_width;
+            nalgebra::Vector2::new(-theta.sin(), theta.cos())
+        });
+        let normal_of_bin = |b: usize| normals[b];
+        let shapes: Vec<Option<Shape>> = segments
+            .iter()
+            .map(|s| {
+                let len = s.length();
+                if !(len > 0.0 && len.is_finite()) {
+                    return None;
+                }
+                let dir = (s.end - s.start) / len;
+                let theta = dir.y.atan2(dir.x).rem_euclid(std::f64::consts::PI);
+                let bin = ((theta / bin_width) as usize).min(CROWDING_BINS - 1);
+                Some(Shape {
+                    dir,
+                    mid: nalgebra::center(&s.start, &s.end),
+                    len,
+                    bin,
+                })
             })
-        })
-        .collect();
-    // Per bin, sorted by position across the bin: what a query reads, laid out in a row.
-    #[derive(Clone, Copy)]
-    struct Entry {
-        rho: f64,
-        dir: nalgebra::Vector2<f64>,
-        mid: Point2<f64>,
-        index: u32,
-    }
-    let mut bins: Vec<Vec<Entry>> = vec![Vec::new(); CROWDING_BINS];
-    for (i, shape) in shapes.iter().enumerate() {
-        if let Some(sh) = shape {
-            bins[sh.bin].push(Entry {
-                rho: sh.mid.coords.dot(&normal_of_bin(sh.bin)),
-                dir: sh.dir,
-                mid: sh.mid,
-                index: i as u32,
-            });
+            .collect();
+        let mut bins: Vec<Vec<Entry>> = vec![Vec::new(); CROWDING_BINS];
+        for (i, shape) in shapes.iter().enumerate() {
+            if let Some(sh) = shape {
+                bins[sh.bin].push(Entry {
+                    rho: sh.mid.coords.dot(&normal_of_bin(sh.bin)),
+                    dir: sh.dir,
+                    mid: sh.mid,
+                    index: i as u32,
+                });
+            }
+        }
+        for b in &mut bins {
+            b.sort_unstable_by(|x, y| x.rho.total_cmp(&y.rho));
+        }
+        Crowding {
+            normals,
+            shapes,
+            bins,
         }
     }
-    for b in &mut bins {
-        b.sort_unstable_by(|x, y| x.rho.total_cmp(&y.rho));
-    }
-    // A neighbour's midpoint is within `radius` across and the segment's half length along
-    // of this one's; measured across a bin direction up to 15° off, its position moves by at
-    // most sin(15°)·that distance more (2·sin(7.5°) ≈ 0.26 bounds the normals' difference).
-    const NORMAL_SLACK: f64 = 0.27;
-    queries
-        .iter()
-        .map(|&i| {
-            let Some(sh) = &shapes[i] else {
-                return f64::INFINITY;
-            };
-            let s = &segments[i];
-            let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
-            let window = radius + NORMAL_SLACK * (0.25 * sh.len * sh.len + radius * radius).sqrt();
-            let mut best = f64::INFINITY;
-            for db in [CROWDING_BINS - 1, 0, 1] {
-                let b = (sh.bin + db) % CROWDING_BINS;
-                let rho = sh.mid.coords.dot(&normal_of_bin(b));
-                let list = &bins[b];
-                let from = list.partition_point(|e| e.rho < rho - window);
-                for other in &list[from..] {
-                    if other.rho > rho + window {
-                        break;
-                    }
-                    let j = other.index as usize;
-                    if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
-                        continue;
-                    }
-                    let along = (other.mid - s.start).dot(&sh.dir);
-                    let across = (other.mid - s.start).dot(&n).abs();
-                    if along > 0.0 && along < sh.len && across > COLLINEAR_PX && across <= radius {
-                        // A weaker neighbour pulls less: as if it were farther.
-                        let pull = match (s.gradient, segments[j].gradient) {
-                            (Some(mine), Some(theirs)) if mine > 0.0 => {
-                                (theirs / mine).clamp(1e-3, 1.0)
-                            }
-                            _ => 1.0,
-                        };
-                        best = best.min(equivalent_distance(across, pull));
+
+    /// The crowding distance of each segment at `queries` (indices into the `segments` the
+    /// index was built from).
+    pub fn distances(&self, segments: &[Segment2], queries: &[usize]) -> Vec<f64> {
+        let radius = CROWDING_RADIUS_PX;
+        let (shapes, bins) = (&self.shapes, &self.bins);
+        let normal_of_bin = |b: usize| self.normals[b];
+        // A neighbour's midpoint is within `radius` across and the segment's half length along
+        // of this one's; measured across a bin direction up to 15° off, its position moves by at
+        // most sin(15°)·that distance more (2·sin(7.5°) ≈ 0.26 bounds the normals' difference).
+        const NORMAL_SLACK: f64 = 0.27;
+        queries
+            .iter()
+            .map(|&i| {
+                let Some(sh) = &shapes[i] else {
+                    return f64::INFINITY;
+                };
+                let s = &segments[i];
+                let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
+                let window =
+                    radius + NORMAL_SLACK * (0.25 * sh.len * sh.len + radius * radius).sqrt();
+                let mut best = f64::INFINITY;
+                for db in [CROWDING_BINS - 1, 0, 1] {
+                    let b = (sh.bin + db) % CROWDING_BINS;
+                    let rho = sh.mid.coords.dot(&normal_of_bin(b));
+                    let list = &bins[b];
+                    let from = list.partition_point(|e| e.rho < rho - window);
+                    for other in &list[from..] {
+                        if other.rho > rho + window {
+                            break;
+                        }
+                        let j = other.index as usize;
+                        if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
+                            continue;
+                        }
+                        let along = (other.mid - s.start).dot(&sh.dir);
+                        let across = (other.mid - s.start).dot(&n).abs();
+                        if along > 0.0
+                            && along < sh.len
+                            && across > COLLINEAR_PX
+                            && across <= radius
+                        {
+                            // A weaker neighbour pulls less: as if it were farther.
+                            let pull = match (s.gradient, segments[j].gradient) {
+                                (Some(mine), Some(theirs)) if mine > 0.0 => {
+                                    (theirs / mine).clamp(1e-3, 1.0)
+                                }
+                                _ => 1.0,
+                            };
+                            best = best.min(equivalent_distance(across, pull));
+                        }
                     }
                 }
-            }
-            if best <= radius {
-                best
-            } else {
-                f64::INFINITY
-            }
-        })
-        .collect()
+                if best <= radius {
+                    best
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]

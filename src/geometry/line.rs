@@ -51,6 +51,10 @@ pub struct Line3Estimate {
     pub dof: usize,
     /// RMS image distance of the observations from the reprojected line, pixels.
     pub residual_px: f64,
+    /// 1σ of where each end (start, end) lies along the line from the image ends' own noise
+    /// alone, metres: large for a line receding from the cameras. (The covariance adds the
+    /// spread of the views' ends, which occlusion makes large without making the end wrong.)
+    pub end_along_sigma_m: [f64; 2],
 }
 
 impl Line3Estimate {
@@ -352,18 +356,36 @@ pub fn estimate_line(
         1.0
     };
     let mut covariance = j * line_cov * j.transpose() * posterior;
-    // Along the line: the spread of the views' ends, floored by end_sigma_px at each end's
-    // depth.
-    let along = |t: f64, pick: fn(&(f64, f64)) -> f64| {
+    // Along the line: how far an end moves when its image end moves by end_sigma_px — far
+    // for a line that recedes from the camera, whose rays meet it at a grazing angle (the
+    // middle view of three, as the median takes the middle end) — and the spread of the
+    // views' ends around it.
+    let measured = |t: f64| {
         let p = x0 + d * t;
-        let floor = cameras
+        let mut per_view: Vec<f64> = cameras
             .iter()
-            .map(|c| end_sigma_px * (p - c.centre().coords).norm() / c.focal_px())
-            .fold(0.0, f64::max);
+            .map(|c| {
+                let ray = p - c.centre().coords;
+                let range = ray.norm();
+                let sin = (1.0 - (ray.dot(&d) / range).powi(2)).max(0.0).sqrt();
+                end_sigma_px * range / c.focal_px() / sin.max(MIN_RAY_LINE_SIN)
+            })
+            .collect();
+        per_view.sort_by(f64::total_cmp);
+        per_view[per_view.len() / 2]
+    };
+    let along = |t: f64, pick: fn(&(f64, f64)) -> f64| {
+        let floor = measured(t);
         let spread = ends.iter().map(|e| (pick(e) - t).powi(2)).sum::<f64>() / ends.len() as f64;
         (spread + floor * floor).max(1e-12)
     };
     let (var_lo, var_hi) = (along(lo, |e| e.0), along(hi, |e| e.1));
+    let (measured_lo, measured_hi) = (measured(lo), measured(hi));
+    let end_along_sigma_m = if first_sign >= 0.0 {
+        [measured_lo, measured_hi]
+    } else {
+        [measured_hi, measured_lo]
+    };
     let (var_start, var_end) = if first_sign >= 0.0 {
         (var_lo, var_hi)
     } else {
@@ -383,5 +405,6 @@ pub fn estimate_line(
         chi2,
         dof,
         residual_px: (sum_px / n_obs as f64).sqrt(),
+        end_along_sigma_m,
     })
 }

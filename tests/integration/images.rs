@@ -184,7 +184,7 @@ fn rendered_triplets_match_end_to_end() {
     println!("include_uncertain: {n} segments, error {error:.3}, completeness {completeness:.3}");
     assert!(n > 100 && completeness > 0.40 && error < 0.45);
     // Defaults: only what meets the gate (5 degrees, max(2 cm, 1%) at 95%). Measured on
-    // seed 1: 41 segments, 4.9% wrong, 42.3% complete (34% / 56% without the gate). The
+    // seed 1: 40 segments, 5.0% wrong, 41.7% complete (34% / 56% without the gate). The
     // guard is the gate's purpose — wrong segments an order of magnitude rarer than without
     // it — and that it does not get there by dropping most of what is right: at least half
     // the completeness stays.
@@ -475,7 +475,7 @@ fn cli_extracts_matches_images_and_draws_the_overlay() {
         String::from_utf8_lossy(&out.stderr)
     );
     let resp: pb::MatchResponse = serde_json::from_slice(&out.stdout).unwrap();
-    // The default answer holds only the segments that meet the accuracy gate (44 here).
+    // The default answer holds only the segments that meet the accuracy gate (40 here).
     assert!(resp.segments_3d.len() > 20, "{}", resp.segments_3d.len());
     let drawn = image::open(&overlay).unwrap();
     assert_eq!((drawn.width(), drawn.height()), (3 * 512 + 16, 512));

@@ -605,8 +605,45 @@ fn consistent(est: &Line3Estimate) -> bool {
 /// A reconstruction kept when it is one line within its noise (χ² test) and its residual
 /// within bounds, with how it measures up.
 fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
-    let est = est.filter(|e| e.residual_px <= params.max_residual_px && consistent(e))?;
+    let mut est = est.filter(|e| e.residual_px <= params.max_residual_px && consistent(e))?;
     let u = est.direction();
+    // The promise: at the gate's confidence, the direction within its bound, and the midpoint
+    // and both ends across the line within the position bound at their range.
+    let k = (-2.0 * (1.0 - params.gate_confidence).ln()).sqrt();
+    let centre = rig.centroid();
+    let tolerance = |p: &nalgebra::Point3<f64>| {
+        params
+            .gate_position_m
+            .max(params.gate_position_rel * (p - centre).norm())
+    };
+    // An end that may lie past the true end by more than the tolerance (a receding line, whose
+    // ends the images place poorly) is pulled in to where it may not: the answer reports the
+    // part of the line it is sure of. The new ends are fixed blends of the old, so their
+    // covariance follows exactly.
+    let length = (est.end - est.start).norm();
+    let trim = |sigma: f64, at: &nalgebra::Point3<f64>| (k * sigma - tolerance(at)).max(0.0);
+    let (trim_start, trim_end) = (
+        trim(est.end_along_sigma_m[0], &est.start),
+        trim(est.end_along_sigma_m[1], &est.end),
+    );
+    let long_enough = trim_start + trim_end < length;
+    if trim_start + trim_end > 0.0 && long_enough {
+        let (a, b) = (trim_start / length, trim_end / length);
+        let i3 = nalgebra::Matrix3::<f64>::identity();
+        let mut blend = nalgebra::Matrix6::<f64>::zeros();
+        blend
+            .fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(i3 * (1.0 - a)));
+        blend.fixed_view_mut::<3, 3>(0, 3).copy_from(&(i3 * a));
+        blend.fixed_view_mut::<3, 3>(3, 0).copy_from(&(i3 * b));
+        blend
+            .fixed_view_mut::<3, 3>(3, 3)
+            .copy_from(&(i3 * (1.0 - b)));
+        let (start, end) = (est.start, est.end);
+        est.start = start + u * trim_start;
+        est.end = end - u * trim_end;
+        est.covariance = blend * est.covariance * blend.transpose();
+    }
     let helper = if u.x.abs() < 0.9 {
         nalgebra::Vector3::x()
     } else {
@@ -620,32 +657,6 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
         return None;
     }
     let position_sigma_m = worst_variance(&est.midpoint_covariance(), &basis).sqrt();
-    // The promise: at the gate's confidence, the direction within its bound, and the midpoint
-    // and both ends across the line within the position bound at their range.
-    let k = (-2.0 * (1.0 - params.gate_confidence).ln()).sqrt();
-    let centre = rig.centroid();
-    let tolerance = |p: &nalgebra::Point3<f64>| {
-        params
-            .gate_position_m
-            .max(params.gate_position_rel * (p - centre).norm())
-    };
-    // An end that may lie past the true end by more than the tolerance (a receding line, whose
-    // ends the images place poorly) is pulled in to where it may not: the answer reports the
-    // part of the line it is sure of.
-    let mut est = est;
-    let length = (est.end - est.start).norm();
-    let trim = |sigma: f64, at: &nalgebra::Point3<f64>| (k * sigma - tolerance(at)).max(0.0);
-    let (trim_start, trim_end) = (
-        trim(est.end_along_sigma_m[0], &est.start),
-        trim(est.end_along_sigma_m[1], &est.end),
-    );
-    let trimmed = trim_start + trim_end;
-    let long_enough = trimmed < length;
-    if trimmed > 0.0 && long_enough {
-        let (a, b) = (est.start, est.end);
-        est.start = a + u * trim_start;
-        est.end = b - u * trim_end;
-    }
     let mid = nalgebra::center(&est.start, &est.end);
     let start_var = worst_variance(
         &est.covariance.fixed_view::<3, 3>(0, 0).into_owned(),

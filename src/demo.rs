@@ -86,12 +86,15 @@ pub fn run(seed: u64) -> Result<Demo, String> {
     let centres: Vec<_> = rig.cameras().iter().map(|c| c.centre()).collect();
     let top = overlay::top_view(&segments, &visible, &centres, TOP_VIEW_PX_PER_M);
     let stats = &result.output.stats;
+    let classes = crate::synth::error_classes(&segments, &s.matches, truth, rig_centre(&rig));
     let error_rate = s.error_rate.unwrap_or(0.0);
     let completeness = s.completeness.unwrap_or(0.0);
     let summary = format!(
         "room {seed}: {} + {} + {} segments extracted, {} triplets, {} 3D segments in {:.1} ms\n\
          against the ground truth: {:.1}% wrong, {:.1}% of the edges seen by all three cameras \
-         covered (median endpoint error {:.1} mm)",
+         covered (median endpoint error {:.1} mm)\n\
+         wrong: {} off in direction only, {} near an edge, {} near no edge; {} more left out \
+         as uncertain (the option includeUncertain returns them, flagged)",
         lists[0].segments.len(),
         lists[1].segments.len(),
         lists[2].segments.len(),
@@ -101,6 +104,10 @@ pub fn run(seed: u64) -> Result<Demo, String> {
         100.0 * error_rate,
         100.0 * completeness,
         s.acc_median_mm.unwrap_or(f64::NAN),
+        classes.direction_only,
+        classes.near,
+        classes.far,
+        stats.uncertain,
     );
     let calibration = api::calibration_to_pb(&rig);
     Ok(Demo {

@@ -42,8 +42,8 @@ pub use rng::Rng;
 pub use scatter::scattered_capture;
 pub use scene::{Box3, Face, Hit, Scene, Tracer};
 pub use score::{
-    edge_recall, eligible_intervals, eligible_intervals_with, match_labels, score, score_labelled,
-    Score,
+    edge_recall, eligible_intervals, eligible_intervals_with, error_classes, match_labels, score,
+    score_labelled, ErrorClasses, Score,
 };
 pub use visibility::{
     contrast_at, edge_contrast, intersect_intervals, rig_visibility, total_length, union_intervals,

@@ -230,6 +230,60 @@ pub fn score(
     summarise(segments, matches, truth, eligible)
 }
 
+/// Why the wrong segments of a [`score`] are wrong, as counts (the classes of the accuracy
+/// figures): on an edge but more than 5° off its direction; not on one but within three
+/// tolerances of one (imprecise depth, or a neighbouring edge); near no edge at all.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ErrorClasses {
+    pub direction_only: usize,
+    pub near: usize,
+    pub far: usize,
+}
+
+/// Classifies the segments that `matches` (from [`score`]) says are wrong.
+pub fn error_classes(
+    segments: &[Segment3],
+    matches: &[Option<usize>],
+    truth: &[Segment3],
+    rig_centre: Point3<f64>,
+) -> ErrorClasses {
+    let flat: Vec<FlatEdge> = truth.iter().map(FlatEdge::new).collect();
+    let c: [f64; 3] = rig_centre.coords.into();
+    let mut classes = ErrorClasses::default();
+    for (seg, m) in segments.iter().zip(matches) {
+        if m.is_some() {
+            continue;
+        }
+        let mid = seg.start + (seg.end - seg.start) * 0.5;
+        let points: [[f64; 3]; 3] = [
+            seg.start.coords.into(),
+            seg.end.coords.into(),
+            mid.coords.into(),
+        ];
+        // The worst of the three points' distances, in tolerances, to the closest edge.
+        let nearest = flat
+            .iter()
+            .map(|e| {
+                points
+                    .iter()
+                    .map(|p| {
+                        let r = sub(p, &c);
+                        e.distance(p) / TOL_ABS_M.max(TOL_REL * dot(&r, &r).sqrt())
+                    })
+                    .fold(0.0, f64::max)
+            })
+            .fold(f64::INFINITY, f64::min);
+        if nearest <= 1.0 {
+            classes.direction_only += 1;
+        } else if nearest <= 3.0 {
+            classes.near += 1;
+        } else {
+            classes.far += 1;
+        }
+    }
+    classes
+}
+
 /// The paper's criterion: a segment is right when the image segments it was reconstructed
 /// from are images of one ground-truth edge, whatever the precision of its 3D position.
 /// `labels[i]` is that edge (`None`: a wrong match). Completeness then counts the eligible
@@ -413,6 +467,30 @@ mod tests {
             seg([-1.0, 3.0, 0.0], [-1.0, 3.0, 1.0]),
             seg([0.5, 2.0, -0.5], [0.5, 4.0, -0.5]),
         ]
+    }
+
+    #[test]
+    fn wrong_segments_are_classed_by_how_far_they_are_from_an_edge() {
+        // One edge along x, 2 m from the rig centre (tolerance 2 cm).
+        let truth = vec![seg([0.0, 2.0, 0.0], [1.0, 2.0, 0.0])];
+        let segments = [
+            seg([0.1, 2.0, 0.0], [0.9, 2.0, 0.0]),     // right
+            seg([0.45, 2.0, 0.0], [0.55, 2.0, 0.015]), // within 1.5 cm, but 8.5° off
+            seg([0.1, 2.04, 0.0], [0.9, 2.04, 0.0]),   // 4 cm beside it: near
+            seg([0.1, 2.5, 0.0], [0.9, 2.5, 0.0]),     // 50 cm away: far
+        ];
+        let centre = Point3::origin();
+        let s = score(&segments, &truth, &[vec![(0.0, 1.0)]], centre);
+        assert_eq!(s.matches, vec![Some(0), None, None, None]);
+        let classes = error_classes(&segments, &s.matches, &truth, centre);
+        assert_eq!(
+            classes,
+            ErrorClasses {
+                direction_only: 1,
+                near: 1,
+                far: 1
+            }
+        );
     }
 
     #[test]

@@ -337,6 +337,22 @@ pub fn segment_lists(
             ),
         ));
     }
+    // A segment's noise is two numbers or none: one alone would be silently ignored.
+    for (i, list) in lists.iter().enumerate() {
+        for (j, s) in list.segments.iter().enumerate() {
+            let missing = match (s.offset_sigma_px, s.angle_sigma_deg) {
+                (Some(_), None) => Some(("angle_sigma_deg", "offset_sigma_px")),
+                (None, Some(_)) => Some(("offset_sigma_px", "angle_sigma_deg")),
+                _ => None,
+            };
+            if let Some((absent, given)) = missing {
+                return Err(InputError::new(
+                    format!("segments.lists[{i}].segments[{j}].{absent}"),
+                    format!("missing: {given} is given, and the two go together"),
+                ));
+            }
+        }
+    }
     Ok(std::array::from_fn(|i| {
         let pb::SegmentList { segments, oriented } = &lists[i];
         SegmentList {

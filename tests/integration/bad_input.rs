@@ -63,6 +63,46 @@ fn non_finite_numbers_are_named() {
 }
 
 #[test]
+fn segment_noise_and_the_accuracy_gate_are_checked_by_name() {
+    let with_noise = |r: &mut Value, sigma: Value, angle: Value| {
+        let s = &mut r["segments"]["lists"][1]["segments"][0];
+        s["offsetSigmaPx"] = sigma;
+        s["angleSigmaDeg"] = angle;
+    };
+    let mut r = request_json();
+    with_noise(&mut r, json!("NaN"), json!(0.1));
+    assert_eq!(
+        field_of(&r),
+        "segments.lists[1].segments[0].offset_sigma_px"
+    );
+    let mut r = request_json();
+    with_noise(&mut r, json!(0.05), json!(-0.1));
+    assert_eq!(
+        field_of(&r),
+        "segments.lists[1].segments[0].angle_sigma_deg"
+    );
+    let mut r = request_json();
+    r["segments"]["lists"][1]["segments"][0]["offsetSigmaPx"] = json!(0.05);
+    assert_eq!(
+        field_of(&r),
+        "segments.lists[1].segments[0].angle_sigma_deg"
+    );
+    let mut r = request_json();
+    with_noise(&mut r, json!(0.05), json!(0.1));
+    assert!(run(&r).is_ok(), "both given and valid: accepted");
+    for (option, value, field) in [
+        ("gateConfidence", json!(1.0), "options.gate_confidence"),
+        ("gateDirectionDeg", json!(0.0), "options.gate_direction_deg"),
+        ("gatePositionM", json!("NaN"), "options.gate_position_m"),
+        ("gatePositionRel", json!(-0.01), "options.gate_position_rel"),
+    ] {
+        let mut r = request_json();
+        r["options"] = json!({ option: value });
+        assert_eq!(field_of(&r), field, "{option}");
+    }
+}
+
+#[test]
 fn projection_problems_are_named() {
     let mut r = request_json();
     let p = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];

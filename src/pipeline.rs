@@ -268,11 +268,9 @@ pub enum MatchError {
     Stopped { stage: &'static str },
 }
 
-/// Segments of one view after checking: kept for matching, with their undistorted lines.
+/// Segments of one view after checking, kept for matching.
 struct Prepared {
     rect: Vec<RectSegment>,
-    /// Undistorted image segments with their noise, parallel to `rect`.
-    observed: Vec<LineObservation>,
     zero_length: u32,
 }
 
@@ -351,13 +349,15 @@ fn prepare(
     list: &SegmentList,
     zero_length: u32,
     params: &MatchParams,
-) -> Prepared {
+) -> (Prepared, Vec<LineObservation>) {
     let cam = rig.camera(view);
     let mut out = Prepared {
         rect: Vec::with_capacity(list.segments.len()),
-        observed: Vec::with_capacity(list.segments.len()),
         zero_length,
     };
+    // Undistorted image segments with their noise, parallel to `out.rect`: kept apart, since
+    // their noise gains its crowding after prediction while the views borrow `rect`.
+    let mut observed = Vec::with_capacity(list.segments.len());
     for (index, s) in list.segments.iter().enumerate() {
         let len = s.length();
         if len < ZERO_LENGTH_PX || len < params.min_length_px {
@@ -374,14 +374,14 @@ fn prepare(
         let noise = s
             .noise
             .unwrap_or_else(|| LineNoise::for_list(params.line_noise_px, (q - p).norm()));
-        out.observed.push(LineObservation {
+        observed.push(LineObservation {
             view,
             start: p,
             end: q,
             noise,
         });
     }
-    out
+    (out, observed)
 }
 
 fn ms(since: Instant) -> f64 {
@@ -463,15 +463,9 @@ pub fn match_segments_until(
         zero[i] = check_list(rig, i, list)?;
     }
     let rect = Rectification::new(rig)?;
-    let mut prepared: Vec<Prepared> = (0..3)
+    let (prepared, mut observed): (Vec<Prepared>, Vec<Vec<LineObservation>>) = (0..3)
         .map(|v| prepare(rig, &rect, v, &lists[v], zero[v], params))
-        .collect();
-    // The noise of each observation gains its crowding after prediction, while the views
-    // borrow the rectified segments: keep the two apart.
-    let mut observed: Vec<Vec<LineObservation>> = prepared
-        .iter_mut()
-        .map(|p| std::mem::take(&mut p.observed))
-        .collect();
+        .unzip();
     let mut stats = MatchStats {
         noise_scale: 1.0,
         segments_in: std::array::from_fn(|v| lists[v].segments.len() as u32),
@@ -644,13 +638,8 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
         est.end = end - u * trim_end;
         est.covariance = blend * est.covariance * blend.transpose();
     }
-    let helper = if u.x.abs() < 0.9 {
-        nalgebra::Vector3::x()
-    } else {
-        nalgebra::Vector3::y()
-    };
-    let e1 = u.cross(&helper).normalize();
-    let basis = nalgebra::Matrix3x2::from_columns(&[e1, u.cross(&e1)]);
+    let (e1, e2) = crate::geometry::across_basis(&u);
+    let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
     let direction_var = worst_variance(&est.direction_covariance(), &basis);
     let direction_sigma_deg = direction_var.sqrt().to_degrees();
     if direction_sigma_deg > params.max_direction_sigma_deg {

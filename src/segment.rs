@@ -161,12 +161,7 @@ const CROWDING_BINS: usize = 18;
 /// a neighbour alongside can have (O(n log n), no image-sized structure).
 pub fn crowding(segments: &[Segment2]) -> Vec<f64> {
     let all: Vec<usize> = (0..segments.len()).collect();
-    crowding_of(segments, &all)
-}
-
-/// [`crowding`] of the segments at `queries` only, among all of `segments`.
-pub fn crowding_of(segments: &[Segment2], queries: &[usize]) -> Vec<f64> {
-    Crowding::new(segments).distances(segments, queries)
+    Crowding::new(segments).distances(segments, &all)
 }
 
 /// What a crowding query asks of a segment, computed once.

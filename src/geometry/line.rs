@@ -139,7 +139,7 @@ fn distance_and_gradient(
 }
 
 /// Two unit vectors across `d`, forming a right-handed frame with it.
-fn across_basis(d: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+pub fn across_basis(d: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     let helper = if d.x.abs() < 0.9 {
         Vector3::x()
     } else {

@@ -12,7 +12,7 @@ pub mod line;
 pub mod rectify;
 
 pub use camera::{Camera, CameraError, Distortion, Rig, RigError};
-pub use line::{estimate_line, Line3Estimate, LineObservation};
+pub use line::{across_basis, estimate_line, Line3Estimate, LineObservation};
 pub use rectify::{Rectification, RectifyError};
 
 #[cfg(test)]

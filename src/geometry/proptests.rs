@@ -200,15 +200,7 @@ fn ml_covariance_is_calibrated_when_the_noise_is_as_stated() {
         };
         let (dir_cov, mid_cov) = (est.direction_covariance(), est.midpoint_covariance());
         let e = est.direction();
-        let (e1, e2) = {
-            let h = if e.x.abs() < 0.9 {
-                Vector3::x()
-            } else {
-                Vector3::y()
-            };
-            let e1 = e.cross(&h).normalize();
-            (e1, e.cross(&e1))
-        };
+        let (e1, e2) = super::across_basis(&e);
         let basis = nalgebra::Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]);
         let truth = if u.dot(&e) < 0.0 { -u } else { u };
         let mid = nalgebra::center(&est.start, &est.end);

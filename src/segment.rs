@@ -146,6 +146,8 @@ fn equivalent_distance(distance_px: f64, pull: f64) -> f64 {
     (distance_px * distance_px - spread2 * pull.ln()).sqrt()
 }
 
+/// Most candidates a crowding query looks at per orientation bin.
+const MAX_CROWDING_CANDIDATES: usize = 512;
 /// Orientation bins of [`crowding`]: parallel neighbours (within 10°) share a bin or sit in
 /// the next one.
 const CROWDING_BINS: usize = 18;
@@ -262,7 +264,9 @@ impl Crowding {
                     let rho = sh.mid.coords.dot(&normal_of_bin(b));
                     let list = &bins[b];
                     let from = list.partition_point(|e| e.rho < rho - window);
-                    for other in &list[from..] {
+                    // A client's list may pile thousands of copies onto one line: the scan
+                    // is bounded, and a segment with that many candidates is crowded anyway.
+                    for other in list[from..].iter().take(MAX_CROWDING_CANDIDATES) {
                         if other.rho > rho + window {
                             break;
                         }

@@ -19,7 +19,7 @@ use crate::extract::{self, Adjacent, Extraction, GreyImage};
 use crate::geometry::{Line3Estimate, LineObservation, Rectification, RectifyError, Rig};
 use crate::matching::{self, Hypothesis, MatchParams, ParamError, RectSegment, Views};
 use crate::reconstruct::{reconstruct, reconstruct_pieces};
-use crate::segment::{LineNoise, Segment3, SegmentList};
+use crate::segment::{CrowdingModel, LineNoise, Segment3, SegmentList};
 
 /// How far outside the image a segment endpoint may lie, in image sizes: farther is not a
 /// detector's imprecision but a unit or index mix-up.
@@ -172,6 +172,10 @@ pub struct MatchStats {
     pub uncertain: u32,
     /// Hypotheses whose three image lines are not one 3D line within their noise (χ² test).
     pub inconsistent: u32,
+    /// Winners that would have been certain but have a rival triplet, sharing one of their
+    /// segments, that is one 3D line elsewhere within its noise: the images cannot tell the
+    /// two apart, so they are uncertain (counted in `uncertain` too).
+    pub ambiguous: u32,
     /// How much larger than stated the image-line noise turned out to be in this capture (a
     /// factor on σ, at least 1; read off the first reconstructions: mostly the calibration's
     /// own error).
@@ -418,10 +422,12 @@ fn add_crowding(
         let queries: Vec<usize> = asked.iter().map(|&i| rect[v][i].index as usize).collect();
         let distances = index[v]
             .get_or_insert_with(|| crate::segment::Crowding::new(&list.segments))
-            .distances(&list.segments, &queries);
+            .distances(&list.segments, &queries, CrowdingModel::LISTS);
         for (&i, distance) in asked.iter().zip(distances) {
             let o = &mut view[i];
-            o.noise = o.noise.crowded(distance, (o.end - o.start).norm());
+            o.noise = o
+                .noise
+                .crowded(distance, (o.end - o.start).norm(), CrowdingModel::LISTS);
         }
     }
 }
@@ -755,10 +761,166 @@ fn validate_and_reconstruct(
             break;
         }
     }
+    if params.validate {
+        let t = Instant::now();
+        flag_ambiguous(
+            rig,
+            views,
+            observed,
+            lists,
+            hypotheses,
+            &kept,
+            &alive,
+            &mut fits,
+            (&mut crowded, &mut crowding_index),
+            params,
+            stats,
+        );
+        stats.reconstruct_ms += ms(t);
+    }
     Ok(kept
         .into_iter()
         .filter_map(|h| fits[h].flatten().map(|(est, quality)| (h, est, quality)))
         .collect())
+}
+
+/// How much worse (in χ²) a rival's fit may be than the winner's and still be taken for as
+/// likely: 4 is a likelihood ratio of e⁻² ≈ 0.14.
+const AMBIGUITY_CHI2_MARGIN: f64 = 4.0;
+/// Ends that agree within this many of their σ (largest less smallest of the three views)
+/// are as good as ends can agree: a rival that does that is as likely as a winner that does
+/// better.
+const AMBIGUITY_ENDS_AGREE: f64 = 3.0;
+/// Most rivals reconstructed to test one winner's uniqueness.
+const MAX_RIVALS: usize = 16;
+
+/// Uniqueness in three views: a winner one of whose segments also forms, with other
+/// segments, a triplet that is one 3D line within its noise somewhere else (beyond the gate's
+/// position or direction tolerance) is ambiguous — the images cannot tell the two apart, as
+/// with the fins of a radiator seen along the direction the third camera cannot check — and
+/// it is flagged uncertain, whatever its covariance says. Validation chose by neighbour
+/// support, which a repetitive structure gives every shifted copy of itself alike.
+#[allow(clippy::too_many_arguments)]
+fn flag_ambiguous(
+    rig: &Rig,
+    views: &Views,
+    observed: &mut [Vec<LineObservation>],
+    lists: &[SegmentList; 3],
+    hypotheses: &[Hypothesis],
+    kept: &[usize],
+    alive: &[bool],
+    fits: &mut [Option<Fit>],
+    crowding: (
+        &mut [Vec<bool>; 3],
+        &mut [Option<crate::segment::Crowding>; 3],
+    ),
+    params: &MatchParams,
+    stats: &mut MatchStats,
+) {
+    let certain: Vec<usize> = kept
+        .iter()
+        .copied()
+        .filter(|&h| matches!(&fits[h], Some(Some((_, q))) if q.certain))
+        .collect();
+    if certain.is_empty() {
+        return;
+    }
+    // Which hypotheses use each segment, for the segments of the certain winners only.
+    let mut users: [HashMap<u32, Vec<u32>>; 3] = Default::default();
+    for &h in &certain {
+        for (v, map) in users.iter_mut().enumerate() {
+            map.entry(hypotheses[h].segments[v]).or_default();
+        }
+    }
+    for (r, hyp) in hypotheses.iter().enumerate() {
+        if !alive[r] {
+            continue;
+        }
+        for (v, map) in users.iter_mut().enumerate() {
+            if let Some(list) = map.get_mut(&hyp.segments[v]) {
+                list.push(r as u32);
+            }
+        }
+    }
+    let mut rivals_of: Vec<(usize, Vec<usize>)> = Vec::with_capacity(certain.len());
+    let mut todo: Vec<usize> = Vec::new();
+    for &h in &certain {
+        let mut rivals: Vec<usize> = Vec::new();
+        for (v, map) in users.iter().enumerate() {
+            for &r in &map[&hypotheses[h].segments[v]] {
+                let r = r as usize;
+                if r != h && !rivals.contains(&r) && rivals.len() < MAX_RIVALS {
+                    rivals.push(r);
+                }
+            }
+        }
+        todo.extend(rivals.iter().copied().filter(|&r| fits[r].is_none()));
+        rivals_of.push((h, rivals));
+    }
+    todo.sort_unstable();
+    todo.dedup();
+    let triplets: Vec<[u32; 3]> = todo.iter().map(|&r| hypotheses[r].segments).collect();
+    let (crowded, crowding_index) = crowding;
+    add_crowding(
+        views.segments,
+        observed,
+        crowded,
+        crowding_index,
+        lists,
+        &triplets,
+    );
+    let estimates = reconstruct(
+        rig,
+        [&observed[0][..], &observed[1][..], &observed[2][..]],
+        &triplets,
+    );
+    let factor = stats.noise_scale.powi(2);
+    for (&r, est) in todo.iter().zip(estimates) {
+        fits[r] = Some(accept(est.map(|e| rescaled(e, factor)), rig, params));
+    }
+    let centre = rig.centroid();
+    for (h, rivals) in rivals_of {
+        let Some(Some((winner, _))) = &fits[h] else {
+            continue;
+        };
+        let ambiguous = rivals.iter().any(|&r| {
+            matches!(&fits[r], Some(Some((rival, q)))
+                if q.certain && as_likely_elsewhere(winner, rival, &centre, params))
+        });
+        if ambiguous {
+            if let Some(Some((_, quality))) = &mut fits[h] {
+                quality.certain = false;
+                stats.ambiguous += 1;
+            }
+        }
+    }
+}
+
+/// Whether `rival` explains its images about as well as `winner` (χ² at most
+/// [`AMBIGUITY_CHI2_MARGIN`] worse, ends agreeing across the views within
+/// [`AMBIGUITY_ENDS_AGREE`] σ or no worse than the winner's) with a 3D line somewhere else:
+/// its midpoint off the winner's line by more than the gate's position tolerance, or its
+/// direction by more than the gate's direction tolerance.
+fn as_likely_elsewhere(
+    winner: &Line3Estimate,
+    rival: &Line3Estimate,
+    centre: &nalgebra::Point3<f64>,
+    params: &MatchParams,
+) -> bool {
+    let as_likely = rival.chi2 <= winner.chi2 + AMBIGUITY_CHI2_MARGIN
+        && rival.ends_disagreement <= winner.ends_disagreement.max(AMBIGUITY_ENDS_AGREE);
+    if !as_likely {
+        return false;
+    }
+    let u = winner.direction();
+    let mid = nalgebra::center(&rival.start, &rival.end);
+    let tolerance = params
+        .gate_position_m
+        .max(params.gate_position_rel * (mid - centre).norm());
+    let w = mid - winner.start;
+    let across = (w - u * w.dot(&u)).norm();
+    across > tolerance
+        || rival.direction().dot(&u).abs() < params.gate_direction_deg.to_radians().cos()
 }
 
 /// Adds the pairs of `graph` (indices into the caller's list of view 1) that `adjacency`
@@ -916,6 +1078,63 @@ fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>>
 mod tests {
     use super::*;
     use crate::synth::{Pose, RigSpec};
+
+    /// A vertical line 2 m ahead of the rig, as a fit of `chi2` with ends agreeing to
+    /// `ends` σ.
+    fn line_at(x: f64, z: f64, chi2: f64, ends: f64) -> Line3Estimate {
+        Line3Estimate {
+            start: nalgebra::Point3::new(x, -0.2, z),
+            end: nalgebra::Point3::new(x, 0.2, z),
+            covariance: nalgebra::Matrix6::identity() * 1e-6,
+            chi2,
+            dof: 2,
+            residual_px: 0.05,
+            end_along_sigma_m: [0.003; 2],
+            ends_disagreement: ends,
+        }
+    }
+
+    #[test]
+    fn a_rival_elsewhere_that_explains_the_images_as_well_makes_a_winner_ambiguous() {
+        let params = MatchParams::default();
+        let centre = nalgebra::Point3::origin();
+        let winner = line_at(0.0, 2.0, 0.5, 1.0);
+        // The next fin of a radiator at another depth, fitted as well: ambiguous.
+        assert!(as_likely_elsewhere(
+            &winner,
+            &line_at(0.05, 2.7, 0.8, 1.5),
+            &centre,
+            &params
+        ));
+        // The same line again (a fragment, a millimetre off): no rival.
+        assert!(!as_likely_elsewhere(
+            &winner,
+            &line_at(0.001, 2.0, 0.5, 1.0),
+            &centre,
+            &params
+        ));
+        // Elsewhere but a far worse fit, or ends that disagree where the winner's agree.
+        assert!(!as_likely_elsewhere(
+            &winner,
+            &line_at(0.05, 2.7, 5.0, 1.0),
+            &centre,
+            &params
+        ));
+        assert!(!as_likely_elsewhere(
+            &winner,
+            &line_at(0.05, 2.7, 0.8, 9.0),
+            &centre,
+            &params
+        ));
+        // A winner whose own ends disagree (one hidden) has no edge there over the rival.
+        let hidden = line_at(0.0, 2.0, 0.5, 8.0);
+        assert!(as_likely_elsewhere(
+            &hidden,
+            &line_at(0.05, 2.7, 0.8, 7.0),
+            &centre,
+            &params
+        ));
+    }
 
     #[test]
     fn the_extractors_graph_joins_validations_adjacency_in_prepared_indices() {

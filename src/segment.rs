@@ -105,14 +105,59 @@ impl Segment3 {
 
 /// Farthest a parallel neighbour may be to disturb a segment's line, pixels.
 pub const CROWDING_RADIUS_PX: f64 = 8.0;
-/// Two edges closer than a few pixels blur into each other before they are located, and
-/// each pulls the other's line off by up to about a pixel. Measured on the rendered rooms
-/// (`tools/line_noise_study.py`): segments longer than 40 px with a parallel neighbour within
-/// 3 px are off their true line by a median 0.58 px, within 3–5 px 0.15 px, beyond 5 px 0.01 px.
-/// Modelled as an extra offset σ of `CROWDING_PEAK_PX · exp(−d² / 2·CROWDING_SPREAD_PX²)`,
-/// at most d/2 (two edges closer than that are seen as one, between them).
-const CROWDING_PEAK_PX: f64 = 1.35;
-const CROWDING_SPREAD_PX: f64 = 2.2;
+/// How much a parallel neighbour `d` px away disturbs a segment's line: an extra offset σ of
+/// `peak_px · exp(−d² / 2·spread_px²)`, at most d/2 (two edges closer than that are seen as
+/// one, between them). Two edges closer than a few pixels blur into each other before they
+/// are located, and each pulls the other's line off; how far depends on how much the image
+/// was blurred before the edges were located.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CrowdingModel {
+    pub peak_px: f64,
+    pub spread_px: f64,
+}
+
+/// The blur of an edge in the rendered rooms before any smoothing, as a Gaussian σ, pixels
+/// squared: fitted so that the crowding measured after smoothing by 1 px and by 0.5 px
+/// (`tools/line_noise_study.py`) scales with the total blur √(σ² + this).
+const EDGE_BLUR2_PX2: f64 = 0.27;
+
+impl CrowdingModel {
+    /// Measured on the rendered rooms after smoothing by 1 px: segments longer than 40 px
+    /// with a parallel neighbour within 3 px are off their true line by a median 0.58 px,
+    /// within 3–5 px 0.15 px, beyond 5 px 0.01 px.
+    const AT_UNIT_SMOOTHING: CrowdingModel = CrowdingModel {
+        peak_px: 1.35,
+        spread_px: 2.2,
+    };
+
+    /// Segments from a list a client sent: its extractor's blur is unknown, so it is taken
+    /// for ours at 1 px of smoothing, about the scale line detectors smooth at.
+    pub const LISTS: CrowdingModel = Self::AT_UNIT_SMOOTHING;
+
+    /// For edges located after Gaussian smoothing by `smoothing_sigma_px`: the spread scales
+    /// with the total blur, the peak stays (a neighbour close enough still pulls as hard). After 0.5 px of smoothing, neighbours within 2–3 px shift
+    /// a line by a median 0.11 px and within 3–4 px by 0.025 px.
+    pub fn for_smoothing(smoothing_sigma_px: f64) -> CrowdingModel {
+        let sigma2 = if smoothing_sigma_px.is_finite() {
+            smoothing_sigma_px.max(0.0).powi(2)
+        } else {
+            1.0
+        };
+        let scale = ((sigma2 + EDGE_BLUR2_PX2) / (1.0 + EDGE_BLUR2_PX2)).sqrt();
+        CrowdingModel {
+            peak_px: Self::AT_UNIT_SMOOTHING.peak_px,
+            spread_px: Self::AT_UNIT_SMOOTHING.spread_px * scale,
+        }
+    }
+
+    /// The distance at which a full-strength neighbour pulls as much as one at `distance_px`
+    /// whose gradient is `pull` times this segment's (the pull is proportional to it).
+    fn equivalent_distance(&self, distance_px: f64, pull: f64) -> f64 {
+        let spread2 = 2.0 * self.spread_px * self.spread_px;
+        (distance_px * distance_px - spread2 * pull.ln()).sqrt()
+    }
+}
+
 /// Segments closer to each other than this across are pieces of one line, not neighbours.
 const COLLINEAR_PX: f64 = 0.3;
 /// Largest angle between two segments that count as parallel neighbours.
@@ -122,14 +167,13 @@ impl LineNoise {
     /// This noise with the disturbance of a parallel neighbour `distance_px` away added
     /// (nothing beyond [`CROWDING_RADIUS_PX`]). The neighbour shifts the line by a varying
     /// amount where it runs alongside, so the direction suffers as if both ends moved.
-    pub fn crowded(self, distance_px: f64, length_px: f64) -> LineNoise {
+    pub fn crowded(self, distance_px: f64, length_px: f64, model: CrowdingModel) -> LineNoise {
         if distance_px.is_nan() || distance_px >= CROWDING_RADIUS_PX {
             return self;
         }
         // No edge is pulled past the middle between the two: closer than that they are one.
-        let extra = (CROWDING_PEAK_PX
-            * (-(distance_px * distance_px) / (2.0 * CROWDING_SPREAD_PX * CROWDING_SPREAD_PX))
-                .exp())
+        let extra = (model.peak_px
+            * (-(distance_px * distance_px) / (2.0 * model.spread_px * model.spread_px)).exp())
         .min(0.5 * distance_px);
         let other = LineNoise::from_endpoint_sigma(extra, length_px);
         LineNoise {
@@ -137,13 +181,6 @@ impl LineNoise {
             angle_rad: self.angle_rad.hypot(other.angle_rad),
         }
     }
-}
-
-/// The distance at which a full-strength neighbour pulls as much as one at `distance_px`
-/// whose gradient is `pull` times this segment's (the pull is proportional to it).
-fn equivalent_distance(distance_px: f64, pull: f64) -> f64 {
-    let spread2 = 2.0 * CROWDING_SPREAD_PX * CROWDING_SPREAD_PX;
-    (distance_px * distance_px - spread2 * pull.ln()).sqrt()
 }
 
 /// Most candidates a crowding query looks at per orientation bin.
@@ -161,9 +198,9 @@ const CROWDING_BINS: usize = 18;
 /// Segments are sorted into 10° orientation bins, each by its position across the bin's
 /// direction; a segment looks in its bin and the two next to it, in the window of positions
 /// a neighbour alongside can have (O(n log n), no image-sized structure).
-pub fn crowding(segments: &[Segment2]) -> Vec<f64> {
+pub fn crowding(segments: &[Segment2], model: CrowdingModel) -> Vec<f64> {
     let all: Vec<usize> = (0..segments.len()).collect();
-    Crowding::new(segments).distances(segments, &all)
+    Crowding::new(segments).distances(segments, &all, model)
 }
 
 /// What a crowding query asks of a segment, computed once.
@@ -240,7 +277,13 @@ impl Crowding {
 
     /// The crowding distance of each segment at `queries` (indices into the `segments` the
     /// index was built from).
-    pub fn distances(&self, segments: &[Segment2], queries: &[usize]) -> Vec<f64> {
+    /// `model` says how a weaker neighbour's pull compares with a stronger one's.
+    pub fn distances(
+        &self,
+        segments: &[Segment2],
+        queries: &[usize],
+        model: CrowdingModel,
+    ) -> Vec<f64> {
         let radius = CROWDING_RADIUS_PX;
         let (shapes, bins) = (&self.shapes, &self.bins);
         let normal_of_bin = |b: usize| self.normals[b];
@@ -288,7 +331,7 @@ impl Crowding {
                                 }
                                 _ => 1.0,
                             };
-                            best = best.min(equivalent_distance(across, pull));
+                            best = best.min(model.equivalent_distance(across, pull));
                         }
                     }
                 }
@@ -319,7 +362,7 @@ mod tests {
             seg((50.0, 5.0), (50.0, 30.0)), // close but perpendicular
             seg((120.0, 0.0), (160.0, 0.0)), // collinear piece
         ];
-        let d = crowding(&segments);
+        let d = crowding(&segments, CrowdingModel::LISTS);
         assert!((d[0] - 3.25).abs() < 0.1, "{d:?}");
         assert!((d[1] - 3.4).abs() < 0.01, "{d:?}");
         assert!(
@@ -330,21 +373,35 @@ mod tests {
         let mut weak = segments;
         weak[0].gradient = Some(40.0);
         weak[1].gradient = Some(4.0);
-        let d = crowding(&weak);
+        let d = crowding(&weak, CrowdingModel::LISTS);
         assert!(d[0] > 5.0 && (d[1] - 3.4).abs() < 0.01, "{d:?}");
     }
 
     #[test]
     fn crowded_noise_grows_near_a_neighbour_and_not_far_away() {
         let base = LineNoise::for_list(0.3, 50.0);
-        assert_eq!(base.crowded(f64::INFINITY, 50.0), base);
-        assert_eq!(base.crowded(CROWDING_RADIUS_PX + 1.0, 50.0), base);
-        let near = base.crowded(2.0, 50.0);
-        let farther = base.crowded(5.0, 50.0);
+        let model = CrowdingModel::LISTS;
+        assert_eq!(base.crowded(f64::INFINITY, 50.0, model), base);
+        assert_eq!(base.crowded(CROWDING_RADIUS_PX + 1.0, 50.0, model), base);
+        let near = base.crowded(2.0, 50.0, model);
+        let farther = base.crowded(5.0, 50.0, model);
         assert!(near.offset_px > farther.offset_px && farther.offset_px > base.offset_px);
         assert!(
             near.offset_px > 0.5,
             "a neighbour 2 px away moves a line by most of a pixel"
         );
+    }
+
+    #[test]
+    fn crowding_reaches_less_far_after_less_smoothing() {
+        let unit = CrowdingModel::for_smoothing(1.0);
+        assert_eq!(unit, CrowdingModel::LISTS);
+        let light = CrowdingModel::for_smoothing(0.5);
+        let base = LineNoise::for_list(0.05, 80.0);
+        for d in [2.0, 3.0, 4.0] {
+            assert!(base.crowded(d, 80.0, light).offset_px < base.crowded(d, 80.0, unit).offset_px);
+        }
+        // Nonsense smoothing falls back to the unit model rather than to no crowding at all.
+        assert_eq!(CrowdingModel::for_smoothing(f64::NAN), unit);
     }
 }

@@ -144,6 +144,7 @@ def main():
     ap.add_argument("--options", default=None)
     ap.add_argument("--captures", default=None, help="e.g. 00,05 (default: all)")
     ap.add_argument("--keep", default=None)
+    ap.add_argument("--wrong", action="store_true", help="list every wrong segment")
     ap.add_argument("--calibration", action="store_true")
     ap.add_argument("--json", action="store_true", help="one JSON line per room and input")
     a = ap.parse_args()
@@ -186,6 +187,15 @@ def main():
                 cls = classify(seg_w, E, c, S_mod)
                 nearest = extra["match"]
                 classes_all += cls
+                if a.wrong:
+                    for i, (s, sr, k) in enumerate(zip(segs3, seg_rig, cls)):
+                        if k == "ok":
+                            continue
+                        t = out["triplets"][s.get("triplet", 0)]
+                        print(f"  wrong {room} {inp} {cap} #{i} {k:8} len={np.linalg.norm(sr[3:] - sr[:3]):.2f}m "
+                              f"range={np.linalg.norm(0.5 * (sr[:3] + sr[3:])):.2f}m dirσ={s.get('directionSigmaDeg', 0):.2f}° "
+                              f"posσ={100 * s.get('positionSigmaM', 0):.2f}cm triplet=({t.get('s1', 0)},{t.get('s2', 0)},{t.get('s3', 0)}) "
+                              f"pieces={len(s.get('triplets', []))} resid={s.get('residualPx', 0):.3f}px")
                 lengths += list(np.linalg.norm(seg_rig[:, 3:] - seg_rig[:, :3], axis=1))
                 if a.calibration:
                     Tinv = np.linalg.inv(T)

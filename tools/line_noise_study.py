@@ -132,10 +132,13 @@ def main():
               f"p90 {np.percentile(np.abs(R[sel, 4]), 90):.3f}, reported {np.median(R[sel, 5]):.3f}; angle p90 {np.percentile(R[sel, 6], 90):.3f} deg")
 
 
-    for lo, hi in [(0, 3), (3, 5), (5, 8), (8, 15), (15, 100)]:
+    for lo, hi in [(0, 2), (2, 3), (3, 4), (4, 5), (5, 6), (6, 8), (8, 15), (15, 100)]:
         sel = (R[:, 10] >= lo) & (R[:, 10] < hi) & (R[:, 0] > 40)
         if sel.any():
-            print(f"nearest parallel neighbour {lo}-{hi} px: n={sel.sum():5} |offset| median {np.median(np.abs(R[sel, 4])):.3f} p90 {np.percentile(np.abs(R[sel, 4]), 90):.3f} vertical share {np.mean(R[sel, 7] > 0.9):.2f}")
+            zo = R[sel, 1]
+            print(f"nearest parallel neighbour {lo}-{hi} px: n={sel.sum():5} |offset| median {np.median(np.abs(R[sel, 4])):.3f} "
+                  f"p90 {np.percentile(np.abs(R[sel, 4]), 90):.3f} reported {np.median(R[sel, 5]):.3f} "
+                  f"in1.96={np.mean(zo < 1.96):.3f} in2.58={np.mean(zo < 2.58):.3f} vertical share {np.mean(R[sel, 7] > 0.9):.2f}")
     if os.environ.get("BY_ORIENTATION"):
         vert = R[:, 7] > 0.9
         for cam in range(3):

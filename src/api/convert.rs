@@ -634,6 +634,7 @@ pub fn match_response(
             uncertain: s.uncertain,
             inconsistent: s.inconsistent,
             noise_scale: s.noise_scale,
+            ambiguous: s.ambiguous,
         }),
         extracted: extracted
             .map(|e| e.iter().map(|x| segment_list_to_pb(&x.segments)).collect())

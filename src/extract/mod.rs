@@ -30,7 +30,7 @@ use nalgebra::Point2;
 use thiserror::Error;
 
 use crate::geometry::Camera;
-use crate::segment::{LineNoise, Segment2, SegmentList};
+use crate::segment::{CrowdingModel, LineNoise, Segment2, SegmentList};
 
 pub use self::image::GreyImage;
 pub use decode::{check_size, decode, from_raw, DecodeError, DecodeLimits};
@@ -457,10 +457,13 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
     graph.sort_by_key(|e| (e.a, e.b));
     graph.dedup_by_key(|e| (e.a, e.b));
     measure_noise(&mut segments, &fits);
-    let distances = crate::segment::crowding(&segments);
+    let crowding_model = CrowdingModel::for_smoothing(params.smoothing_sigma_px);
+    let distances = crate::segment::crowding(&segments, crowding_model);
     for (segment, distance) in segments.iter_mut().zip(distances) {
         let length = segment.length();
-        segment.noise = segment.noise.map(|n| n.crowded(distance, length));
+        segment.noise = segment
+            .noise
+            .map(|n| n.crowded(distance, length, crowding_model));
     }
     stats.polygon_ms = ms(t);
     stats.total_ms = ms(start);

@@ -55,6 +55,12 @@ pub struct Line3Estimate {
     /// alone, metres: large for a line receding from the cameras. (The covariance adds the
     /// spread of the views' ends, which occlusion makes large without making the end wrong.)
     pub end_along_sigma_m: [f64; 2],
+    /// How well the views agree on where the segment ends: for each end, the spread (largest
+    /// less smallest) of the views' ends along the line in units of that end's
+    /// `end_along_sigma_m`; the smaller of the two (one end may be hidden in some view). A
+    /// triplet of three different edges that happen to be one 3D line can place their ends
+    /// anywhere; the images of one edge agree, where nothing hides an end.
+    pub ends_disagreement: f64,
 }
 
 impl Line3Estimate {
@@ -391,6 +397,17 @@ pub fn estimate_line(
     } else {
         (var_hi, var_lo)
     };
+    let spread_of = |pick: fn(&(f64, f64)) -> f64| {
+        let (lo, hi) = ends
+            .iter()
+            .map(pick)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
+                (a.min(t), b.max(t))
+            });
+        hi - lo
+    };
+    let ends_disagreement = (spread_of(|e| e.0) / measured_lo.max(1e-12))
+        .min(spread_of(|e| e.1) / measured_hi.max(1e-12));
     let ddt = d * d.transpose();
     let mut block = covariance.fixed_view_mut::<3, 3>(0, 0);
     block += ddt * var_start;
@@ -406,5 +423,6 @@ pub fn estimate_line(
         dof,
         residual_px: (sum_px / n_obs as f64).sqrt(),
         end_along_sigma_m,
+        ends_disagreement,
     })
 }

@@ -1098,42 +1098,20 @@ mod tests {
     fn a_rival_elsewhere_that_explains_the_images_as_well_makes_a_winner_ambiguous() {
         let params = MatchParams::default();
         let centre = nalgebra::Point3::origin();
+        let ambiguous = |winner: &Line3Estimate, rival: Line3Estimate| {
+            as_likely_elsewhere(winner, &rival, &centre, &params)
+        };
         let winner = line_at(0.0, 2.0, 0.5, 1.0);
         // The next fin of a radiator at another depth, fitted as well: ambiguous.
-        assert!(as_likely_elsewhere(
-            &winner,
-            &line_at(0.05, 2.7, 0.8, 1.5),
-            &centre,
-            &params
-        ));
+        assert!(ambiguous(&winner, line_at(0.05, 2.7, 0.8, 1.5)));
         // The same line again (a fragment, a millimetre off): no rival.
-        assert!(!as_likely_elsewhere(
-            &winner,
-            &line_at(0.001, 2.0, 0.5, 1.0),
-            &centre,
-            &params
-        ));
+        assert!(!ambiguous(&winner, line_at(0.001, 2.0, 0.5, 1.0)));
         // Elsewhere but a far worse fit, or ends that disagree where the winner's agree.
-        assert!(!as_likely_elsewhere(
-            &winner,
-            &line_at(0.05, 2.7, 5.0, 1.0),
-            &centre,
-            &params
-        ));
-        assert!(!as_likely_elsewhere(
-            &winner,
-            &line_at(0.05, 2.7, 0.8, 9.0),
-            &centre,
-            &params
-        ));
+        assert!(!ambiguous(&winner, line_at(0.05, 2.7, 5.0, 1.0)));
+        assert!(!ambiguous(&winner, line_at(0.05, 2.7, 0.8, 9.0)));
         // A winner whose own ends disagree (one hidden) has no edge there over the rival.
         let hidden = line_at(0.0, 2.0, 0.5, 8.0);
-        assert!(as_likely_elsewhere(
-            &hidden,
-            &line_at(0.05, 2.7, 0.8, 7.0),
-            &centre,
-            &params
-        ));
+        assert!(ambiguous(&hidden, line_at(0.05, 2.7, 0.8, 7.0)));
     }
 
     #[test]

@@ -392,42 +392,71 @@ fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
 }
 
-/// Adds to the model noise of list segments (those that did not state their own) the
-/// disturbance of their parallel neighbours ([`crate::segment::Crowding`], each view's built
-/// once, when first asked); a list that
-/// states its noise is taken at its word. Asked only for the segments of `triplets` not
-/// `done` yet: only what is reconstructed needs it.
-fn add_crowding(
-    rect: [&[RectSegment]; 3],
-    observed: &mut [Vec<LineObservation>],
-    done: &mut [Vec<bool>; 3],
-    index: &mut [Option<crate::segment::Crowding>; 3],
-    lists: &[SegmentList; 3],
-    triplets: &[[u32; 3]],
-) {
-    for (v, (view, list)) in observed.iter_mut().zip(lists).enumerate() {
-        let mut asked: Vec<usize> = Vec::new();
-        for t in triplets {
-            let i = t[v] as usize;
-            if !done[v][i] {
-                done[v][i] = true;
-                if list.segments[rect[v][i].index as usize].noise.is_none() {
-                    asked.push(i);
+/// The three views' line observations, reconstructed from on demand. Before a segment is
+/// first used, the model noise of a list segment that did not state its own gains the
+/// disturbance of its parallel neighbours ([`crate::segment::Crowding`], each view's index
+/// built once, when first asked); a list that states its noise is taken at its word. Only
+/// what is reconstructed needs it, so it is computed for nothing else.
+struct Observations<'a> {
+    rect: [&'a [RectSegment]; 3],
+    lines: &'a mut [Vec<LineObservation>],
+    lists: &'a [SegmentList; 3],
+    crowded: [Vec<bool>; 3],
+    crowding: [Option<crate::segment::Crowding>; 3],
+}
+
+impl<'a> Observations<'a> {
+    fn new(
+        rect: [&'a [RectSegment]; 3],
+        lines: &'a mut [Vec<LineObservation>],
+        lists: &'a [SegmentList; 3],
+    ) -> Self {
+        let crowded = std::array::from_fn(|v| vec![false; lines[v].len()]);
+        Observations {
+            rect,
+            lines,
+            lists,
+            crowded,
+            crowding: [None, None, None],
+        }
+    }
+
+    /// The maximum-likelihood 3D line of each triplet (indices into the rectified views).
+    fn estimates(&mut self, rig: &Rig, triplets: &[[u32; 3]]) -> Vec<Option<Line3Estimate>> {
+        self.add_crowding(triplets);
+        reconstruct(
+            rig,
+            [&self.lines[0][..], &self.lines[1][..], &self.lines[2][..]],
+            triplets,
+        )
+    }
+
+    fn add_crowding(&mut self, triplets: &[[u32; 3]]) {
+        let rect = self.rect;
+        for (v, (view, list)) in self.lines.iter_mut().zip(self.lists).enumerate() {
+            let mut asked: Vec<usize> = Vec::new();
+            for t in triplets {
+                let i = t[v] as usize;
+                if !self.crowded[v][i] {
+                    self.crowded[v][i] = true;
+                    if list.segments[rect[v][i].index as usize].noise.is_none() {
+                        asked.push(i);
+                    }
                 }
             }
-        }
-        if asked.is_empty() {
-            continue;
-        }
-        let queries: Vec<usize> = asked.iter().map(|&i| rect[v][i].index as usize).collect();
-        let distances = index[v]
-            .get_or_insert_with(|| crate::segment::Crowding::new(&list.segments))
-            .distances(&list.segments, &queries, CrowdingModel::LISTS);
-        for (&i, distance) in asked.iter().zip(distances) {
-            let o = &mut view[i];
-            o.noise = o
-                .noise
-                .crowded(distance, (o.end - o.start).norm(), CrowdingModel::LISTS);
+            if asked.is_empty() {
+                continue;
+            }
+            let queries: Vec<usize> = asked.iter().map(|&i| rect[v][i].index as usize).collect();
+            let distances = self.crowding[v]
+                .get_or_insert_with(|| crate::segment::Crowding::new(&list.segments))
+                .distances(&list.segments, &queries, CrowdingModel::LISTS);
+            for (&i, distance) in asked.iter().zip(distances) {
+                let o = &mut view[i];
+                o.noise = o
+                    .noise
+                    .crowded(distance, (o.end - o.start).norm(), CrowdingModel::LISTS);
+            }
         }
     }
 }
@@ -602,6 +631,18 @@ fn consistent(est: &Line3Estimate) -> bool {
     est.chi2 <= chi2_quantile(est.dof, CONSISTENCY_Z)
 }
 
+/// The gate's position tolerance at `p`: max(`gate_position_m`, `gate_position_rel` × its
+/// distance from the rig's `centre`).
+fn position_tolerance(
+    params: &MatchParams,
+    centre: &nalgebra::Point3<f64>,
+    p: &nalgebra::Point3<f64>,
+) -> f64 {
+    params
+        .gate_position_m
+        .max(params.gate_position_rel * (p - centre).norm())
+}
+
 /// A reconstruction kept when it is one line within its noise (χ² test) and its residual
 /// within bounds, with how it measures up.
 fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
@@ -611,11 +652,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     // and both ends across the line within the position bound at their range.
     let k = (-2.0 * (1.0 - params.gate_confidence).ln()).sqrt();
     let centre = rig.centroid();
-    let tolerance = |p: &nalgebra::Point3<f64>| {
-        params
-            .gate_position_m
-            .max(params.gate_position_rel * (p - centre).norm())
-    };
+    let tolerance = |p: &nalgebra::Point3<f64>| position_tolerance(params, &centre, p);
     // An end that may lie past the true end by more than the tolerance (a receding line, whose
     // ends the images place poorly) is pulled in to where it may not: the answer reports the
     // part of the line it is sure of. The new ends are fixed blends of the old, so their
@@ -695,8 +732,7 @@ fn validate_and_reconstruct(
 ) -> Result<Vec<(usize, Line3Estimate, Quality)>, MatchError> {
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
-    let mut crowded: [Vec<bool>; 3] = std::array::from_fn(|v| vec![false; observed[v].len()]);
-    let mut crowding_index: [Option<crate::segment::Crowding>; 3] = [None, None, None];
+    let mut observations = Observations::new(views.segments, observed, lists);
     checkpoint.before("validate")?;
     let t = Instant::now();
     let ranking = if params.validate {
@@ -725,19 +761,7 @@ fn validate_and_reconstruct(
             .filter(|&h| fits[h].is_none())
             .collect();
         let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
-        add_crowding(
-            views.segments,
-            observed,
-            &mut crowded,
-            &mut crowding_index,
-            lists,
-            &triplets,
-        );
-        let estimates = reconstruct(
-            rig,
-            [&observed[0][..], &observed[1][..], &observed[2][..]],
-            &triplets,
-        );
+        let estimates = observations.estimates(rig, &triplets);
         if round == 0 {
             stats.noise_scale = variance_factor(&estimates).sqrt();
         }
@@ -765,14 +789,11 @@ fn validate_and_reconstruct(
         let t = Instant::now();
         flag_ambiguous(
             rig,
-            views,
-            observed,
-            lists,
+            &mut observations,
             hypotheses,
             &kept,
             &alive,
             &mut fits,
-            (&mut crowded, &mut crowding_index),
             params,
             stats,
         );
@@ -803,17 +824,11 @@ const MAX_RIVALS: usize = 16;
 #[allow(clippy::too_many_arguments)]
 fn flag_ambiguous(
     rig: &Rig,
-    views: &Views,
-    observed: &mut [Vec<LineObservation>],
-    lists: &[SegmentList; 3],
+    observations: &mut Observations,
     hypotheses: &[Hypothesis],
     kept: &[usize],
     alive: &[bool],
     fits: &mut [Option<Fit>],
-    crowding: (
-        &mut [Vec<bool>; 3],
-        &mut [Option<crate::segment::Crowding>; 3],
-    ),
     params: &MatchParams,
     stats: &mut MatchStats,
 ) {
@@ -860,20 +875,7 @@ fn flag_ambiguous(
     todo.sort_unstable();
     todo.dedup();
     let triplets: Vec<[u32; 3]> = todo.iter().map(|&r| hypotheses[r].segments).collect();
-    let (crowded, crowding_index) = crowding;
-    add_crowding(
-        views.segments,
-        observed,
-        crowded,
-        crowding_index,
-        lists,
-        &triplets,
-    );
-    let estimates = reconstruct(
-        rig,
-        [&observed[0][..], &observed[1][..], &observed[2][..]],
-        &triplets,
-    );
+    let estimates = observations.estimates(rig, &triplets);
     let factor = stats.noise_scale.powi(2);
     for (&r, est) in todo.iter().zip(estimates) {
         fits[r] = Some(accept(est.map(|e| rescaled(e, factor)), rig, params));
@@ -914,9 +916,7 @@ fn as_likely_elsewhere(
     }
     let u = winner.direction();
     let mid = nalgebra::center(&rival.start, &rival.end);
-    let tolerance = params
-        .gate_position_m
-        .max(params.gate_position_rel * (mid - centre).norm());
+    let tolerance = position_tolerance(params, centre, &mid);
     let w = mid - winner.start;
     let across = (w - u * w.dot(&u)).norm();
     across > tolerance

@@ -786,6 +786,8 @@ fn validate_and_reconstruct(
         }
     }
     if params.validate {
+        // The rivals' reconstructions are more work: a request past its deadline stops here.
+        checkpoint.before("reconstruct")?;
         let t = Instant::now();
         flag_ambiguous(
             rig,

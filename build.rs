@@ -19,6 +19,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_client(true)
         .build_server(true)
         .build_transport(true)
+        // A request that does not decode is INVALID_ARGUMENT, not tonic's INTERNAL.
+        .codec_path("crate::api::codec::InputCodec")
         .compile_fds(fds)?;
 
     let descriptors = fs::read(&descriptor_path)?;

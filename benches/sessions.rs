@@ -11,6 +11,7 @@
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+use trinocular::service::auth::Caller;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use trinocular::api::session::{pose_to_pb, segment_capture};
@@ -70,6 +71,7 @@ fn service(store: Arc<dyn SessionStore>) -> Service {
 async fn session(service: &Service, f: &Fixture, captures: usize) -> String {
     let created = service
         .create_session(
+            &Caller::default(),
             pb::CreateSessionRequest {
                 name: "bench".into(),
                 calibration: Some(f.calibration.clone()),
@@ -86,7 +88,7 @@ async fn session(service: &Service, f: &Fixture, captures: usize) -> String {
             ..f.captures[k % f.captures.len()].clone()
         };
         service
-            .add_capture(capture, None, "bench")
+            .add_capture(&Caller::default(), capture, None, "bench")
             .await
             .expect("capture");
     }
@@ -148,8 +150,13 @@ fn bench(c: &mut Criterion) {
                                 ..capture.clone()
                             };
                             let t = Instant::now();
-                            rt.block_on(service.add_capture(capture, None, "bench"))
-                                .expect("capture");
+                            rt.block_on(service.add_capture(
+                                &Caller::default(),
+                                capture,
+                                None,
+                                "bench",
+                            ))
+                            .expect("capture");
                             if timed == "add_capture" {
                                 total += t.elapsed();
                             }
@@ -165,7 +172,7 @@ fn bench(c: &mut Criterion) {
     let id = rt.block_on(session(&service, &f, 50));
     group.bench_function("get_map/50", |b| {
         b.iter(|| {
-            rt.block_on(service.get_map(&id, None, "bench"))
+            rt.block_on(service.get_map(&Caller::default(), &id, None, "bench"))
                 .expect("map")
         })
     });

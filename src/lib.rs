@@ -25,6 +25,7 @@
 
 pub mod api;
 pub mod calibrate;
+pub mod checkpoint;
 pub mod demo;
 pub mod extract;
 pub mod geometry;

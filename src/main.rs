@@ -428,8 +428,13 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
         logs.init();
     }
     let limits = config.limits();
+    let shown = {
+        let mut shown = config.clone();
+        shown.store.url = store::redacted(&config.store.url);
+        shown
+    };
     tracing::info!(
-        config = %toml::to_string(&config).unwrap_or_default(),
+        config = %toml::to_string(&shown).unwrap_or_default(),
         limits = ?limits,
         "effective configuration"
     );
@@ -440,8 +445,36 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
             .await
             .context("cannot open the session store")?;
         tracing::info!(store = %store.describe(), "sessions");
-        let service =
-            Arc::new(Service::new(limits.clone(), store, ttl).context("cannot start the service")?);
+        let keys_file = if config.auth.keys_file.as_os_str().is_empty() {
+            None
+        } else {
+            Some(
+                std::fs::read_to_string(&config.auth.keys_file).with_context(|| {
+                    format!(
+                        "cannot read auth.keys_file {}",
+                        config.auth.keys_file.display()
+                    )
+                })?,
+            )
+        };
+        let keys = trinocular::service::auth::ApiKeys::parse(
+            keys_file.as_deref(),
+            std::env::var(trinocular::service::auth::KEYS_ENV)
+                .ok()
+                .as_deref(),
+        )
+        .map_err(anyhow::Error::msg)
+        .context("API keys")?;
+        if keys.is_empty() {
+            tracing::warn!("auth: no API keys configured; the service is open to every caller");
+        } else {
+            tracing::info!(keys = keys.len(), "auth: an API key is required");
+        }
+        let service = Arc::new(
+            Service::new(limits.clone(), store, ttl)
+                .context("cannot start the service")?
+                .with_api_keys(keys, config.auth.max_sessions_per_key),
+        );
         let running = server::start(
             Arc::clone(&service),
             config.server.grpc_addr,

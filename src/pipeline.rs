@@ -27,41 +27,11 @@ const OUT_OF_IMAGE_MARGIN: f64 = 1.0;
 /// Validation rounds at most (each after reconstruction rejected some winners); one or two
 /// suffice in practice.
 const MAX_VALIDATION_ROUNDS: usize = 4;
+/// Triplets reconstructed between two questions to the checkpoint.
+const RECONSTRUCT_CHUNK: usize = 4096;
 
-/// Asked between stages whether the result is still wanted (a service's caller may have gone
-/// or its deadline passed); when it answers yes the pipeline returns
-/// [`MatchError::Stopped`] instead of running the next stage. An explicit argument rather
-/// than a global flag, so each call says who may stop it.
-#[derive(Clone, Copy)]
-pub struct Checkpoint<'a>(Option<&'a (dyn Fn() -> bool + Sync)>);
+pub use crate::checkpoint::{Checkpoint, Stopped};
 
-impl<'a> Checkpoint<'a> {
-    /// Never stops.
-    pub const NEVER: Checkpoint<'static> = Checkpoint(None);
-
-    /// Stops once `stop` returns true.
-    pub fn new(stop: &'a (dyn Fn() -> bool + Sync)) -> Checkpoint<'a> {
-        Checkpoint(Some(stop))
-    }
-
-    /// `Err(Stopped)` before `stage` when the result is no longer wanted.
-    pub fn before(&self, stage: &'static str) -> Result<(), MatchError> {
-        match self.0 {
-            Some(stop) if stop() => Err(MatchError::Stopped { stage }),
-            _ => Ok(()),
-        }
-    }
-}
-
-impl std::fmt::Debug for Checkpoint<'_> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(if self.0.is_some() {
-            "Checkpoint(..)"
-        } else {
-            "Checkpoint::NEVER"
-        })
-    }
-}
 /// Matching three images: what was extracted from each, and the match of those lists.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ImageMatch {
@@ -104,8 +74,11 @@ pub fn match_images_until(
         }
     }
     checkpoint.before("extract")?;
-    let one = |v: usize| extract::extract(images[v], Some(rig.camera(v)), extract_params);
+    let one = |v: usize| {
+        extract::extract_until(images[v], Some(rig.camera(v)), extract_params, checkpoint)
+    };
     let (first, (second, third)) = rayon::join(|| one(0), || rayon::join(|| one(1), || one(2)));
+    let (first, second, third) = (first?, second?, third?);
     let lists = [
         first.segments.clone(),
         second.segments.clone(),
@@ -164,6 +137,8 @@ pub struct MatchStats {
     pub segments_in: [u32; 3],
     pub segments_used: [u32; 3],
     pub zero_length_dropped: [u32; 3],
+    /// Segments dropped per list as near-copies of an earlier one ([`DUPLICATE_PX`]).
+    pub duplicates_dropped: [u32; 3],
     pub hypotheses: u32,
     pub triplets: u32,
     pub segments_3d: u32,
@@ -267,15 +242,74 @@ pub enum MatchError {
         index: usize,
         field: &'static str,
     },
+    /// The lists are so repetitive (many copies of one line, or one crowd of parallel lines)
+    /// that matching them would make more hypotheses than a request may.
+    #[error(
+        "the segment lists make more than {limit} match hypotheses: lists this dense or this \
+         repetitive (many near-copies of one line) cannot be matched unambiguously; send fewer \
+         segments"
+    )]
+    TooManyHypotheses { limit: usize },
     /// The [`Checkpoint`] said the result was no longer wanted.
     #[error("stopped before {stage}: the result is no longer wanted")]
     Stopped { stage: &'static str },
+}
+
+impl From<Stopped> for MatchError {
+    fn from(Stopped { stage }: Stopped) -> MatchError {
+        MatchError::Stopped { stage }
+    }
 }
 
 /// Segments of one view after checking, kept for matching.
 struct Prepared {
     rect: Vec<RectSegment>,
     zero_length: u32,
+    duplicates: u32,
+}
+
+/// Two segments whose ends are both this close (start to start, end to end), pixels, are one:
+/// the second is dropped. Far below any tolerance of matching, so nothing distinct is lost,
+/// and enough to catch a detector's duplicates — which, left in, multiply the hypotheses
+/// (n copies of a line in each view make n³ triplets).
+pub const DUPLICATE_PX: f64 = 0.5;
+/// Earlier segments compared per grid cell when looking for a copy: bounds the search when a
+/// list piles distinct segments onto one place.
+const DUPLICATE_SCAN: usize = 32;
+
+/// Finds near-copies among the segments kept so far ([`DUPLICATE_PX`]), by their midpoints
+/// on a grid of `DUPLICATE_PX` cells.
+#[derive(Default)]
+struct Copies {
+    /// The ends of the segments kept, by grid cell of their midpoint.
+    cells: HashMap<(i64, i64), Vec<[Point2<f64>; 2]>>,
+}
+
+impl Copies {
+    /// True when `a`–`b` (or `b`–`a`, for an unoriented list) copies a segment seen before;
+    /// otherwise remembers it.
+    fn seen(&mut self, a: Point2<f64>, b: Point2<f64>, oriented: bool) -> bool {
+        let cell = |p: Point2<f64>| {
+            let m = p / DUPLICATE_PX;
+            (m.x.floor() as i64, m.y.floor() as i64)
+        };
+        let (cx, cy) = cell(nalgebra::center(&a, &b));
+        let near = |p: Point2<f64>, q: Point2<f64>| (p - q).norm_squared() <= DUPLICATE_PX.powi(2);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                let Some(kept) = self.cells.get(&(cx + dx, cy + dy)) else {
+                    continue;
+                };
+                if kept.iter().take(DUPLICATE_SCAN).any(|&[p, q]| {
+                    (near(a, p) && near(b, q)) || (!oriented && near(a, q) && near(b, p))
+                }) {
+                    return true;
+                }
+            }
+        }
+        self.cells.entry((cx, cy)).or_default().push([a, b]);
+        false
+    }
 }
 
 fn check_list(rig: &Rig, list_index: usize, list: &SegmentList) -> Result<u32, MatchError> {
@@ -358,13 +392,19 @@ fn prepare(
     let mut out = Prepared {
         rect: Vec::with_capacity(list.segments.len()),
         zero_length,
+        duplicates: 0,
     };
+    let mut copies = Copies::default();
     // Undistorted image segments with their noise, parallel to `out.rect`: kept apart, since
     // their noise gains its crowding after prediction while the views borrow `rect`.
     let mut observed = Vec::with_capacity(list.segments.len());
     for (index, s) in list.segments.iter().enumerate() {
         let len = s.length();
         if len < ZERO_LENGTH_PX || len < params.min_length_px {
+            continue;
+        }
+        if copies.seen(s.start, s.end, list.oriented) {
+            out.duplicates += 1;
             continue;
         }
         let (p, q) = (cam.undistort(s.start), cam.undistort(s.end));
@@ -506,6 +546,7 @@ pub fn match_segments_until(
         segments_in: std::array::from_fn(|v| lists[v].segments.len() as u32),
         segments_used: std::array::from_fn(|v| prepared[v].rect.len() as u32),
         zero_length_dropped: std::array::from_fn(|v| prepared[v].zero_length),
+        duplicates_dropped: std::array::from_fn(|v| prepared[v].duplicates),
         collinear_rig: rect.collinear(),
         rectify_ms: ms(start),
         ..MatchStats::default()
@@ -517,7 +558,13 @@ pub fn match_segments_until(
 
     checkpoint.before("predict")?;
     let t = Instant::now();
-    let hypotheses = matching::predict(&rect, &views, params);
+    let hypotheses =
+        matching::predict_until(&rect, &views, params, checkpoint).map_err(|e| match e {
+            matching::PredictError::Stopped(s) => MatchError::from(s),
+            matching::PredictError::TooManyHypotheses { limit } => {
+                MatchError::TooManyHypotheses { limit }
+            }
+        })?;
     stats.predict_ms = ms(t);
     stats.hypotheses = hypotheses.len() as u32;
 
@@ -738,7 +785,7 @@ fn validate_and_reconstruct(
     let ranking = if params.validate {
         let mut adjacency = matching::adjacency(views.segments[0], params.neighbour_radius_px);
         add_graph(&mut adjacency, graph, rig, rect, views.segments[0]);
-        matching::rank(rect, views, &adjacency, hypotheses, params)
+        matching::rank_until(rect, views, &adjacency, hypotheses, params, checkpoint)?
     } else {
         Vec::new()
     };
@@ -761,7 +808,11 @@ fn validate_and_reconstruct(
             .filter(|&h| fits[h].is_none())
             .collect();
         let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
-        let estimates = observations.estimates(rig, &triplets);
+        let mut estimates = Vec::with_capacity(triplets.len());
+        for chunk in triplets.chunks(RECONSTRUCT_CHUNK) {
+            checkpoint.before("reconstruct")?;
+            estimates.extend(observations.estimates(rig, chunk));
+        }
         if round == 0 {
             stats.noise_scale = variance_factor(&estimates).sqrt();
         }
@@ -1079,7 +1130,9 @@ fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>>
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::segment::Segment2;
     use crate::synth::{Pose, RigSpec};
+    use nalgebra::Vector2;
 
     /// A vertical line 2 m ahead of the rig, as a fit of `chi2` with ends agreeing to
     /// `ends` σ.
@@ -1155,6 +1208,73 @@ mod tests {
     }
 
     #[test]
+    fn copies_of_segments_are_dropped_and_repetitive_lists_stay_bounded() {
+        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
+        let params = MatchParams::default();
+        let once = match_segments(&rig, &lists, &params).unwrap();
+        // Every segment sent three times, exactly: the copies are dropped, the answer is the
+        // same.
+        let thrice = lists.clone().map(|mut l| {
+            let copies = l.segments.clone();
+            l.segments.extend(copies.iter().chain(&copies).copied());
+            l
+        });
+        let out = match_segments(&rig, &thrice, &params).unwrap();
+        assert_eq!(
+            out.stats.duplicates_dropped,
+            once.stats.segments_used.map(|n| 2 * n),
+            "the copies of every segment used (a short one is dropped before)"
+        );
+        assert_eq!(out.triplets, once.triplets);
+        // A thousand copies of one matched triplet's segments, each end jittered by up to 2 px:
+        // n³ candidate triplets, but each segment's hypotheses are bounded.
+        let [a, b, c] = once.triplets[0].segments;
+        let mut rng = crate::synth::rng::Rng::new(7);
+        let mut jitter = |s: Segment2| {
+            let mut d = || Vector2::new(rng.symmetric(2.0), rng.symmetric(2.0));
+            Segment2 {
+                start: s.start + d(),
+                end: s.end + d(),
+                ..s
+            }
+        };
+        let pile: [SegmentList; 3] = std::array::from_fn(|v| SegmentList {
+            segments: (0..1000)
+                .map(|_| jitter(lists[v].segments[[a, b, c][v] as usize]))
+                .collect(),
+            oriented: lists[v].oriented,
+        });
+        let out = match_segments(&rig, &pile, &params).unwrap();
+        let used = out.stats.segments_used[0] as usize;
+        assert!(used > 300, "many jittered copies are distinct: {used}");
+        assert!(
+            out.stats.hypotheses as usize <= used * matching::predict::MAX_HYPOTHESES_PER_SEGMENT
+        );
+        // Far more segments than that, spread over the image: past the total, an error.
+        let mut rng = crate::synth::rng::Rng::new(11);
+        let crowd: [SegmentList; 3] = std::array::from_fn(|v| {
+            let cam = rig.camera(v);
+            let (w, h) = (f64::from(cam.width()), f64::from(cam.height()));
+            SegmentList {
+                segments: (0..20_000)
+                    .map(|_| {
+                        let p = Point2::new(rng.range(0.0, w), rng.range(0.0, h));
+                        let d = Vector2::new(rng.symmetric(80.0), rng.symmetric(80.0));
+                        Segment2::new(p, p + d)
+                    })
+                    .collect(),
+                oriented: false,
+            }
+        });
+        assert_eq!(
+            match_segments(&rig, &crowd, &params).unwrap_err(),
+            MatchError::TooManyHypotheses {
+                limit: matching::predict::MAX_HYPOTHESES
+            }
+        );
+    }
+
+    #[test]
     fn a_checkpoint_stops_the_pipeline_before_each_stage_in_turn() {
         use std::sync::atomic::{AtomicUsize, Ordering};
         let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
@@ -1175,6 +1295,10 @@ mod tests {
                 Err(e) => panic!("{e}"),
             }
         }
+        // Long stages ask inside their loops too: one stop per question, stage by stage.
+        let asked = stages.len();
+        stages.dedup();
+        assert!(asked > stages.len(), "prediction asks per segment");
         assert_eq!(
             stages[..4],
             ["rectify", "predict", "validate", "reconstruct"]

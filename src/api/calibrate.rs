@@ -9,10 +9,11 @@ use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::session::pose_from_pb;
-use super::{camera_to_pb, extract_params, pb, InputError};
-use crate::calibrate::detect::detect;
+use super::{camera_to_pb, extract_params, pb, InputError, RunError};
+use crate::calibrate::detect::{detect_until, DetectError};
 use crate::calibrate::estimate::{estimate_camera, CameraFit, EstimateOptions};
 use crate::calibrate::{CalibrationPattern, GridBoard};
+use crate::checkpoint::{Checkpoint, Stopped};
 use crate::extract::decode::DecodeLimits;
 use crate::extract::GreyImage;
 use crate::geometry::{Camera, Rig, RigError};
@@ -104,7 +105,16 @@ pub fn calibrate_request(
     let pattern = pattern_from_pb(pattern.as_ref())?;
     let names: [String; 3] = match camera_names.len() {
         0 => std::array::from_fn(|i| format!("cam{}", i + 1)),
-        3 => std::array::from_fn(|i| camera_names[i].clone()),
+        3 => {
+            let max = super::convert::MAX_CAMERA_NAME_CHARS;
+            if let Some(i) = (0..3).find(|&i| camera_names[i].chars().count() > max) {
+                return Err(InputError::new(
+                    format!("camera_names[{i}]"),
+                    format!("longer than {max} characters"),
+                ));
+            }
+            std::array::from_fn(|i| camera_names[i].clone())
+        }
         n => {
             return Err(InputError::new(
                 "camera_names",
@@ -205,6 +215,15 @@ struct Observed {
 impl CalibrateInput {
     /// Calibrates the rig: see the module doc. Errors name the image or list at fault.
     pub fn run(&self) -> Result<pb::CalibrateResponse, InputError> {
+        self.run_until(Checkpoint::NEVER).map_err(|e| match e {
+            RunError::Input(e) => e,
+            RunError::Stopped { stage } => InputError::new("input", format!("stopped in {stage}")),
+        })
+    }
+
+    /// [`CalibrateInput::run`], asking `checkpoint` as it detects the pattern and before it
+    /// estimates the cameras.
+    pub fn run_until(&self, checkpoint: Checkpoint) -> Result<pb::CalibrateResponse, RunError> {
         let start = Instant::now();
         let observed: Vec<Observed> = match &self.source {
             CalibrateSource::Images(images) => {
@@ -214,9 +233,15 @@ impl CalibrateInput {
                     .par_iter()
                     .enumerate()
                     .map(|(i, image)| {
-                        let found = detect(image, &self.pattern).map_err(|e| {
-                            InputError::new(format!("images.images[{i}]"), e.to_string())
-                        })?;
+                        let found = detect_until(image, &self.pattern, checkpoint).map_err(
+                            |e| match e {
+                                DetectError::Stopped(Stopped { stage }) => {
+                                    RunError::Stopped { stage }
+                                }
+                                e => InputError::new(format!("images.images[{i}]"), e.to_string())
+                                    .into(),
+                            },
+                        )?;
                         let (points_3d, points_2d) = found
                             .points
                             .iter()
@@ -229,7 +254,11 @@ impl CalibrateInput {
                             boards_found: found.boards_found as u32,
                         })
                     })
-                    .collect::<Result<_, InputError>>()?
+                    // Collected whole, then in order: the error names the first image at
+                    // fault, not whichever thread failed first.
+                    .collect::<Vec<Result<_, RunError>>>()
+                    .into_iter()
+                    .collect::<Result<_, RunError>>()?
             }
             CalibrateSource::Correspondences {
                 points_3d,
@@ -248,6 +277,9 @@ impl CalibrateInput {
             CalibrateSource::Images(_) => format!("images.images[{i}]"),
             CalibrateSource::Correspondences { .. } => format!("correspondences.points_2d[{i}]"),
         };
+        checkpoint
+            .before("estimate")
+            .map_err(|Stopped { stage }| RunError::Stopped { stage })?;
         let fits: Vec<CameraFit> = observed
             .par_iter()
             .enumerate()
@@ -262,6 +294,8 @@ impl CalibrateInput {
                 )
                 .map_err(|e| InputError::new(field(i), e.to_string()))
             })
+            .collect::<Vec<_>>()
+            .into_iter()
             .collect::<Result<_, _>>()?;
         let cameras: Vec<Camera> = fits
             .iter()

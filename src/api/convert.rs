@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, Matrix3x4, Point2, Vector3};
 
 use super::{pb, InputError};
-use crate::extract::decode::{self, DecodeLimits};
+use crate::extract::decode::{self, DecodeError, DecodeLimits};
 use crate::extract::{self, Extraction, GreyImage};
 use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
 use crate::matching::MatchParams;
@@ -34,7 +34,69 @@ fn projection_difference(a: &Matrix3x4<f64>, b: &Matrix3x4<f64>) -> f64 {
     (a / na - b / nb).abs().max()
 }
 
+/// Longest camera name, characters: it is stored with every session and echoed in answers.
+pub const MAX_CAMERA_NAME_CHARS: usize = 64;
+/// Largest radial (k1, k2, k3) and tangential (p1, p2) distortion coefficients accepted: real
+/// lenses, fisheyes included, stay well within them in normalised coordinates, and beyond
+/// them undistortion has no meaningful solution.
+const MAX_RADIAL: f64 = 100.0;
+const MAX_TANGENTIAL: f64 = 1.0;
+/// Largest camera translation accepted, metres: far beyond any rig, far below where squaring
+/// it overflows.
+const MAX_TRANSLATION_M: f64 = 1e6;
+
+/// A camera's name, distortion and translation within bounds (see the constants above).
+fn check_camera_fields(i: usize, cam: &pb::Camera) -> Result<(), InputError> {
+    let at = |field: &str| format!("calibration.cameras[{i}].{field}");
+    let chars = cam.name.chars().count();
+    if chars > MAX_CAMERA_NAME_CHARS {
+        return Err(InputError::new(
+            at("name"),
+            format!("{chars} characters; at most {MAX_CAMERA_NAME_CHARS}"),
+        ));
+    }
+    if let Some(d) = &cam.distortion {
+        for (field, value, max) in [
+            ("k1", d.k1, MAX_RADIAL),
+            ("k2", d.k2, MAX_RADIAL),
+            ("k3", d.k3, MAX_RADIAL),
+            ("p1", d.p1, MAX_TANGENTIAL),
+            ("p2", d.p2, MAX_TANGENTIAL),
+        ] {
+            if !(value.is_finite() && value.abs() <= max) {
+                return Err(InputError::new(
+                    at(&format!("distortion.{field}")),
+                    format!("must be a finite number from -{max} to {max}, got {value}"),
+                ));
+            }
+        }
+    }
+    if let Some(t) = cam
+        .translation
+        .iter()
+        .find(|t| t.is_finite() && t.abs() > MAX_TRANSLATION_M)
+    {
+        return Err(InputError::new(
+            at("translation"),
+            format!("{t} m is beyond the {MAX_TRANSLATION_M} m accepted"),
+        ));
+    }
+    Ok(())
+}
+
+/// P scaled so that its largest entry is 1: the same camera (P is defined up to scale), and
+/// no overflow in what is computed from it (P × 1e300 gave "fx = NaN").
+fn unit_scaled(p: Matrix3x4<f64>) -> Matrix3x4<f64> {
+    let largest = p.amax();
+    if largest.is_finite() && largest > 0.0 {
+        p / largest
+    } else {
+        p
+    }
+}
+
 fn camera_from_pb(i: usize, cam: &pb::Camera) -> Result<Camera, InputError> {
+    check_camera_fields(i, cam)?;
     let pb::Camera {
         name,
         width,
@@ -73,7 +135,8 @@ fn camera_from_pb(i: usize, cam: &pb::Camera) -> Result<Camera, InputError> {
                 distortion,
             )
             .map_err(|e: CameraError| InputError::new(at(e.field()), e.to_string()))?;
-            let difference = projection_difference(&Matrix3x4::from_row_slice(&p), camera.projection());
+            let difference =
+                projection_difference(&unit_scaled(Matrix3x4::from_row_slice(&p)), camera.projection());
             if difference.is_nan() || difference > PROJECTION_AGREEMENT {
                 return Err(InputError::new(
                     at("projection"),
@@ -97,7 +160,7 @@ fn camera_from_pb(i: usize, cam: &pb::Camera) -> Result<Camera, InputError> {
                 name,
                 *width,
                 *height,
-                Matrix3x4::from_row_slice(&p),
+                unit_scaled(Matrix3x4::from_row_slice(&p)),
                 distortion,
             )
         }
@@ -260,6 +323,16 @@ pub fn images(
     triplet: &pb::ImageTriplet,
     limits: &DecodeLimits,
 ) -> Result<[GreyImage; 3], InputError> {
+    images_sized(triplet, limits, None)
+}
+
+/// [`images`], each refused from its header unless it has its camera's size (`sizes`, width
+/// and height per camera): a wrong image costs no decoding.
+pub fn images_sized(
+    triplet: &pb::ImageTriplet,
+    limits: &DecodeLimits,
+    sizes: Option<[(u32, u32); 3]>,
+) -> Result<[GreyImage; 3], InputError> {
     let pb::ImageTriplet { images } = triplet;
     if images.len() != 3 {
         return Err(InputError::new(
@@ -270,16 +343,31 @@ pub fn images(
     let one = |i: usize| -> Result<GreyImage, InputError> {
         let pb::Image { source } = &images[i];
         match source {
-            Some(pb::image::Source::Encoded(bytes)) => decode::decode(bytes, limits)
-                .map_err(|e| InputError::new(format!("images.images[{i}].encoded"), e.to_string())),
+            Some(pb::image::Source::Encoded(bytes)) => {
+                decode::decode_sized(bytes, limits, sizes.map(|s| s[i])).map_err(|e| {
+                    InputError::new(format!("images.images[{i}].encoded"), e.to_string())
+                })
+            }
             Some(pb::image::Source::Raw(raw)) => {
                 let pb::RawImage {
                     width,
                     height,
                     data,
                 } = raw;
-                decode::from_raw(*width, *height, data, limits)
-                    .map_err(|e| InputError::new(format!("images.images[{i}].raw"), e.to_string()))
+                let raw_error = |e: DecodeError| {
+                    InputError::new(format!("images.images[{i}].raw"), e.to_string())
+                };
+                if let Some((expected_width, expected_height)) = sizes.map(|s| s[i]) {
+                    if (*width, *height) != (expected_width, expected_height) {
+                        return Err(raw_error(DecodeError::SizeMismatch {
+                            width: *width,
+                            height: *height,
+                            expected_width,
+                            expected_height,
+                        }));
+                    }
+                }
+                decode::from_raw(*width, *height, data, limits).map_err(raw_error)
             }
             None => Err(InputError::new(
                 format!("images.images[{i}]"),
@@ -432,7 +520,11 @@ pub fn match_request(
             MatchSource::Segments(segment_lists(triplet, limits.max_segments_per_list)?)
         }
         Some(pb::match_request::Input::Images(triplet)) => {
-            MatchSource::Images(images(triplet, &limits.decode)?)
+            let sizes = std::array::from_fn(|v| {
+                let camera = rig.camera(v);
+                (camera.width(), camera.height())
+            });
+            MatchSource::Images(images_sized(triplet, &limits.decode, Some(sizes))?)
         }
         None => return Err(InputError::new("input", "missing: give segments or images")),
     };
@@ -569,6 +661,7 @@ impl From<MatchError> for RunError {
             }
             MatchError::Extract(p) => format!("options.extract.{}", p.field),
             MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),
+            MatchError::TooManyHypotheses { .. } => "segments".to_string(),
         };
         RunError::Input(InputError {
             field,
@@ -621,6 +714,7 @@ pub fn match_response(
             segments_in: s.segments_in.to_vec(),
             segments_used: s.segments_used.to_vec(),
             zero_length_dropped: s.zero_length_dropped.to_vec(),
+            duplicates_dropped: s.duplicates_dropped.to_vec(),
             hypotheses: s.hypotheses,
             triplets: s.triplets,
             segments_3d: s.segments_3d,

@@ -9,6 +9,7 @@ use tonic::{Request, Response, Status};
 use tracing::Instrument;
 
 use super::pb;
+use crate::service::auth::Caller;
 use crate::service::sessions::map_to_pb;
 use crate::service::{request_id, Service, ServiceError};
 
@@ -92,6 +93,29 @@ fn respond<T>(id: &str, answer: Result<T, ServiceError>) -> Result<Response<T>, 
     }
 }
 
+impl GrpcApi {
+    /// The caller, from the `authorization` metadata (UNAUTHENTICATED without a valid key
+    /// when keys are configured).
+    fn caller<T>(&self, request: &Request<T>) -> Result<Caller, ServiceError> {
+        self.service.caller(
+            request
+                .metadata()
+                .get("authorization")
+                .and_then(|v| v.to_str().ok()),
+        )
+    }
+}
+
+/// Answers the call with the error of a caller that is not let in.
+macro_rules! caller_or_refuse {
+    ($api:expr, $request:expr, $id:expr) => {
+        match $api.caller(&$request) {
+            Ok(caller) => caller,
+            Err(e) => return respond(&$id, Err(e)),
+        }
+    };
+}
+
 fn span(id: &str, rpc: &'static str) -> tracing::Span {
     tracing::info_span!("grpc", request_id = %id, rpc)
 }
@@ -103,6 +127,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::MatchRequest>,
     ) -> Result<Response<pb::MatchResponse>, Status> {
         let (id, timeout) = (id_of(&request), deadline_of(&request));
+        caller_or_refuse!(self, request, id);
         let request = request.into_inner();
         let answer = self
             .service
@@ -117,9 +142,10 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::CreateSessionRequest>,
     ) -> Result<Response<pb::Session>, Status> {
         let id = id_of(&request);
+        let caller = caller_or_refuse!(self, request, id);
         let answer = self
             .service
-            .create_session(request.into_inner(), "grpc")
+            .create_session(&caller, request.into_inner(), "grpc")
             .instrument(span(&id, "CreateSession"))
             .await;
         respond(&id, answer)
@@ -130,9 +156,10 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::AddCaptureRequest>,
     ) -> Result<Response<pb::AddCaptureResponse>, Status> {
         let (id, timeout) = (id_of(&request), deadline_of(&request));
+        let caller = caller_or_refuse!(self, request, id);
         let answer = self
             .service
-            .add_capture(request.into_inner(), timeout, "grpc")
+            .add_capture(&caller, request.into_inner(), timeout, "grpc")
             .instrument(span(&id, "AddCapture"))
             .await;
         respond(&id, answer)
@@ -143,13 +170,14 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::GetMapRequest>,
     ) -> Result<Response<pb::Map>, Status> {
         let id = id_of(&request);
+        let caller = caller_or_refuse!(self, request, id);
         let pb::GetMapRequest {
             session_id,
             min_observations,
         } = request.into_inner();
         let answer = self
             .service
-            .get_map(&session_id, min_observations, "grpc")
+            .get_map(&caller, &session_id, min_observations, "grpc")
             .instrument(span(&id, "GetMap"))
             .await;
         respond(&id, answer.map(|m| map_to_pb(&m)))
@@ -160,10 +188,11 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::GetSessionRequest>,
     ) -> Result<Response<pb::Session>, Status> {
         let id = id_of(&request);
+        let caller = caller_or_refuse!(self, request, id);
         let pb::GetSessionRequest { session_id } = request.into_inner();
         let answer = self
             .service
-            .get_session(&session_id, "grpc")
+            .get_session(&caller, &session_id, "grpc")
             .instrument(span(&id, "GetSession"))
             .await;
         respond(&id, answer)
@@ -174,9 +203,10 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::ListSessionsRequest>,
     ) -> Result<Response<pb::ListSessionsResponse>, Status> {
         let id = id_of(&request);
+        let caller = caller_or_refuse!(self, request, id);
         let answer = self
             .service
-            .list_sessions("grpc")
+            .list_sessions(&caller, request.into_inner(), "grpc")
             .instrument(span(&id, "ListSessions"))
             .await;
         respond(&id, answer)
@@ -187,6 +217,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::CalibrateRequest>,
     ) -> Result<Response<pb::CalibrateResponse>, Status> {
         let (id, timeout) = (id_of(&request), deadline_of(&request));
+        caller_or_refuse!(self, request, id);
         let request = request.into_inner();
         let answer = self
             .service
@@ -201,10 +232,11 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         request: Request<pb::DeleteSessionRequest>,
     ) -> Result<Response<pb::DeleteSessionResponse>, Status> {
         let id = id_of(&request);
+        let caller = caller_or_refuse!(self, request, id);
         let pb::DeleteSessionRequest { session_id } = request.into_inner();
         let answer = self
             .service
-            .delete_session(&session_id, "grpc")
+            .delete_session(&caller, &session_id, "grpc")
             .instrument(span(&id, "DeleteSession"))
             .await;
         respond(&id, answer.map(|()| pb::DeleteSessionResponse {}))

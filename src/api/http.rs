@@ -19,7 +19,7 @@
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, FromRequest, Multipart, Path, State};
+use axum::extract::{DefaultBodyLimit, Extension, FromRequest, Multipart, Path, State};
 use std::time::Duration;
 
 use axum::http::{header, HeaderMap, StatusCode, Uri};
@@ -29,6 +29,8 @@ use axum::Router;
 use prost::Message;
 
 use super::{from_json, pb, to_json, InputError};
+use crate::service::auth::Caller;
+use crate::service::http_server::timed_out_body;
 use crate::service::sessions::{map_to_pb, SessionMap};
 use crate::service::{request_id, Service, ServiceError};
 
@@ -57,8 +59,83 @@ pub fn router(service: Arc<Service>) -> Router {
             }),
         )
         .layer(DefaultBodyLimit::max(max))
+        .layer(axum::middleware::from_fn_with_state(
+            Arc::clone(&service),
+            admit,
+        ))
         .layer(axum::middleware::from_fn(with_request_id))
         .with_state(service)
+}
+
+/// Largest body read (and dropped) before a refusal for lack of compute, bytes.
+const DRAIN_BEFORE_REFUSING: usize = 64 << 10;
+
+/// Authentication, then admission before a body is read: a request that declares a body larger than the limit
+/// gets 413, one that needs a compute slot when none is free gets 429, and every body
+/// reserves its bytes (declared, or the largest message when not declared) from the
+/// service's body budget — 429 when the bodies in flight hold it all. Refused requests cost
+/// no body reading and no memory.
+async fn admit(
+    State(service): State<Arc<Service>>,
+    mut request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let path = request.uri().path();
+    if !matches!(path, "/healthz" | "/readyz" | "/metrics") {
+        let authorization = request
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok());
+        match service.caller(authorization) {
+            Ok(caller) => {
+                request.extensions_mut().insert(caller);
+            }
+            Err(e) => {
+                service.record_refused("http", &e, 0.0);
+                let mut response = error_response(&e);
+                response.headers_mut().insert(
+                    header::WWW_AUTHENTICATE,
+                    header::HeaderValue::from_static("Bearer"),
+                );
+                return response;
+            }
+        }
+    }
+    if request.method() != axum::http::Method::POST {
+        return next.run(request).await;
+    }
+    let max = service.limits().max_message_bytes;
+    let declared = request
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<usize>().ok());
+    let refuse = |e: ServiceError| {
+        service.record_refused("http", &e, 0.0);
+        error_response(&e)
+    };
+    if declared.is_some_and(|n| n > max) {
+        return refuse(ServiceError::TooLarge { limit_bytes: max });
+    }
+    let path = request.uri().path();
+    let computes = path == "/v1/match" || path == "/v1/calibrate" || path.ends_with("/captures");
+    if computes && service.compute_full() {
+        // A small body is read and dropped so the connection stays open for the client's
+        // retry: a new connection per refusal costs both sides more than the bytes.
+        if declared.is_some_and(|n| n <= DRAIN_BEFORE_REFUSING) {
+            let _ = Bytes::from_request(request, &()).await;
+        }
+        return refuse(ServiceError::Busy {
+            max_jobs: service.limits().max_jobs,
+        });
+    }
+    let reservation = match service.reserve_body(declared.unwrap_or(max)) {
+        Ok(r) => r,
+        Err(e) => return refuse(e),
+    };
+    let response = next.run(request).await;
+    drop(reservation);
+    response
 }
 
 /// Gives every request an id (the client's `x-request-id`, or a new one), runs it inside a
@@ -111,7 +188,10 @@ pub fn error_response(e: &ServiceError) -> Response {
         body.to_string() + "\n",
     )
         .into_response();
-    if matches!(e, ServiceError::Busy { .. }) {
+    if matches!(
+        e,
+        ServiceError::Busy { .. } | ServiceError::BodiesInFlight { .. }
+    ) {
         response
             .headers_mut()
             .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
@@ -201,7 +281,7 @@ async fn match_handler(
                         .and_then(super::match_request_from_json)
                 }
             }),
-            Err(e) => return refuse(body_error(e.status(), e.body_text(), max_bytes)),
+            Err(e) => return refuse(body_error(&e, e.status(), e.body_text(), max_bytes)),
         }
     };
     let encode = move |r: &pb::MatchResponse| {
@@ -220,9 +300,19 @@ async fn match_handler(
     }
 }
 
-/// A body that could not be read: too large (413, naming the limit), or malformed.
-fn body_error(status: StatusCode, text: String, max_bytes: usize) -> ServiceError {
-    if status == StatusCode::PAYLOAD_TOO_LARGE {
+/// A body that could not be read: too slow (408), too large (413, naming the limit), or
+/// malformed.
+fn body_error<E: std::error::Error + 'static>(
+    error: &E,
+    status: StatusCode,
+    text: String,
+    max_bytes: usize,
+) -> ServiceError {
+    if let Some(timeout) = timed_out_body(error) {
+        ServiceError::BodyTimeout {
+            seconds: timeout.as_secs_f64(),
+        }
+    } else if status == StatusCode::PAYLOAD_TOO_LARGE {
         ServiceError::TooLarge {
             limit_bytes: max_bytes,
         }
@@ -279,7 +369,7 @@ async fn read_body(
 ) -> Result<Bytes, ServiceError> {
     Bytes::from_request(request, &())
         .await
-        .map_err(|e| body_error(e.status(), e.body_text(), max_bytes))
+        .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))
 }
 
 /// Whether the request is a `multipart/form-data` upload.
@@ -304,7 +394,7 @@ async fn calibrate(
         let read: Read = if multipart {
             let parts = Multipart::from_request(request, &())
                 .await
-                .map_err(|e| ServiceError::Input(InputError::new("request", e.body_text())))?;
+                .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))?;
             let request = Upload::read(parts, max_bytes).await?.calibrate_request()?;
             Box::new(move || Ok(request))
         } else {
@@ -319,6 +409,7 @@ async fn calibrate(
 
 async fn create_session(
     State(service): State<Arc<Service>>,
+    Extension(caller): Extension<Caller>,
     request: axum::extract::Request,
 ) -> Response {
     let protobuf = is_protobuf(request.headers());
@@ -326,36 +417,56 @@ async fn create_session(
     let result = async {
         let body = read_body(request, max_bytes).await?;
         let request: pb::CreateSessionRequest = decode_body(&body, protobuf)?;
-        service.create_session(request, "http").await
+        service.create_session(&caller, request, "http").await
     }
     .await;
     answer(result, protobuf)
 }
 
-async fn list_sessions(State(service): State<Arc<Service>>, headers: HeaderMap) -> Response {
-    answer(
-        service.list_sessions("http").await,
-        wants_protobuf(&headers),
-    )
+async fn list_sessions(
+    State(service): State<Arc<Service>>,
+    Extension(caller): Extension<Caller>,
+    uri: Uri,
+    headers: HeaderMap,
+) -> Response {
+    let result = async {
+        let page_size = match query_param(&uri, "page_size") {
+            None => 0,
+            Some(v) => v.parse::<u32>().map_err(|_| {
+                InputError::new("page_size", format!("must be a whole number, got {v:?}"))
+            })?,
+        };
+        let request = pb::ListSessionsRequest {
+            page_size,
+            page_token: query_param(&uri, "page_token")
+                .unwrap_or_default()
+                .to_string(),
+        };
+        service.list_sessions(&caller, request, "http").await
+    }
+    .await;
+    answer(result, wants_protobuf(&headers))
 }
 
 async fn get_session(
     State(service): State<Arc<Service>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Response {
     answer(
-        service.get_session(&id, "http").await,
+        service.get_session(&caller, &id, "http").await,
         wants_protobuf(&headers),
     )
 }
 
 async fn delete_session(
     State(service): State<Arc<Service>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     headers: HeaderMap,
 ) -> Response {
-    let result = service.delete_session(&id, "http").await;
+    let result = service.delete_session(&caller, &id, "http").await;
     answer(
         result.map(|()| pb::DeleteSessionResponse {}),
         wants_protobuf(&headers),
@@ -373,6 +484,7 @@ fn wants_protobuf(headers: &HeaderMap) -> bool {
 
 async fn add_capture(
     State(service): State<Arc<Service>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     uri: Uri,
     request: axum::extract::Request,
@@ -385,7 +497,7 @@ async fn add_capture(
         let mut capture = if multipart {
             let parts = Multipart::from_request(request, &())
                 .await
-                .map_err(|e| ServiceError::Input(InputError::new("request", e.body_text())))?;
+                .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))?;
             let upload = Upload::read(parts, max_bytes).await?;
             upload.capture()?
         } else {
@@ -406,7 +518,7 @@ async fn add_capture(
             )));
         }
         capture.session_id = id;
-        service.add_capture(capture, timeout, "http").await
+        service.add_capture(&caller, capture, timeout, "http").await
     }
     .await;
     answer(result, protobuf)
@@ -414,6 +526,7 @@ async fn add_capture(
 
 async fn get_map(
     State(service): State<Arc<Service>>,
+    Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     uri: Uri,
     headers: HeaderMap,
@@ -435,7 +548,9 @@ async fn get_map(
                 format!("{format:?}: expected json, ply, obj, svg or png"),
             )));
         }
-        let map = service.get_map(&id, min_observations, "http").await?;
+        let map = service
+            .get_map(&caller, &id, min_observations, "http")
+            .await?;
         let format = format.to_string();
         // Drawing and writing a large map is CPU work too.
         service
@@ -517,13 +632,13 @@ impl Upload {
             let field = match parts.next_field().await {
                 Ok(Some(field)) => field,
                 Ok(None) => break,
-                Err(e) => return Err(body_error(e.status(), e.body_text(), max_bytes)),
+                Err(e) => return Err(body_error(&e, e.status(), e.body_text(), max_bytes)),
             };
             let name = field.name().unwrap_or_default().to_string();
             let bytes = field
                 .bytes()
                 .await
-                .map_err(|e| body_error(e.status(), e.body_text(), max_bytes))?;
+                .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))?;
             match name.as_str() {
                 "calibration" => {
                     upload.calibration = Some(from_json("calibration", &text(&name, &bytes)?)?)

@@ -6,7 +6,8 @@
 //! request (`calibration.cameras[2].projection`, `segments.lists[1].segments[17].u1`).
 
 pub mod calibrate;
-mod convert;
+pub mod codec;
+pub(crate) mod convert;
 mod fast_json;
 pub mod grpc;
 pub mod http;
@@ -38,13 +39,32 @@ pub struct InputError {
     pub message: String,
 }
 
+/// Longest field path and message an [`InputError`] carries, bytes: what a request puts in
+/// them (a name, an id, a parser's quote of its input) reaches the answer and the log, and a
+/// hostile request must not make either megabytes long.
+pub const MAX_ERROR_FIELD_BYTES: usize = 200;
+pub const MAX_ERROR_MESSAGE_BYTES: usize = 1000;
+
 impl InputError {
     pub fn new(field: impl Into<String>, message: impl Into<String>) -> InputError {
         InputError {
-            field: field.into(),
-            message: message.into(),
+            field: truncated(field.into(), MAX_ERROR_FIELD_BYTES),
+            message: truncated(message.into(), MAX_ERROR_MESSAGE_BYTES),
         }
     }
+}
+
+/// `text` cut to at most `max` bytes at a character boundary, marked with "…" when cut.
+pub fn truncated(mut text: String, max: usize) -> String {
+    if text.len() > max {
+        let mut end = max.saturating_sub('…'.len_utf8());
+        while !text.is_char_boundary(end) {
+            end -= 1;
+        }
+        text.truncate(end);
+        text.push('…');
+    }
+    text
 }
 
 /// Parses a message from proto3 JSON, naming the message in the error.
@@ -56,4 +76,18 @@ pub fn from_json<T: serde::de::DeserializeOwned>(what: &str, text: &str) -> Resu
 pub fn to_json<T: serde::Serialize>(message: &T) -> String {
     // Generated messages hold only strings, numbers, lists and maps: serialisation cannot fail.
     serde_json::to_string_pretty(message).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_error_carries_a_bounded_field_and_message() {
+        let e = InputError::new("é".repeat(10_000), "x".repeat(12_000_000));
+        assert!(e.field.len() <= MAX_ERROR_FIELD_BYTES && e.field.ends_with('…'));
+        assert!(e.message.len() <= MAX_ERROR_MESSAGE_BYTES && e.message.ends_with('…'));
+        let short = InputError::new("rows", "must be 2 to 64");
+        assert_eq!(short.to_string(), "rows: must be 2 to 64");
+    }
 }

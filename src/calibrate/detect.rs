@@ -36,6 +36,7 @@ use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2, Vector3};
 use thiserror::Error;
 
 use super::pattern::{CalibrationPattern, CornerId, PatternError};
+use crate::checkpoint::{Checkpoint, Stopped};
 use crate::extract::{self, GreyImage, Params};
 use crate::segment::Segment2;
 
@@ -56,6 +57,8 @@ pub enum DetectError {
     Ambiguous { board: usize, message: String },
     #[error(transparent)]
     Pattern(#[from] PatternError),
+    #[error(transparent)]
+    Stopped(#[from] Stopped),
 }
 
 /// Largest gap between one side's end and the next side's start, pixels (corners are
@@ -552,8 +555,17 @@ fn min_max(it: impl Iterator<Item = i32>) -> (i32, i32) {
 /// The reference points of `pattern` visible in `image`. Every board must be found, each
 /// exactly once and in exactly one placement.
 pub fn detect(image: &GreyImage, pattern: &CalibrationPattern) -> Result<Detection, DetectError> {
+    detect_until(image, pattern, Checkpoint::NEVER)
+}
+
+/// [`detect`], asking `checkpoint` as it extracts and for each lattice it tries.
+pub fn detect_until(
+    image: &GreyImage,
+    pattern: &CalibrationPattern,
+    checkpoint: Checkpoint,
+) -> Result<Detection, DetectError> {
     pattern.check()?;
-    let extraction = extract::extract(image, None, &Params::default());
+    let extraction = extract::extract_until(image, None, &Params::default(), checkpoint)?;
     let segments = &extraction.segments.segments;
     let quads = find_quads(segments, image.width(), image.height());
     // Boards of one pattern may differ in pitch ratio; grow with each ratio in use.
@@ -564,6 +576,7 @@ pub fn detect(image: &GreyImage, pattern: &CalibrationPattern) -> Result<Detecti
     let mut grids = 0;
     for &ratio in &ratios {
         for cells in lattices(&quads, ratio) {
+            checkpoint.before("detect")?;
             let found: Vec<Placement> = placements(pattern, &cells)
                 .into_iter()
                 .filter(|p| {
@@ -577,7 +590,8 @@ pub fn detect(image: &GreyImage, pattern: &CalibrationPattern) -> Result<Detecti
             grids += 1;
             let board = found[0].board;
             if found.len() > 1 {
-                let boards: Vec<usize> = found.iter().map(|p| p.board).collect();
+                let mut boards: Vec<usize> = found.iter().map(|p| p.board).collect();
+                boards.dedup();
                 return Err(DetectError::Ambiguous {
                     board,
                     message: format!(

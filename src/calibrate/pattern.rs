@@ -49,6 +49,14 @@ pub struct PatternError {
 
 /// Axes this far from unit length or from perpendicular are refused.
 const AXIS_TOLERANCE: f64 = 1e-6;
+/// Most squares along a board's side. Printed targets have a few dozen at most; the bound
+/// keeps every loop over a board's squares (checking, detection, the reference points) small
+/// whatever a request says.
+pub const MAX_BOARD_SIDE: u32 = 64;
+/// Most boards in one pattern.
+pub const MAX_BOARDS: usize = 8;
+/// Most cells left out of one board: a few break its symmetry.
+pub const MAX_MISSING: usize = 64;
 
 impl GridBoard {
     /// Whether square (r, c) is printed.
@@ -100,12 +108,20 @@ impl GridBoard {
         if self.u_axis.dot(&self.v_axis).abs() > AXIS_TOLERANCE {
             return Err(bad("v_axis", "must be perpendicular to u_axis".into()));
         }
-        if self.rows < 2 || self.cols < 2 {
+        for (name, n) in [("rows", self.rows), ("cols", self.cols)] {
+            if !(2..=MAX_BOARD_SIDE).contains(&n) {
+                return Err(bad(
+                    name,
+                    format!("must be 2 to {MAX_BOARD_SIDE} squares, got {n}"),
+                ));
+            }
+        }
+        if self.missing.len() > MAX_MISSING {
             return Err(bad(
-                "rows",
+                "missing",
                 format!(
-                    "needs at least 2 rows and 2 columns, got {}x{}",
-                    self.rows, self.cols
+                    "lists {} cells; at most {MAX_MISSING} may be left out",
+                    self.missing.len()
                 ),
             ));
         }
@@ -145,10 +161,10 @@ impl GridBoard {
 impl CalibrationPattern {
     /// Every problem of the first bad field, naming it.
     pub fn check(&self) -> Result<(), PatternError> {
-        if self.boards.is_empty() {
+        if !(1..=MAX_BOARDS).contains(&self.boards.len()) {
             return Err(PatternError {
                 field: "boards".into(),
-                message: "needs at least one board".into(),
+                message: format!("needs 1 to {MAX_BOARDS} boards, got {}", self.boards.len()),
             });
         }
         for (i, b) in self.boards.iter().enumerate() {
@@ -239,5 +255,29 @@ mod tests {
                 .field,
             "boards"
         );
+    }
+
+    #[test]
+    fn every_count_of_a_pattern_is_bounded() {
+        let huge = |rows: u32, cols: u32| {
+            let mut p = CalibrationPattern::default();
+            p.boards[1].rows = rows;
+            p.boards[1].cols = cols;
+            p.check().unwrap_err()
+        };
+        let e = huge(u32::MAX, u32::MAX);
+        assert_eq!(e.field, "boards[1].rows");
+        assert!(e.message.len() < 100, "{}", e.message);
+        assert_eq!(huge(6, MAX_BOARD_SIDE + 1).field, "boards[1].cols");
+        let mut p = CalibrationPattern::default();
+        p.boards[0].rows = MAX_BOARD_SIDE;
+        p.boards[0].cols = MAX_BOARD_SIDE;
+        p.check().unwrap();
+        p.boards[0].missing = vec![(0, 0); MAX_MISSING + 1];
+        assert_eq!(p.check().unwrap_err().field, "boards[0].missing");
+        let p = CalibrationPattern {
+            boards: vec![CalibrationPattern::default().boards[0].clone(); MAX_BOARDS + 1],
+        };
+        assert_eq!(p.check().unwrap_err().field, "boards");
     }
 }

@@ -36,8 +36,11 @@ use super::image::GreyImage;
 /// The formats the service accepts, as a user reads them.
 const ACCEPTED: &str = "PNG, JPEG, PGM/PPM, TIFF or BMP";
 
-/// The widest pixel the `image` crate decodes to: RGBA with `f32` channels.
-const MAX_BYTES_PER_PIXEL: u64 = 16;
+/// Bytes per pixel of the decoded buffer allowed at the pixel limit: 8-bit RGB. A wider
+/// pixel (16-bit, alpha, float) is accepted on a smaller image, so that a small file cannot
+/// make the decoder allocate `max_pixels` × 16 bytes (a 280 KB 16-bit RGBA PNG of 6000 x 6000
+/// would take 288 MB decoded).
+const DECODED_BYTES_PER_PIXEL: u64 = 3;
 
 /// Bounds on what [`decode`] and [`from_raw`] accept.
 ///
@@ -76,6 +79,18 @@ pub enum DecodeError {
     TooManyPixels { width: u32, height: u32, max: u64 },
     #[error("the image is {width} x {height} pixels; width and height must both be at least 1")]
     ZeroSize { width: u32, height: u32 },
+    #[error(
+        "the image is {width} x {height} pixels of {bytes_per_pixel} bytes each: decoded it \
+         would take {bytes} bytes, more than the {max} allowed (8-bit RGB at the pixel limit); \
+         send 8-bit samples"
+    )]
+    TooWideDecoded {
+        width: u32,
+        height: u32,
+        bytes_per_pixel: u64,
+        bytes: u64,
+        max: u64,
+    },
     #[error("unsupported image: {what}")]
     Unsupported { what: String },
     #[error("the {format} data is corrupt or truncated: {message}")]
@@ -105,6 +120,16 @@ pub enum DecodeError {
 /// Decodes an encoded image (PNG, JPEG, PGM/PPM, TIFF or BMP, told by its content) into grey
 /// levels on the 8-bit scale; see the module doc for depths, colour and alpha.
 pub fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<GreyImage, DecodeError> {
+    decode_sized(bytes, limits, None)
+}
+
+/// [`decode`], refusing from the header, before any pixel is decoded, an image whose size
+/// is not `expected` (width, height): its camera's.
+pub fn decode_sized(
+    bytes: &[u8],
+    limits: &DecodeLimits,
+    expected: Option<(u32, u32)>,
+) -> Result<GreyImage, DecodeError> {
     if bytes.is_empty() {
         return Err(DecodeError::Empty);
     }
@@ -151,14 +176,24 @@ pub fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<GreyImage, DecodeEr
     let decoder = reader.into_decoder().map_err(|e| image_error(name, e))?;
     let (width, height) = decoder.dimensions();
     check_pixels(width, height, limits)?;
-    // `ImageReader::decode` makes this check but `DynamicImage::from_decoder` does not; the
-    // pixel check above already implies it, it guards against a decoder that reports more
-    // bytes per pixel than any known one.
-    if decoder.total_bytes() > alloc_budget(limits) {
-        return Err(DecodeError::TooManyPixels {
+    if let Some((expected_width, expected_height)) = expected {
+        if (width, height) != (expected_width, expected_height) {
+            return Err(DecodeError::SizeMismatch {
+                width,
+                height,
+                expected_width,
+                expected_height,
+            });
+        }
+    }
+    let decoded_bytes = decoder.total_bytes();
+    if decoded_bytes > decoded_budget(limits) {
+        return Err(DecodeError::TooWideDecoded {
             width,
             height,
-            max: limits.max_pixels,
+            bytes_per_pixel: decoded_bytes / (u64::from(width) * u64::from(height)),
+            bytes: decoded_bytes,
+            max: decoded_budget(limits),
         });
     }
     if format == ImageFormat::Jpeg {
@@ -239,10 +274,12 @@ fn check_pixels(width: u32, height: u32, limits: &DecodeLimits) -> Result<(), De
 /// widest layout, plus intermediate buffers (compressed strips, metadata) no larger than the
 /// upload itself.
 fn alloc_budget(limits: &DecodeLimits) -> u64 {
-    limits
-        .max_pixels
-        .saturating_mul(MAX_BYTES_PER_PIXEL)
-        .saturating_add(limits.max_bytes as u64)
+    decoded_budget(limits).saturating_add(limits.max_bytes as u64)
+}
+
+/// The largest decoded pixel buffer accepted, bytes.
+fn decoded_budget(limits: &DecodeLimits) -> u64 {
+    limits.max_pixels.saturating_mul(DECODED_BYTES_PER_PIXEL)
 }
 
 /// The `image` crate's limits. Width and height are left unbounded on purpose: the product

@@ -29,11 +29,12 @@ use std::time::Instant;
 use nalgebra::Point2;
 use thiserror::Error;
 
+use crate::checkpoint::{Checkpoint, Stopped};
 use crate::geometry::Camera;
 use crate::segment::{CrowdingModel, LineNoise, Segment2, SegmentList};
 
 pub use self::image::GreyImage;
-pub use decode::{check_size, decode, from_raw, DecodeError, DecodeLimits};
+pub use decode::{check_size, decode, decode_sized, from_raw, DecodeError, DecodeLimits};
 
 /// Extraction parameters. Units are in the names; `Default` gives the documented defaults.
 #[derive(Debug, Clone, PartialEq)]
@@ -280,6 +281,22 @@ fn measure_noise(segments: &mut [Segment2], fits: &[(polygon::FitSpread, f64)]) 
 /// the lens distortion removed from edge points before the polygon fit. Parameters must
 /// have passed [`Params::check`].
 pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> Extraction {
+    match extract_until(image, camera, params, Checkpoint::NEVER) {
+        Ok(extraction) => extraction,
+        Err(_) => unreachable!("a checkpoint that never stops stopped"),
+    }
+}
+
+/// Chains fitted between two questions to the checkpoint.
+const CHAINS_PER_CHECK: usize = 256;
+
+/// [`extract`], asking `checkpoint` between its stages and as it fits the chains.
+pub fn extract_until(
+    image: &GreyImage,
+    camera: Option<&Camera>,
+    params: &Params,
+    checkpoint: Checkpoint,
+) -> Result<Extraction, Stopped> {
     let start = Instant::now();
     let mut stats = ExtractStats::default();
     let (w, h) = (image.width() as usize, image.height() as usize);
@@ -288,12 +305,15 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
     let smoothed = gradient::smooth(image, params.smoothing_sigma_px);
     stats.smooth_ms = ms(t);
 
+    checkpoint.before("extract")?;
     let t = Instant::now();
     let candidates = edges::edge_points(&smoothed, w, h, params.gradient_low as f32);
+    checkpoint.before("extract")?;
     let map = edges::hysteresis(candidates, params.gradient_high as f32);
     stats.edges_ms = ms(t);
     stats.edge_points = map.points.len() as u32;
 
+    checkpoint.before("extract")?;
     let t = Instant::now();
     let chains = chain::link(&map);
     stats.chain_ms = ms(t);
@@ -313,7 +333,10 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
     let mut graph = Vec::new();
     // Per chain: (first point position, last point position, segment index) of its kept pieces.
     let mut kept: Vec<Vec<(usize, usize, u32)>> = Vec::with_capacity(chains.chains.len());
-    for c in &chains.chains {
+    for (n, c) in chains.chains.iter().enumerate() {
+        if n % CHAINS_PER_CHECK == 0 {
+            checkpoint.before("extract")?;
+        }
         // Start a loop at a corner, so no side is cut in two at an arbitrary start.
         let rotation = if c.closed {
             loop_corner(&c.points, &map)
@@ -467,14 +490,14 @@ pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> E
     }
     stats.polygon_ms = ms(t);
     stats.total_ms = ms(start);
-    Extraction {
+    Ok(Extraction {
         segments: SegmentList {
             segments,
             oriented: true,
         },
         graph,
         stats,
-    }
+    })
 }
 
 #[cfg(test)]

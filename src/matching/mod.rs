@@ -13,8 +13,8 @@ pub mod validate;
 use nalgebra::{Point2, Vector2};
 use thiserror::Error;
 
-pub use predict::{predict, Hypothesis};
-pub use validate::{adjacency, rank, select, validate};
+pub use predict::{predict, predict_until, Hypothesis, PredictError};
+pub use validate::{adjacency, rank, rank_until, select, validate};
 
 /// Matching parameters. Units are in the names; `Default` gives the documented defaults.
 #[derive(Debug, Clone, PartialEq)]

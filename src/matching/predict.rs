@@ -13,19 +13,50 @@
 //! 4. a segment Sk of compatible orientation must lie within `tolerance_px` of that prediction
 //!    over their common part. Every surviving (S1, S2, S3) is a hypothesis, with the largest
 //!    of those two distances as its residual.
+//!
+//! Every count is bounded, so that no list — however repetitive: a thousand copies of one
+//! line give a thousand cubed triplets — makes the work or the memory grow past a fixed
+//! multiple of its length: at most [`MAX_CANDIDATES_PER_SEGMENT`] pairs per S1, at most
+//! [`MAX_VERIFIED_PER_PAIR`] verified triplets per pair, the best
+//! [`MAX_HYPOTHESES_PER_SEGMENT`] hypotheses per S1, and [`MAX_HYPOTHESES`] in all (past it,
+//! an error). Real scenes stay far below each (the rendered rooms: at most 18 hypotheses for
+//! one S1). The checkpoint is asked before each S1.
 
 use nalgebra::{Point2, Vector2};
 use rayon::prelude::*;
 
 use super::bucket::{angle_key, period, Buckets};
 use super::{gradients_compatible, MatchParams, RectSegment, Views};
+use crate::checkpoint::{Checkpoint, Stopped};
 use crate::geometry::Rectification;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// Shortest common part of two segments along the epipolar lines, and of a predicted segment
 /// with the verifying one, pixels: below it the overlap is an accident of noise.
 pub const MIN_OVERLAP_PX: f64 = 3.0;
 /// S1 per rayon task: enough to amortise the scratch buffers.
 const SEGMENTS_PER_TASK: usize = 32;
+/// Most segments of the searched view paired with one S1 (the first, in index order).
+pub const MAX_CANDIDATES_PER_SEGMENT: usize = 256;
+/// Most hypotheses verified for one pair (the first, in index order).
+pub const MAX_VERIFIED_PER_PAIR: usize = 32;
+/// Most hypotheses kept for one S1: those of smallest residual among the first
+/// [`MAX_VERIFIED_PER_SEGMENT`] verified.
+pub const MAX_HYPOTHESES_PER_SEGMENT: usize = 64;
+/// Most triplets verified for one S1; its search stops there.
+pub const MAX_VERIFIED_PER_SEGMENT: usize = 4 * MAX_HYPOTHESES_PER_SEGMENT;
+/// Most hypotheses of one match: each costs validation and reconstruction state, so this
+/// bounds a request's memory (about 400 bytes each at most).
+pub const MAX_HYPOTHESES: usize = 200_000;
+
+/// Why prediction produced no hypotheses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum PredictError {
+    #[error(transparent)]
+    Stopped(#[from] Stopped),
+    #[error("more than {limit} hypotheses")]
+    TooManyHypotheses { limit: usize },
+}
 
 /// One predicted and verified triplet.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -107,6 +138,17 @@ fn first_visit(stamp: &mut [u32], segment: u32, generation: u32) -> bool {
 
 /// Predicts and verifies the hypotheses of every S1, in S1 order (deterministic).
 pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec<Hypothesis> {
+    // Without a checkpoint only the total can fail; the bounds of the module doc still hold.
+    predict_until(rect, views, params, Checkpoint::NEVER).unwrap_or_default()
+}
+
+/// [`predict`], asking `checkpoint` before each S1, and failing past [`MAX_HYPOTHESES`].
+pub fn predict_until(
+    rect: &Rectification,
+    views: &Views,
+    params: &MatchParams,
+    checkpoint: Checkpoint,
+) -> Result<Vec<Hypothesis>, PredictError> {
     let period = period(views.oriented);
     let tol = params.tolerance_px;
     let grid2 = Buckets::build(views.segments[1], rect.epipolar(0, 1), tol, period);
@@ -139,6 +181,8 @@ pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec
         pairs: &pairs,
     };
     let s1 = views.segments[0];
+    let total = AtomicUsize::new(0);
+    let given_up = AtomicBool::new(false);
     let per_s1: Vec<Vec<Hypothesis>> = (0..s1.len())
         .into_par_iter()
         .with_min_len(SEGMENTS_PER_TASK)
@@ -146,12 +190,43 @@ pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec
             || Scratch::new(views),
             |scratch, i| {
                 let mut out = Vec::new();
+                if given_up.load(Ordering::Relaxed) || checkpoint.stopped() {
+                    given_up.store(true, Ordering::Relaxed);
+                    return out;
+                }
                 search.one(i as u32, scratch, &mut out);
+                keep_best(&mut out, MAX_HYPOTHESES_PER_SEGMENT);
+                out.shrink_to_fit();
+                if total.fetch_add(out.len(), Ordering::Relaxed) + out.len() > MAX_HYPOTHESES {
+                    given_up.store(true, Ordering::Relaxed);
+                }
                 out
             },
         )
         .collect();
-    per_s1.into_iter().flatten().collect()
+    checkpoint.before("predict")?;
+    if total.into_inner() > MAX_HYPOTHESES {
+        return Err(PredictError::TooManyHypotheses {
+            limit: MAX_HYPOTHESES,
+        });
+    }
+    Ok(per_s1.into_iter().flatten().collect())
+}
+
+/// Keeps the `max` hypotheses of smallest residual (ties: the earlier), in their order.
+fn keep_best(out: &mut Vec<Hypothesis>, max: usize) {
+    if out.len() <= max {
+        return;
+    }
+    let mut order: Vec<usize> = (0..out.len()).collect();
+    order.sort_by(|&a, &b| out[a].residual_px.total_cmp(&out[b].residual_px));
+    let mut keep = vec![false; out.len()];
+    order[..max].iter().for_each(|&i| keep[i] = true);
+    let mut i = 0;
+    out.retain(|_| {
+        i += 1;
+        keep[i - 1]
+    });
 }
 
 struct Search<'a> {
@@ -214,7 +289,11 @@ impl Search<'_> {
             }
         }
         candidates.sort_unstable();
+        candidates.truncate(MAX_CANDIDATES_PER_SEGMENT);
         for &ij in &candidates {
+            if out.len() >= MAX_VERIFIED_PER_SEGMENT {
+                break;
+            }
             self.verify_pair(i1, s1, (ax, ay, bx, by), pair, ij, scratch, out);
         }
         scratch.candidates = candidates;
@@ -297,7 +376,11 @@ impl Search<'_> {
         // Candidates come out in window order: sort so the output does not depend on the grid.
         found.sort_unstable();
         let cos_tol = verify_tol.cos();
+        let verified_before = out.len();
         for &ik in found.iter() {
+            if out.len() - verified_before == MAX_VERIFIED_PER_PAIR {
+                break;
+            }
             let sk = &self.views.segments[k][ik as usize];
             let cos = sk.dir.dot(&q_dir);
             let aligned = if self.views.oriented { cos } else { cos.abs() };

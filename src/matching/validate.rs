@@ -14,6 +14,7 @@
 use nalgebra::Point2;
 
 use super::{predict::Hypothesis, MatchParams, RectSegment, Views};
+use crate::checkpoint::{Checkpoint, Stopped};
 use crate::geometry::Rectification;
 
 /// Disparity agreement at a shared vertex, in pixels of the longest epipolar shift, as a
@@ -23,6 +24,16 @@ const VERTEX_AGREEMENT: f64 = 1.0;
 /// `tolerance_px`.
 const FRAGMENT_OVERLAP: f64 = 1.0;
 const NONE: u32 = u32::MAX;
+/// A vertex joins a handful of segment ends (a corner, a T, a Y); a list that piles many
+/// ends onto one place would make the adjacency graph quadratic. Per end, at most this many
+/// ends are looked at in each column of cells around it ...
+const MAX_ENDS_SCANNED_PER_COLUMN: usize = 64;
+/// ... and the nearest this many kept as its neighbours.
+const MAX_NEIGHBOURS_PER_END: usize = 16;
+/// Smallest cell of the adjacency grid, pixels.
+const MIN_CELL_PX: f64 = 0.01;
+/// Vertices between two questions to the checkpoint.
+const CHECK_EVERY: usize = 4096;
 
 /// Validation in one go: [`rank`], then [`select`] among all hypotheses. Returns the indices
 /// (into `hypotheses`) of the accepted ones, in input order.
@@ -54,7 +65,28 @@ pub fn rank(
     hypotheses: &[Hypothesis],
     params: &MatchParams,
 ) -> Vec<usize> {
-    let support = support(rect, views, adjacency, hypotheses, params);
+    // Without a checkpoint nothing stops it.
+    rank_until(
+        rect,
+        views,
+        adjacency,
+        hypotheses,
+        params,
+        Checkpoint::NEVER,
+    )
+    .unwrap_or_default()
+}
+
+/// [`rank`], asking `checkpoint` as it goes through the adjacency graph.
+pub fn rank_until(
+    rect: &Rectification,
+    views: &Views,
+    adjacency: &[(u32, u32, Point2<f64>)],
+    hypotheses: &[Hypothesis],
+    params: &MatchParams,
+    checkpoint: Checkpoint,
+) -> Result<Vec<usize>, Stopped> {
+    let support = support(rect, views, adjacency, hypotheses, params, checkpoint)?;
     // Packed into one integer so the sort compares integers.
     let mut order: Vec<(u128, usize)> = (0..hypotheses.len())
         .map(|h| {
@@ -73,7 +105,7 @@ pub fn rank(
         })
         .collect();
     order.sort_unstable_by_key(|&(key, _)| key);
-    order.into_iter().map(|(_, h)| h).collect()
+    Ok(order.into_iter().map(|(_, h)| h).collect())
 }
 
 /// Uniqueness: hypotheses claim their segments in `ranking` order, those not `alive` skipped;
@@ -156,11 +188,12 @@ fn support(
     adjacency: &[(u32, u32, Point2<f64>)],
     hypotheses: &[Hypothesis],
     params: &MatchParams,
-) -> Vec<u32> {
+    checkpoint: Checkpoint,
+) -> Result<Vec<u32>, Stopped> {
     let s1 = views.segments[0];
     let mut support = vec![0u32; hypotheses.len()];
     if s1.is_empty() || hypotheses.is_empty() {
-        return support;
+        return Ok(support);
     }
     // Hypotheses come in S1 order: the range of each S1.
     let mut range = vec![(0usize, 0usize); s1.len()];
@@ -184,7 +217,10 @@ fn support(
         let i = sorted.partition_point(|&x| x < d - max_diff);
         i < sorted.len() && sorted[i] <= d + max_diff
     };
-    for &(a, b, vertex) in adjacency {
+    for (n, &(a, b, vertex)) in adjacency.iter().enumerate() {
+        if n % CHECK_EVERY == 0 {
+            checkpoint.before("validate")?;
+        }
         let (ra, rb) = (range[a as usize], range[b as usize]);
         if ra.0 == ra.1 || rb.0 == rb.1 {
             continue;
@@ -204,18 +240,22 @@ fn support(
             support[h] += u32::from(agrees(&sa, d));
         }
     }
-    support
+    Ok(support)
 }
 
 /// The adjacency graph of view 1: pairs of distinct segments with endpoints within
 /// `radius` (a shared vertex), each pair once, with the vertex (the midpoint of the two
-/// closest endpoints). Endpoints sorted into a grid of `radius`-sized cells keep this linear
-/// in the number of segments.
+/// closest endpoints). Endpoints sorted into a grid of `radius`-sized cells, and the bounds on
+/// the ends looked at and kept per end, keep this linear in the number of segments.
 pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2<f64>)> {
     if radius <= 0.0 || segments.is_empty() {
         return Vec::new();
     }
-    let cell = |p: Point2<f64>| ((p.x / radius).floor() as i64, (p.y / radius).floor() as i64);
+    // Cells no smaller than a hundredth of a pixel: a radius of 1e-17 px would put every end
+    // in a cell at i64::MAX (found by fuzzing), and larger cells only make the 3 x 3 search
+    // look at a few more ends.
+    let size = radius.max(MIN_CELL_PX);
+    let cell = |p: Point2<f64>| ((p.x / size).floor() as i64, (p.y / size).floor() as i64);
     let mut ends: Vec<((i64, i64), u32, Point2<f64>)> = segments
         .iter()
         .enumerate()
@@ -223,21 +263,31 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
         .collect();
     ends.sort_unstable_by_key(|e| (e.0, e.1));
     let mut found: Vec<(u32, u32, f64, Point2<f64>)> = Vec::new();
+    let mut near: Vec<(f64, u32, Point2<f64>)> = Vec::new();
     for &((cx, cy), i, p) in &ends {
+        near.clear();
         for dx in -1..=1 {
             // Endpoints of one column of three cells are contiguous in (x, y) order.
             let lo = ends.partition_point(|e| e.0 < (cx + dx, cy - 1));
             let hi = ends.partition_point(|e| e.0 <= (cx + dx, cy + 1));
-            for &(_, j, q) in &ends[lo..hi] {
+            for &(_, j, q) in ends[lo..hi].iter().take(MAX_ENDS_SCANNED_PER_COLUMN) {
                 if j <= i {
                     continue;
                 }
                 let d = (q - p).norm();
                 if d <= radius {
-                    found.push((i, j, d, nalgebra::center(&p, &q)));
+                    near.push((d, j, q));
                 }
             }
         }
+        if near.len() > MAX_NEIGHBOURS_PER_END {
+            near.select_nth_unstable_by(MAX_NEIGHBOURS_PER_END, |a, b| a.0.total_cmp(&b.0));
+            near.truncate(MAX_NEIGHBOURS_PER_END);
+        }
+        found.extend(
+            near.iter()
+                .map(|&(d, j, q)| (i, j, d, nalgebra::center(&p, &q))),
+        );
     }
     // Keep the closest pair of endpoints of each pair of segments.
     found.sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
@@ -348,5 +398,18 @@ mod tests {
             validate(&rect(), &views, &[], &overlapping, &params),
             vec![0]
         );
+    }
+
+    #[test]
+    fn a_vanishing_neighbour_radius_still_finds_shared_ends() {
+        // Found by fuzzing: 1e-17 px made the grid cells overflow.
+        let segments = [
+            seg(100.0, 100.0, 200.0, 100.0, 0),
+            seg(200.0, 100.0, 200.0, 200.0, 1),
+            seg(300.0, 300.0, 400.0, 300.0, 2),
+        ];
+        let pairs = adjacency(&segments, 1e-17);
+        assert_eq!(pairs.len(), 1);
+        assert_eq!((pairs[0].0, pairs[0].1), (0, 1));
     }
 }

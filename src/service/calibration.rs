@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 
 use super::{Service, ServiceError};
 use crate::api::{self, pb, InputError};
+use crate::checkpoint::Checkpoint;
 use crate::extract::DecodeLimits;
 
 impl Service {
@@ -22,10 +23,11 @@ impl Service {
             max_bytes: self.limits.max_message_bytes,
             max_pixels: self.limits.max_image_pixels,
         };
-        let job = self.pool.run(move |_| -> Result<_, InputError> {
-            api::calibrate::calibrate_request(&read()?, &limits)?.run()
+        let job = self.pool.run(move |abandoned| -> Result<_, api::RunError> {
+            let stop = || abandoned.is_set();
+            api::calibrate::calibrate_request(&read()?, &limits)?.run_until(Checkpoint::new(&stop))
         });
-        let result = super::within(job, timeout).await;
+        let result = super::within(job, self.deadline(timeout)).await;
         self.observe(transport, "calibrate", start, &result);
         result
     }

@@ -6,6 +6,10 @@
 //! [server]
 //! grpc_addr = "0.0.0.0:50051"
 //! http_addr = "0.0.0.0:8080"
+//! max_connections = 1024     # HTTP; past it, 503 and close
+//! header_timeout_ms = 10000  # a request's headers, and a kept-alive connection's idle time
+//! body_timeout_ms = 30000    # a request's body, once its headers arrived
+//! shutdown_grace_ms = 10000  # after SIGTERM, then open connections are cut
 //! [compute]
 //! threads = 2          # 0: one per core
 //! max_jobs = 4         # 0: two per thread
@@ -13,9 +17,14 @@
 //! max_message_mib = 32
 //! max_image_pixels = 40000000
 //! max_segments_per_list = 100000
+//! max_request_ms = 60000   # a request's deadline when it gives none, and the cap on its own
+//! max_bodies_mib = 128     # request bodies held at once, reserved before they are read
 //! [log]
 //! json = false
 //! level = "info"
+//! [auth]
+//! keys_file = ""       # `name key` lines; with TRINOCULAR_API_KEYS=name:key,...; none: open
+//! max_sessions_per_key = 1000
 //! [store]
 //! url = "embedded"     # or redis://host:port[/db], shared by replicas
 //! data_dir = "data"    # the embedded store's directory, relative to the working directory
@@ -38,6 +47,27 @@ pub struct Config {
     pub limits: LimitsConfig,
     pub log: LogConfig,
     pub store: StoreConfig,
+    pub auth: AuthConfig,
+}
+
+/// API keys ([`super::auth`]): from `keys_file` and the `TRINOCULAR_API_KEYS` variable; none
+/// at all leaves the service open.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AuthConfig {
+    /// A file of `name key` lines; empty: none.
+    pub keys_file: PathBuf,
+    /// Sessions one key may hold at once.
+    pub max_sessions_per_key: usize,
+}
+
+impl Default for AuthConfig {
+    fn default() -> Self {
+        AuthConfig {
+            keys_file: PathBuf::new(),
+            max_sessions_per_key: super::MAX_SESSIONS_PER_KEY,
+        }
+    }
 }
 
 /// Where sessions live (see [`super::store::open`]).
@@ -92,6 +122,14 @@ impl Default for LogConfig {
 pub struct ServerConfig {
     pub grpc_addr: SocketAddr,
     pub http_addr: SocketAddr,
+    /// HTTP connections open at once; past it, 503 and close.
+    pub max_connections: usize,
+    /// Longest wait for a request's headers (and idle time of a kept-alive connection), ms.
+    pub header_timeout_ms: u64,
+    /// Longest wait for a request's body once its headers arrived, ms.
+    pub body_timeout_ms: u64,
+    /// After SIGTERM, how long open connections may finish before they are cut, ms.
+    pub shutdown_grace_ms: u64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -109,13 +147,22 @@ pub struct LimitsConfig {
     pub max_message_mib: usize,
     pub max_image_pixels: u64,
     pub max_segments_per_list: usize,
+    /// Longest a request may run, milliseconds (its deadline when it gives none).
+    pub max_request_ms: u64,
+    /// Request bodies held at once, MiB (reserved before they are read).
+    pub max_bodies_mib: usize,
 }
 
 impl Default for ServerConfig {
     fn default() -> Self {
+        let connections = super::http_server::ConnectionLimits::default();
         ServerConfig {
             grpc_addr: SocketAddr::from(([0, 0, 0, 0], 50051)),
             http_addr: SocketAddr::from(([0, 0, 0, 0], 8080)),
+            max_connections: connections.max_connections,
+            header_timeout_ms: connections.header_timeout.as_millis() as u64,
+            body_timeout_ms: connections.body_timeout.as_millis() as u64,
+            shutdown_grace_ms: connections.shutdown_grace.as_millis() as u64,
         }
     }
 }
@@ -126,9 +173,14 @@ impl Default for LimitsConfig {
             max_message_mib: 32,
             max_image_pixels: 40_000_000,
             max_segments_per_list: crate::api::MAX_SEGMENTS_PER_LIST,
+            max_request_ms: super::MAX_REQUEST_TIME.as_millis() as u64,
+            max_bodies_mib: super::Limits::default().max_body_bytes_in_flight >> 20,
         }
     }
 }
+
+/// Longest request time accepted by configuration: an hour, as for `timeout_ms`.
+const MAX_REQUEST_MS: u64 = 3_600_000;
 
 /// Largest request accepted by configuration, MiB.
 const MAX_MESSAGE_MIB: usize = 1024;
@@ -198,11 +250,38 @@ impl Config {
         if self.limits.max_image_pixels == 0 {
             problems.push("limits.max_image_pixels must be at least 1".to_string());
         }
+        if !(1..=MAX_REQUEST_MS).contains(&self.limits.max_request_ms) {
+            problems.push(format!(
+                "limits.max_request_ms must be 1 to {MAX_REQUEST_MS}, got {}",
+                self.limits.max_request_ms
+            ));
+        }
+        if self.limits.max_bodies_mib < self.limits.max_message_mib {
+            problems.push(format!(
+                "limits.max_bodies_mib must be at least limits.max_message_mib ({}), got {}",
+                self.limits.max_message_mib, self.limits.max_bodies_mib
+            ));
+        }
+        if self.server.max_connections == 0 {
+            problems.push("server.max_connections must be at least 1".to_string());
+        }
+        for (name, ms) in [
+            ("server.header_timeout_ms", self.server.header_timeout_ms),
+            ("server.body_timeout_ms", self.server.body_timeout_ms),
+            ("server.shutdown_grace_ms", self.server.shutdown_grace_ms),
+        ] {
+            if !(1..=MAX_REQUEST_MS).contains(&ms) {
+                problems.push(format!("{name} must be 1 to {MAX_REQUEST_MS}, got {ms}"));
+            }
+        }
         if self.limits.max_segments_per_list == 0 {
             problems.push("limits.max_segments_per_list must be at least 1".to_string());
         }
         if let Err(problem) = super::store::check_url(&self.store.url) {
             problems.push(problem);
+        }
+        if self.auth.max_sessions_per_key == 0 {
+            problems.push("auth.max_sessions_per_key must be at least 1".to_string());
         }
         if self.store.session_ttl_s == 0 {
             problems.push("store.session_ttl_s must be at least 1".to_string());
@@ -232,6 +311,14 @@ impl Config {
             max_message_bytes: self.limits.max_message_mib << 20,
             max_image_pixels: self.limits.max_image_pixels,
             max_segments_per_list: self.limits.max_segments_per_list,
+            max_request_time: Duration::from_millis(self.limits.max_request_ms),
+            max_body_bytes_in_flight: self.limits.max_bodies_mib << 20,
+            connections: super::http_server::ConnectionLimits {
+                max_connections: self.server.max_connections,
+                header_timeout: Duration::from_millis(self.server.header_timeout_ms),
+                body_timeout: Duration::from_millis(self.server.body_timeout_ms),
+                shutdown_grace: Duration::from_millis(self.server.shutdown_grace_ms),
+            },
         }
     }
 }

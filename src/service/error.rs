@@ -16,6 +16,23 @@ pub enum ServiceError {
     /// Every compute slot is taken: retry after a moment.
     #[error("the service is busy ({max_jobs} jobs queued or running); retry later")]
     Busy { max_jobs: usize },
+    /// No API key, or not a valid one.
+    #[error("{message}")]
+    Unauthenticated { message: String },
+    /// The caller's key holds as many sessions as it may.
+    #[error(
+        "this API key holds {limit} sessions already (auth.max_sessions_per_key): delete some"
+    )]
+    QuotaExceeded { limit: usize },
+    /// The request bodies being received hold the whole body budget: retry after a moment.
+    #[error(
+        "the service is receiving {limit_bytes} bytes of requests already \
+         (limits.max_bodies_mib); retry later"
+    )]
+    BodiesInFlight { limit_bytes: usize },
+    /// The request body did not arrive in time.
+    #[error("the request body did not arrive within {seconds} s (server.body_timeout_ms)")]
+    BodyTimeout { seconds: f64 },
     /// The request is larger than the configured limit.
     #[error(
         "the request is larger than the limit of {limit_bytes} bytes (limits.max_message_mib)"
@@ -61,7 +78,11 @@ impl ServiceError {
     pub fn code(&self) -> Code {
         match self {
             ServiceError::Input(_) => Code::InvalidArgument,
-            ServiceError::Busy { .. } => Code::ResourceExhausted,
+            ServiceError::Busy { .. }
+            | ServiceError::BodiesInFlight { .. }
+            | ServiceError::QuotaExceeded { .. } => Code::ResourceExhausted,
+            ServiceError::Unauthenticated { .. } => Code::Unauthenticated,
+            ServiceError::BodyTimeout { .. } => Code::DeadlineExceeded,
             // As tonic answers a message past its decoding limit.
             ServiceError::TooLarge { .. } => Code::OutOfRange,
             ServiceError::DeadlineExceeded { .. } => Code::DeadlineExceeded,
@@ -78,6 +99,10 @@ impl ServiceError {
             ServiceError::Input(e) => Some(&e.field),
             ServiceError::NotFound { field, .. } => Some(field),
             ServiceError::Busy { .. }
+            | ServiceError::BodiesInFlight { .. }
+            | ServiceError::Unauthenticated { .. }
+            | ServiceError::QuotaExceeded { .. }
+            | ServiceError::BodyTimeout { .. }
             | ServiceError::TooLarge { .. }
             | ServiceError::Unavailable { .. }
             | ServiceError::DeadlineExceeded { .. }
@@ -93,6 +118,7 @@ impl ServiceError {
     pub fn http_status(&self) -> StatusCode {
         match self {
             ServiceError::TooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
+            ServiceError::BodyTimeout { .. } => StatusCode::REQUEST_TIMEOUT,
             other => http_status(other.code()),
         }
     }

@@ -23,6 +23,8 @@ pub struct Metrics {
     stages: HistogramVec,
     in_flight: IntGauge,
     max_jobs: IntGauge,
+    overrunning: IntGauge,
+    malformed: IntGauge,
     rejections: IntCounter,
     stopped: IntCounterVec,
 }
@@ -57,6 +59,14 @@ impl Metrics {
             "trinocular_jobs_in_flight",
             "Compute jobs queued or running",
         )?;
+        let overrunning = IntGauge::new(
+            "trinocular_jobs_overrunning",
+            "Compute jobs still running long after their caller went away (not ready while > 0)",
+        )?;
+        let malformed = IntGauge::new(
+            "trinocular_grpc_malformed_messages",
+            "gRPC messages that did not decode (answered INVALID_ARGUMENT), since the start",
+        )?;
         let max_jobs = IntGauge::new(
             "trinocular_jobs_max",
             "Compute jobs allowed queued or running at once",
@@ -78,6 +88,8 @@ impl Metrics {
         registry.register(Box::new(stages.clone()))?;
         registry.register(Box::new(in_flight.clone()))?;
         registry.register(Box::new(max_jobs.clone()))?;
+        registry.register(Box::new(overrunning.clone()))?;
+        registry.register(Box::new(malformed.clone()))?;
         registry.register(Box::new(rejections.clone()))?;
         Ok(Metrics {
             registry,
@@ -86,6 +98,8 @@ impl Metrics {
             stages,
             in_flight,
             max_jobs,
+            overrunning,
+            malformed,
             rejections,
             stopped,
         })
@@ -133,8 +147,11 @@ impl Metrics {
     }
 
     /// The text exposition format, with the pool's current load.
-    pub fn render(&self, in_flight: usize, max_jobs: usize) -> String {
+    pub fn render(&self, in_flight: usize, max_jobs: usize, overrunning: usize) -> String {
         self.in_flight.set(in_flight as i64);
+        self.overrunning.set(overrunning as i64);
+        self.malformed
+            .set(crate::api::codec::malformed_messages() as i64);
         self.max_jobs.set(max_jobs as i64);
         let mut out = Vec::new();
         // Encoding into a Vec cannot fail for well-formed metrics; an error gives what we have.

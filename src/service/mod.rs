@@ -8,9 +8,11 @@
 //! HTTP (axum) ──┘
 //! ```
 
+pub mod auth;
 pub mod calibration;
 pub mod config;
 pub mod error;
+pub mod http_server;
 pub mod metrics;
 pub mod pool;
 pub mod request_id;
@@ -34,6 +36,10 @@ pub use pool::{ComputePool, PoolError};
 /// lengthens latency without adding throughput.
 pub const JOBS_PER_THREAD: usize = 2;
 
+/// How long a job may run on after its caller gave up before the service says it is not
+/// ready. Every stage asks its checkpoint within milliseconds, so only a bug gets here.
+pub const OVERRUN_GRACE: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// What the service is allowed to do. Units in the names.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Limits {
@@ -48,7 +54,20 @@ pub struct Limits {
     pub max_image_pixels: u64,
     /// Most segments in one list of a request.
     pub max_segments_per_list: usize,
+    /// Longest a request may run: its deadline when it gives none, and the cap on the one it
+    /// gives. Past it the answer is DEADLINE_EXCEEDED and the work stops.
+    pub max_request_time: std::time::Duration,
+    /// Bytes of request bodies held at once (HTTP: reserved from Content-Length, or the
+    /// largest message when it is not given, before the body is read); past it,
+    /// RESOURCE_EXHAUSTED / 429 at once.
+    pub max_body_bytes_in_flight: usize,
+    /// Connections, header and body timeouts, and the shutdown grace period.
+    pub connections: http_server::ConnectionLimits,
 }
+
+/// The default of [`Limits::max_request_time`]: a minute, ten times what the largest image
+/// triplet within the other limits takes on one core.
+pub const MAX_REQUEST_TIME: std::time::Duration = std::time::Duration::from_secs(60);
 
 impl Default for Limits {
     fn default() -> Self {
@@ -59,6 +78,9 @@ impl Default for Limits {
             max_message_bytes: 32 << 20,
             max_image_pixels: DecodeLimits::default().max_pixels,
             max_segments_per_list: api::MAX_SEGMENTS_PER_LIST,
+            max_request_time: MAX_REQUEST_TIME,
+            max_body_bytes_in_flight: 128 << 20,
+            connections: http_server::ConnectionLimits::default(),
         }
     }
 }
@@ -71,7 +93,19 @@ pub struct Service {
     metrics: Arc<metrics::Metrics>,
     store: Arc<dyn store::SessionStore>,
     store_ttl: std::time::Duration,
+    /// Request-body bytes held now, in KiB permits ([`Limits::max_body_bytes_in_flight`]).
+    bodies: Arc<tokio::sync::Semaphore>,
+    /// The API keys; none: the service is open.
+    keys: auth::ApiKeys,
+    /// Sessions one key may hold at once.
+    max_sessions_per_key: usize,
 }
+
+/// The default of the sessions one API key may hold at once.
+pub const MAX_SESSIONS_PER_KEY: usize = 1000;
+
+/// A reservation of request-body bytes, returned when dropped.
+pub struct BodyReservation(#[allow(dead_code)] tokio::sync::OwnedSemaphorePermit);
 
 /// Why a service could not start.
 #[derive(Debug, thiserror::Error)]
@@ -89,7 +123,11 @@ impl Service {
         store: Arc<dyn store::SessionStore>,
         session_ttl: std::time::Duration,
     ) -> Result<Service, StartError> {
+        let body_kib = (limits.max_body_bytes_in_flight >> 10).clamp(1, u32::MAX as usize);
         Ok(Service {
+            keys: auth::ApiKeys::default(),
+            max_sessions_per_key: MAX_SESSIONS_PER_KEY,
+            bodies: Arc::new(tokio::sync::Semaphore::new(body_kib)),
             pool: ComputePool::new(limits.threads, limits.max_jobs)?,
             limits,
             ready: AtomicBool::new(true),
@@ -97,6 +135,38 @@ impl Service {
             store,
             store_ttl: session_ttl,
         })
+    }
+
+    /// This service, requiring one of `keys` on every call (none: open), each key holding at
+    /// most `max_sessions_per_key` sessions.
+    pub fn with_api_keys(mut self, keys: auth::ApiKeys, max_sessions_per_key: usize) -> Service {
+        self.keys = keys;
+        self.max_sessions_per_key = max_sessions_per_key;
+        self
+    }
+
+    /// The caller of a request with these credentials (the `authorization` header or
+    /// metadata), or UNAUTHENTICATED.
+    pub fn caller(&self, authorization: Option<&str>) -> Result<auth::Caller, ServiceError> {
+        self.keys.caller(authorization)
+    }
+
+    /// Reserves `bytes` of the request-body budget, or refuses at once when the bodies in
+    /// flight hold it all: before a body is read, so a crowd of slow uploads cannot hold more
+    /// memory than the budget.
+    pub fn reserve_body(&self, bytes: usize) -> Result<BodyReservation, ServiceError> {
+        let total = self.limits.max_body_bytes_in_flight;
+        let kib = bytes.min(total).div_ceil(1024).max(1) as u32;
+        Arc::clone(&self.bodies)
+            .try_acquire_many_owned(kib)
+            .map(BodyReservation)
+            .map_err(|_| ServiceError::BodiesInFlight { limit_bytes: total })
+    }
+
+    /// Whether every compute slot is taken now: a request that would need one is refused
+    /// before its body is read.
+    pub fn compute_full(&self) -> bool {
+        self.pool.in_flight() >= self.pool.max_jobs()
     }
 
     /// Where sessions are kept, for the log.
@@ -110,15 +180,27 @@ impl Service {
         if let ServiceError::Internal { detail } = error {
             tracing::error!(detail = %detail, "match: internal error");
         }
-        tracing::info!(transport, code = ?error.code(), ms = seconds * 1e3, error = %error, "match");
+        if matches!(
+            error,
+            ServiceError::Busy { .. } | ServiceError::BodiesInFlight { .. }
+        ) {
+            // Under overload these come by the thousand a second: a log line each would cost
+            // more than the refusal. They are counted (trinocular_rejections_total).
+            tracing::debug!(transport, code = ?error.code(), error = %error, "match refused");
+        } else {
+            tracing::info!(transport, code = ?error.code(), ms = seconds * 1e3, error = %error, "match");
+        }
         self.metrics
             .record(transport, "match", error.code(), seconds, None);
     }
 
     /// The Prometheus text exposition of this service's metrics.
     pub fn metrics_text(&self) -> String {
-        self.metrics
-            .render(self.pool.in_flight(), self.pool.max_jobs())
+        self.metrics.render(
+            self.pool.in_flight(),
+            self.pool.max_jobs(),
+            self.pool.overrunning(OVERRUN_GRACE),
+        )
     }
 
     pub fn limits(&self) -> &Limits {
@@ -129,9 +211,11 @@ impl Service {
         &self.pool
     }
 
-    /// Ready to take work (false while shutting down).
+    /// Ready to take work: false while shutting down, and while a job runs on more than
+    /// [`OVERRUN_GRACE`] after its caller gave up (the watchdog: that thread is lost to new
+    /// work until the job ends).
     pub fn is_ready(&self) -> bool {
-        self.ready.load(Ordering::Relaxed)
+        self.ready.load(Ordering::Relaxed) && self.pool.overrunning(OVERRUN_GRACE) == 0
     }
 
     pub fn set_ready(&self, ready: bool) {
@@ -169,8 +253,8 @@ impl Service {
     /// Match on the compute pool, not the async runtime: `read` produces the request (so an
     /// HTTP body is parsed there), the request is checked and converted (images decoded) and
     /// the pipeline run, and `encode` turns the response into what the transport sends. Past
-    /// `timeout` (none: no deadline) the answer is DEADLINE_EXCEEDED and the job, if still
-    /// queued, never runs; if running, it stops before its next stage (as it does when the
+    /// its [`Service::deadline`] the answer is DEADLINE_EXCEEDED and the job, if still
+    /// queued, never runs; if running, it stops at its next checkpoint (as it does when the
     /// caller goes away).
     pub async fn run_match<T: Send + 'static>(
         &self,
@@ -197,28 +281,29 @@ impl Service {
             let encoded = encode(&response);
             Ok((response, encoded))
         });
-        within(job, timeout).await
+        within(job, self.deadline(timeout)).await
+    }
+
+    /// The deadline of a request that asked for `timeout` (none: no deadline of its own):
+    /// never longer than [`Limits::max_request_time`].
+    pub fn deadline(&self, timeout: Option<std::time::Duration>) -> std::time::Duration {
+        let max = self.limits.max_request_time;
+        timeout.map_or(max, |t| t.min(max))
     }
 }
 
-/// Awaits a compute-pool job, or answers DEADLINE_EXCEEDED past `timeout` (none: no
-/// deadline) and drops the job: a queued job then never runs, a running one stops at its next
-/// checkpoint, if it has any.
+/// Awaits a compute-pool job, or answers DEADLINE_EXCEEDED past `timeout` and drops the job:
+/// a queued job then never runs, a running one stops at its next checkpoint.
 pub(crate) async fn within<T, E: Into<ServiceError>>(
     job: impl std::future::Future<Output = Result<Result<T, E>, PoolError>>,
-    timeout: Option<std::time::Duration>,
+    timeout: std::time::Duration,
 ) -> Result<T, ServiceError> {
-    let finished = |done: Result<Result<T, E>, PoolError>| {
-        done.map_err(ServiceError::from)
-            .and_then(|r| r.map_err(Into::into))
-    };
-    match timeout {
-        None => finished(job.await),
-        Some(t) => match tokio::time::timeout(t, job).await {
-            Ok(done) => finished(done),
-            Err(_) => Err(ServiceError::DeadlineExceeded {
-                timeout_ms: t.as_millis() as u64,
-            }),
-        },
+    match tokio::time::timeout(timeout, job).await {
+        Ok(done) => done
+            .map_err(ServiceError::from)
+            .and_then(|r| r.map_err(Into::into)),
+        Err(_) => Err(ServiceError::DeadlineExceeded {
+            timeout_ms: timeout.as_millis() as u64,
+        }),
     }
 }

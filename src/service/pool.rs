@@ -7,10 +7,17 @@
 //! (`PoolError::Panicked`) and the process lives. A caller that stops waiting (its client went
 //! away, its deadline passed) cancels the job: a queued job never starts, and a running one is
 //! handed the [`Abandoned`] flag to look at between its stages.
+//!
+//! The pool also keeps the jobs it runs in view: one still running long after its caller gave
+//! up ([`ComputePool::overrunning`]) means a stage that does not stop — a thread lost until it
+//! ends — and the service reports itself not ready meanwhile, so a load balancer sends the
+//! work elsewhere.
 
+use std::collections::HashMap;
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use thiserror::Error;
 use tokio::sync::{oneshot, Semaphore};
@@ -23,12 +30,19 @@ pub enum PoolError {
     Panicked { message: String },
 }
 
+/// One job's state, shared by the waiting side and the thread running it.
+struct JobState {
+    cancelled: AtomicBool,
+    /// When the waiting side went away, in microseconds after the pool's epoch (0: not).
+    abandoned_at_us: AtomicU64,
+}
+
 /// Set once nobody waits for a job's result any more; a running job reads it between stages.
-pub struct Abandoned(Arc<AtomicBool>);
+pub struct Abandoned(Arc<JobState>);
 
 impl Abandoned {
     pub fn is_set(&self) -> bool {
-        self.0.load(Ordering::Relaxed)
+        self.0.cancelled.load(Ordering::Relaxed)
     }
 }
 
@@ -37,21 +51,46 @@ pub struct ComputePool {
     pool: rayon::ThreadPool,
     permits: Arc<Semaphore>,
     max_jobs: usize,
+    epoch: Instant,
+    next_id: AtomicU64,
+    /// The jobs running now, by id.
+    running: Arc<Mutex<HashMap<u64, Arc<JobState>>>>,
 }
 
-/// Sets the flag when dropped before [`CancelOnDrop::disarm`]: the waiting side went away.
-struct CancelOnDrop(Arc<AtomicBool>, bool);
+/// Marks the job abandoned when dropped before [`CancelOnDrop::disarm`]: the waiting side
+/// went away.
+struct CancelOnDrop {
+    job: Arc<JobState>,
+    epoch: Instant,
+    armed: bool,
+}
 
 impl CancelOnDrop {
     fn disarm(&mut self) {
-        self.1 = false;
+        self.armed = false;
     }
 }
 
 impl Drop for CancelOnDrop {
     fn drop(&mut self) {
-        if self.1 {
-            self.0.store(true, Ordering::Relaxed);
+        if self.armed {
+            let at = self.epoch.elapsed().as_micros().max(1) as u64;
+            self.job.abandoned_at_us.store(at, Ordering::Relaxed);
+            self.job.cancelled.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Takes a job out of the running set when it ends, however it ends.
+struct Running {
+    running: Arc<Mutex<HashMap<u64, Arc<JobState>>>>,
+    id: u64,
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        if let Ok(mut running) = self.running.lock() {
+            running.remove(&self.id);
         }
     }
 }
@@ -85,6 +124,25 @@ impl ComputePool {
             pool,
             permits: Arc::new(Semaphore::new(max_jobs)),
             max_jobs,
+            epoch: Instant::now(),
+            next_id: AtomicU64::new(0),
+            running: Arc::default(),
+        })
+    }
+
+    /// Jobs still running more than `grace` after their caller went away (a deadline passed,
+    /// a client left): each holds a compute thread that no one waits for.
+    pub fn overrunning(&self, grace: Duration) -> usize {
+        let now = self.epoch.elapsed().as_micros() as u64;
+        let grace = grace.as_micros() as u64;
+        self.running.lock().map_or(0, |running| {
+            running
+                .values()
+                .filter(|job| {
+                    let at = job.abandoned_at_us.load(Ordering::Relaxed);
+                    at != 0 && now.saturating_sub(at) > grace
+                })
+                .count()
         })
     }
 
@@ -114,14 +172,27 @@ impl ComputePool {
                 .map_err(|_| PoolError::Busy {
                     max_jobs: self.max_jobs,
                 })?;
-        let cancelled = Arc::new(AtomicBool::new(false));
-        let mut guard = CancelOnDrop(Arc::clone(&cancelled), true);
+        let state = Arc::new(JobState {
+            cancelled: AtomicBool::new(false),
+            abandoned_at_us: AtomicU64::new(0),
+        });
+        let mut guard = CancelOnDrop {
+            job: Arc::clone(&state),
+            epoch: self.epoch,
+            armed: true,
+        };
         let (tx, rx) = oneshot::channel();
+        let running = Arc::clone(&self.running);
+        let id = self.next_id.fetch_add(1, Ordering::Relaxed);
         self.pool.spawn(move || {
-            let abandoned = Abandoned(cancelled);
+            let abandoned = Abandoned(state);
             if abandoned.is_set() {
                 return; // the permit goes with the closure
             }
+            if let Ok(mut jobs) = running.lock() {
+                jobs.insert(id, Arc::clone(&abandoned.0));
+            }
+            let _running = Running { running, id };
             let result = catch_unwind(AssertUnwindSafe(|| job(&abandoned))).map_err(|p| {
                 PoolError::Panicked {
                     message: panic_message(p.as_ref()),
@@ -268,5 +339,30 @@ mod tests {
             saw,
             "the running job stopped early because its caller went away"
         );
+    }
+
+    #[test]
+    fn a_job_running_on_long_after_its_caller_left_is_overrunning() {
+        let pool = ComputePool::new(1, 2).unwrap();
+        let rt = runtime();
+        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
+        rt.block_on(async {
+            // A job that ignores its flag, abandoned by its caller after 10 ms.
+            let stubborn = pool.run(move |_| release_rx.recv().is_ok());
+            assert!(tokio::time::timeout(Duration::from_millis(10), stubborn)
+                .await
+                .is_err());
+        });
+        assert_eq!(pool.overrunning(Duration::from_secs(60)), 0, "within grace");
+        std::thread::sleep(Duration::from_millis(30));
+        assert_eq!(pool.overrunning(Duration::from_millis(10)), 1);
+        release_tx.send(()).unwrap();
+        for _ in 0..200 {
+            if pool.overrunning(Duration::ZERO) == 0 {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        assert_eq!(pool.overrunning(Duration::ZERO), 0, "an ended job is not");
     }
 }

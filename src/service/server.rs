@@ -16,6 +16,13 @@ use crate::api::{grpc, http, pb};
 const H2_STREAM_WINDOW: u32 = 4 << 20;
 const H2_CONNECTION_WINDOW: u32 = 16 << 20;
 
+/// Concurrent calls on one gRPC connection.
+const GRPC_MAX_STREAMS: u32 = 64;
+/// How often the watchdog looks at the compute pool.
+const WATCHDOG_PERIOD: std::time::Duration = std::time::Duration::from_millis(500);
+/// The gRPC health name of the Trinocular service.
+const TRINOCULAR_SERVICE: &str = "trinocular.v1.Trinocular";
+
 /// Two running servers.
 pub struct Running {
     pub grpc_addr: SocketAddr,
@@ -24,6 +31,7 @@ pub struct Running {
     stop: watch::Sender<bool>,
     grpc: JoinHandle<Result<(), tonic::transport::Error>>,
     http: JoinHandle<std::io::Result<()>>,
+    shutdown_grace: std::time::Duration,
 }
 
 /// Binds both addresses (port 0: any free port) and starts serving.
@@ -59,8 +67,16 @@ pub async fn start(
         .build_v1alpha()
         .map_err(std::io::Error::other)?;
     let mut grpc_stop = stop.subscribe();
+    let connections = service.limits().connections;
+    // A stalled or half-sent call ends with the longest a body may take plus the longest a
+    // request may run (the compute deadline answers before that).
+    let call_timeout = connections.body_timeout + service.limits().max_request_time;
     let grpc = tokio::spawn(
         tonic::transport::Server::builder()
+            .timeout(call_timeout)
+            .http2_keepalive_interval(Some(connections.header_timeout))
+            .http2_keepalive_timeout(Some(connections.header_timeout))
+            .max_concurrent_streams(Some(GRPC_MAX_STREAMS))
             // HTTP/2's default 64 KiB windows make a client stop mid-request and wait a round
             // trip for WINDOW_UPDATE whenever a request is larger (600 segments per list are
             // 80 KiB, an image triplet megabytes): open them wide.
@@ -78,15 +94,41 @@ pub async fn start(
                 },
             ),
     );
-    let mut http_stop = stop.subscribe();
-    let app = http::router(Arc::clone(&service));
-    let http = tokio::spawn(async move {
-        axum::serve(http_listener, app)
-            .with_graceful_shutdown(async move {
-                let _ = http_stop.wait_for(|&s| s).await;
-            })
-            .await
+    // The watchdog's verdict (Service::is_ready) on the gRPC health service too, so a load
+    // balancer checking either transport stops sending work while a job overruns.
+    let mut watch_stop = stop.subscribe();
+    let (watch_health, watched) = (health.clone(), Arc::clone(&service));
+    tokio::spawn(async move {
+        let mut serving = true;
+        loop {
+            tokio::select! {
+                _ = watch_stop.wait_for(|&s| s) => return,
+                _ = tokio::time::sleep(WATCHDOG_PERIOD) => {}
+            }
+            let ready = watched.is_ready();
+            if ready != serving {
+                serving = ready;
+                let status = if ready {
+                    tonic_health::ServingStatus::Serving
+                } else {
+                    tracing::error!("a compute job runs on long after its deadline: not ready");
+                    tonic_health::ServingStatus::NotServing
+                };
+                watch_health.set_service_status("", status).await;
+                watch_health
+                    .set_service_status(TRINOCULAR_SERVICE, status)
+                    .await;
+            }
+        }
     });
+    let http_stop = stop.subscribe();
+    let app = http::router(Arc::clone(&service));
+    let http = tokio::spawn(super::http_server::serve(
+        http_listener,
+        app,
+        connections,
+        http_stop,
+    ));
     Ok(Running {
         grpc_addr,
         http_addr,
@@ -94,13 +136,14 @@ pub async fn start(
         stop,
         grpc,
         http,
+        shutdown_grace: connections.shutdown_grace,
     })
 }
 
 impl Running {
-    /// Reports NOT_SERVING, stops accepting connections, lets in-flight requests finish, and
-    /// returns.
-    pub async fn shutdown(self) {
+    /// Reports NOT_SERVING, stops accepting connections, lets in-flight requests finish for
+    /// the shutdown grace period, cuts the connections still open, and returns.
+    pub async fn shutdown(mut self) {
         self.health
             .set_not_serving::<pb::trinocular_server::TrinocularServer<grpc::GrpcApi>>()
             .await;
@@ -108,7 +151,24 @@ impl Running {
             .set_service_status("", tonic_health::ServingStatus::NotServing)
             .await;
         let _ = self.stop.send(true);
-        let (g, h) = tokio::join!(self.grpc, self.http);
+        // The HTTP server keeps to the grace period itself; tonic waits for every connection,
+        // so it is cut a moment after.
+        let grace = self.shutdown_grace + std::time::Duration::from_millis(500);
+        let (g, h) = tokio::join!(
+            tokio::time::timeout(grace, &mut self.grpc),
+            tokio::time::timeout(grace, &mut self.http)
+        );
+        let (g, h) = (
+            g.unwrap_or_else(|_| {
+                tracing::warn!("gRPC: calls still open after the shutdown grace period; cut");
+                self.grpc.abort();
+                Ok(Ok(()))
+            }),
+            h.unwrap_or_else(|_| {
+                self.http.abort();
+                Ok(Ok(()))
+            }),
+        );
         if let Ok(Err(e)) = g {
             tracing::error!(error = %e, "gRPC server");
         }

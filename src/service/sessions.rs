@@ -11,6 +11,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use nalgebra::Isometry3;
 use prost::Message;
 
+use super::auth::{public_id, store_id, Caller};
 use super::store::{SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
 use crate::api::session::{capture_match_request, pose_from_pb, pose_to_pb};
@@ -27,6 +28,14 @@ pub struct SessionMap {
     pub fuse_ms: f64,
 }
 
+/// Captures one session may hold: each is stored and fused into every map asked for, so
+/// their number bounds a session's storage and a GetMap's work.
+const MAX_CAPTURES_PER_SESSION: u64 = 10_000;
+
+/// Sessions per ListSessions page by default, and at most.
+const DEFAULT_PAGE_SIZE: usize = 100;
+const MAX_PAGE_SIZE: usize = 1000;
+
 fn now_unix_ms() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
@@ -38,7 +47,8 @@ impl From<StoreError> for ServiceError {
         match e {
             StoreError::NotFound { id } => ServiceError::NotFound {
                 field: "session_id".to_string(),
-                what: format!("session {id:?}"),
+                // The public id: a tenant's prefix in the store is not the caller's business.
+                what: format!("session {:?}", id.rsplit('~').next().unwrap_or_default()),
             },
             StoreError::AlreadyExists { id } => ServiceError::Internal {
                 detail: format!("session id {id} generated twice"),
@@ -98,7 +108,12 @@ impl Service {
         }
     }
 
-    fn session_pb(&self, info: &SessionInfo, full: bool) -> Result<pb::Session, ServiceError> {
+    fn session_pb(
+        &self,
+        caller: &Caller,
+        info: &SessionInfo,
+        full: bool,
+    ) -> Result<pb::Session, ServiceError> {
         let r = &info.record;
         let (calibration, stored) = if full {
             let calibration = pb::Calibration::decode(&r.calibration[..])
@@ -110,7 +125,7 @@ impl Service {
             (None, pb::StoredOptions::default())
         };
         Ok(pb::Session {
-            id: r.id.clone(),
+            id: public_id(caller, &r.id).unwrap_or(&r.id).to_string(),
             name: r.name.clone(),
             created_unix_ms: r.created_unix_ms,
             last_used_unix_ms: info.last_used_unix_ms,
@@ -124,12 +139,21 @@ impl Service {
 
     pub async fn create_session(
         &self,
+        caller: &Caller,
         request: pb::CreateSessionRequest,
         transport: &str,
     ) -> Result<pb::Session, ServiceError> {
         let start = Instant::now();
         let result = async {
             crate::api::session::check_create_session(&request)?;
+            if caller.tenant.is_some() {
+                let held = self.own_sessions(caller).await?.len();
+                if held >= self.max_sessions_per_key {
+                    return Err(ServiceError::QuotaExceeded {
+                        limit: self.max_sessions_per_key,
+                    });
+                }
+            }
             let pb::CreateSessionRequest {
                 name,
                 calibration,
@@ -137,7 +161,7 @@ impl Service {
                 map_options,
             } = request;
             let record = SessionRecord {
-                id: uuid::Uuid::new_v4().simple().to_string(),
+                id: store_id(caller, &uuid::Uuid::new_v4().simple().to_string()),
                 name,
                 created_unix_ms: now_unix_ms(),
                 calibration: calibration.unwrap_or_default().encode_to_vec(),
@@ -153,7 +177,7 @@ impl Service {
                 captures: 0,
                 record,
             };
-            self.session_pb(&info, true)
+            self.session_pb(caller, &info, true)
         }
         .await;
         self.observe(transport, "create_session", start, &result);
@@ -162,32 +186,74 @@ impl Service {
 
     pub async fn get_session(
         &self,
+        caller: &Caller,
         id: &str,
         transport: &str,
     ) -> Result<pb::Session, ServiceError> {
         let start = Instant::now();
         let result = async {
             check_id(id)?;
-            let info = self.store.get(id).await?;
-            self.session_pb(&info, true)
+            let info = self.store.get(&store_id(caller, id)).await?;
+            self.session_pb(caller, &info, true)
         }
         .await;
         self.observe(transport, "get_session", start, &result);
         result
     }
 
+    /// The caller's sessions, a page at a time: at most `page_size` (0: the default, 100;
+    /// at most 1000) of those whose id comes after `page_token` (empty: the first page), by
+    /// id; `next_page_token` is empty on the last page.
     pub async fn list_sessions(
         &self,
+        caller: &Caller,
+        request: pb::ListSessionsRequest,
         transport: &str,
     ) -> Result<pb::ListSessionsResponse, ServiceError> {
         let start = Instant::now();
         let result = async {
-            let sessions = self.store.list().await?;
+            let pb::ListSessionsRequest {
+                page_size,
+                page_token,
+            } = request;
+            let page_size = match page_size {
+                0 => DEFAULT_PAGE_SIZE,
+                n if n as usize <= MAX_PAGE_SIZE => n as usize,
+                n => {
+                    return Err(ServiceError::Input(InputError::new(
+                        "page_size",
+                        format!(
+                        "must be 0 (the default, {DEFAULT_PAGE_SIZE}) to {MAX_PAGE_SIZE}, got {n}"
+                    ),
+                    )))
+                }
+            };
+            if !page_token.is_empty() {
+                check_id(&page_token).map_err(|_| {
+                    ServiceError::Input(InputError::new(
+                        "page_token",
+                        "is not a token this service gave",
+                    ))
+                })?;
+            }
+            let mut sessions = self.own_sessions(caller).await?;
+            sessions.retain(|(id, _)| page_token.is_empty() || id.as_str() > page_token.as_str());
+            let more = sessions.len() > page_size;
+            sessions.truncate(page_size);
+            let next_page_token = if more {
+                sessions
+                    .last()
+                    .map(|(id, _)| id.clone())
+                    .unwrap_or_default()
+            } else {
+                String::new()
+            };
             Ok(pb::ListSessionsResponse {
                 sessions: sessions
                     .iter()
-                    .map(|info| self.session_pb(info, false))
+                    .map(|(_, info)| self.session_pb(caller, info, false))
                     .collect::<Result<_, _>>()?,
+                next_page_token,
             })
         }
         .await;
@@ -195,11 +261,32 @@ impl Service {
         result
     }
 
-    pub async fn delete_session(&self, id: &str, transport: &str) -> Result<(), ServiceError> {
+    /// The caller's live sessions with their public ids, sorted by public id.
+    async fn own_sessions(
+        &self,
+        caller: &Caller,
+    ) -> Result<Vec<(String, SessionInfo)>, ServiceError> {
+        let mut own: Vec<(String, SessionInfo)> = self
+            .store
+            .list()
+            .await?
+            .into_iter()
+            .filter_map(|info| Some((public_id(caller, &info.record.id)?.to_string(), info)))
+            .collect();
+        own.sort_by(|a, b| a.0.cmp(&b.0));
+        Ok(own)
+    }
+
+    pub async fn delete_session(
+        &self,
+        caller: &Caller,
+        id: &str,
+        transport: &str,
+    ) -> Result<(), ServiceError> {
         let start = Instant::now();
         let result = async {
             check_id(id)?;
-            Ok(self.store.delete(id).await?)
+            Ok(self.store.delete(&store_id(caller, id)).await?)
         }
         .await;
         self.observe(transport, "delete_session", start, &result);
@@ -211,6 +298,7 @@ impl Service {
     /// match failed is not stored either.
     pub async fn add_capture(
         &self,
+        caller: &Caller,
         request: pb::AddCaptureRequest,
         timeout: Option<Duration>,
         transport: &str,
@@ -223,8 +311,18 @@ impl Service {
                 input,
             } = request;
             check_id(&session_id)?;
+            let session_id = store_id(caller, &session_id);
             let pose = pose_from_pb(rig_to_world.as_ref(), "rig_to_world")?;
             let info = self.store.get(&session_id).await?;
+            if info.captures >= MAX_CAPTURES_PER_SESSION {
+                return Err(ServiceError::Input(InputError::new(
+                    "session_id",
+                    format!(
+                        "the session holds {MAX_CAPTURES_PER_SESSION} captures, the most one may; \
+                         start another session"
+                    ),
+                )));
+            }
             let calibration = pb::Calibration::decode(&info.record.calibration[..])
                 .map_err(|e| corrupt("calibration", e))?;
             let stored = pb::StoredOptions::decode(&info.record.options[..])
@@ -267,6 +365,7 @@ impl Service {
     /// `min_observations` overrides the session's map option.
     pub async fn get_map(
         &self,
+        caller: &Caller,
         id: &str,
         min_observations: Option<u32>,
         transport: &str,
@@ -280,10 +379,11 @@ impl Service {
                     "must be at least 1",
                 )));
             }
-            let info = self.store.get(id).await?;
+            let stored_id = store_id(caller, id);
+            let info = self.store.get(&stored_id).await?;
             let stored = pb::StoredOptions::decode(&info.record.options[..])
                 .map_err(|e| corrupt("options", e))?;
-            let captures = self.store.captures(id).await?;
+            let captures = self.store.captures(&stored_id).await?;
             let min_observations = min_observations
                 .or(stored.map_options.and_then(|m| m.min_observations))
                 .unwrap_or(1);
@@ -291,7 +391,8 @@ impl Service {
             let job = self
                 .pool
                 .run(move |_| fuse_stored(session_id, &captures, min_observations));
-            job.await?
+            // Fusing is compute like Match: it keeps to the service's longest request time.
+            super::within(job, self.deadline(None)).await
         }
         .await;
         self.observe(transport, "get_map", start, &result);

@@ -39,6 +39,17 @@ pub fn request_json() -> Value {
     })
 }
 
+/// The example request of the README (`examples/request.json`): a small scene's three
+/// segment lists and their rig.
+pub fn example_request() -> trinocular::api::pb::MatchRequest {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/examples/request.json"
+    ))
+    .expect("example request");
+    trinocular::api::from_json("request", &text).expect("valid JSON")
+}
+
 /// Runs a JSON request through the API, as the CLI and the service do; returns the failing
 /// field, or the response.
 pub fn run_json(request: &serde_json::Value) -> Result<trinocular::api::pb::MatchResponse, String> {
@@ -93,6 +104,12 @@ impl ServerProcess {
     /// Starts the binary with `args` added to ephemeral addresses, and waits for its
     /// "listening" line (which carries the ports it got).
     pub fn spawn(args: &[&str]) -> ServerProcess {
+        Self::spawn_with_env(args, &[])
+    }
+
+    /// [`ServerProcess::spawn`] with environment variables set (configuration, as
+    /// `TRINOCULAR__SECTION__KEY`).
+    pub fn spawn_with_env(args: &[&str], env: &[(&str, &str)]) -> ServerProcess {
         use std::io::BufRead;
         let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
             .args([
@@ -108,6 +125,7 @@ impl ServerProcess {
                 "64",
             ])
             .args(args)
+            .envs(env.iter().copied())
             .env("RUST_LOG", "info")
             .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::piped())

@@ -364,7 +364,8 @@ fn bad_images_are_named() {
                 good.clone(),
                 good.clone(),
             ],
-            "images.images[0]",
+            // Refused from its header, before decoding: not the camera's size.
+            "images.images[0].encoded",
         ),
         (
             vec![

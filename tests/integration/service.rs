@@ -7,7 +7,7 @@ use prost::Message;
 use trinocular::api::{self, pb};
 use trinocular::service::{server, Limits};
 
-use crate::common::{runtime, JsonBody};
+use crate::common::{example_request, runtime, JsonBody};
 
 async fn start(limits: Limits) -> server::Running {
     let any = "127.0.0.1:0".parse().unwrap();
@@ -30,15 +30,6 @@ fn small_limits() -> Limits {
         max_jobs: 8,
         ..Limits::default()
     }
-}
-
-fn example_request() -> pb::MatchRequest {
-    let text = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/examples/request.json"
-    ))
-    .expect("example request");
-    api::from_json("request", &text).expect("valid JSON")
 }
 
 /// What must agree between transports: everything but the timings.
@@ -586,9 +577,11 @@ fn a_running_job_stops_between_stages_once_nobody_waits() {
         let url = format!("http://{}/v1/match", running.http_addr);
         let slow = slow_request().encode_to_vec();
 
-        // Its deadline passes while it runs: 504, and the job stops at its next stage.
+        // Its deadline passes while it runs: 504, and the job stops at its next checkpoint.
+        // (50 ms: long enough for the job to have started on a loaded machine, far shorter
+        // than it runs.)
         let reply = http
-            .post(format!("{url}?timeout_ms=5"))
+            .post(format!("{url}?timeout_ms=50"))
             .header("content-type", "application/x-protobuf")
             .body(slow.clone())
             .send()

@@ -169,7 +169,7 @@ fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
         assert_eq!(got.captures, captures.len() as u64);
         assert_eq!(got.calibration, Some(calibration.clone()));
         let listed = grpc
-            .list_sessions(pb::ListSessionsRequest {})
+            .list_sessions(pb::ListSessionsRequest::default())
             .await
             .unwrap()
             .into_inner();

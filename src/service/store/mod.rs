@@ -111,8 +111,38 @@ pub fn check_url(url: &str) -> Result<(), String> {
     }
 }
 
+/// `url` with its password, if any, replaced by `***`: what may be logged of it.
+pub fn redacted(url: &str) -> String {
+    let Some((scheme, rest)) = url.split_once("://") else {
+        return url.to_string();
+    };
+    let Some((credentials, host)) = rest.rsplit_once('@') else {
+        return url.to_string();
+    };
+    match credentials.split_once(':') {
+        Some((user, _password)) => format!("{scheme}://{user}:***@{host}"),
+        None => format!("{scheme}://***@{host}"),
+    }
+}
+
 fn is_redis(url: &str) -> bool {
     url.starts_with("redis://") || url.starts_with("rediss://")
+}
+
+#[cfg(test)]
+#[test]
+fn a_password_is_never_shown() {
+    assert_eq!(
+        redacted("redis://:s3cret@10.0.0.1:6379/2"),
+        "redis://:***@10.0.0.1:6379/2"
+    );
+    assert_eq!(
+        redacted("rediss://app:s3cret@cache:6380"),
+        "rediss://app:***@cache:6380"
+    );
+    assert_eq!(redacted("redis://token@cache"), "redis://***@cache");
+    assert_eq!(redacted("redis://cache:6379"), "redis://cache:6379");
+    assert_eq!(redacted("embedded"), "embedded");
 }
 
 /// Milliseconds since the Unix epoch (0 for a clock before 1970, which cannot happen in practice

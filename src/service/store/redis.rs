@@ -205,6 +205,8 @@ impl RedisStore {
 /// A Redis error as a store error: a reply of the wrong shape is corrupt data, anything else
 /// (refused, timed out, dropped, a server error) is the server being unavailable.
 fn unavailable(url: &str, e: &RedisError) -> StoreError {
+    // These messages reach clients (UNAVAILABLE) and the log: never the password.
+    let url = super::redacted(url);
     if matches!(
         e.kind(),
         redis::ErrorKind::Parse | redis::ErrorKind::UnexpectedReturnType
@@ -355,7 +357,7 @@ impl SessionStore for RedisStore {
     }
 
     fn describe(&self) -> String {
-        format!("redis at {}", self.url)
+        format!("redis at {}", super::redacted(&self.url))
     }
 }
 

@@ -344,9 +344,13 @@ class Client:
     """
 
     def __init__(self, target: str = "localhost:50051", timeout: Optional[float] = None,
-                 max_message_mib: int = 64, channel: Optional[grpc.Channel] = None):
+                 max_message_mib: int = 64, channel: Optional[grpc.Channel] = None,
+                 api_key: Optional[str] = None):
+        """`api_key`: sent as `authorization: Bearer <key>` on every call, for a service
+        started with API keys (its sessions are then this key's own)."""
         self.target = target
         self.timeout = timeout
+        self._metadata = [("authorization", f"Bearer {api_key}")] if api_key else None
         n = max_message_mib * 1024 * 1024
         self._channel = channel or grpc.insecure_channel(
             target,
@@ -365,7 +369,8 @@ class Client:
 
     def _call(self, name: str, request, default_field: Optional[str] = None):
         try:
-            return getattr(self._stub, name)(request, timeout=self.timeout)
+            return getattr(self._stub, name)(request, timeout=self.timeout,
+                                             metadata=self._metadata)
         except grpc.RpcError as e:
             raise from_rpc_error(e, default_field) from None
 
@@ -459,8 +464,14 @@ class Client:
                                           "session_id"))
 
     def list_sessions(self) -> List[Session]:
-        r = self._call("ListSessions", pb.ListSessionsRequest())
-        return [Session.from_pb(s) for s in r.sessions]
+        """Every session of this key (the service answers a page at a time)."""
+        sessions, token = [], ""
+        while True:
+            r = self._call("ListSessions", pb.ListSessionsRequest(page_size=1000, page_token=token))
+            sessions.extend(Session.from_pb(s) for s in r.sessions)
+            if not r.next_page_token:
+                return sessions
+            token = r.next_page_token
 
     def delete_session(self, session_id: str) -> None:
         self._call("DeleteSession", pb.DeleteSessionRequest(session_id=session_id), "session_id")

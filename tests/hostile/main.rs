@@ -1,0 +1,821 @@
+//! The hostile client: every finding of the hardening review replayed against a real server
+//! on ephemeral ports, over both transports where both apply. Each answer must be a clear
+//! error naming the field or a bounded result, within the request's deadline + 100 ms, and
+//! the service must go on answering a normal Match meanwhile.
+
+#[allow(dead_code)]
+#[path = "../integration/common.rs"]
+mod common;
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use prost::Message;
+use serde_json::{json, Value};
+use tonic::Code;
+use trinocular::api::{self, pb};
+use trinocular::service::{server, Limits, Service};
+
+use common::{example_request, runtime};
+
+/// The deadline guarantee: any request is answered, and its work stopped, within its deadline
+/// plus this.
+const DEADLINE_SLACK: Duration = Duration::from_millis(100);
+
+struct Server {
+    service: Arc<Service>,
+    running: server::Running,
+}
+
+impl Server {
+    async fn start(limits: Limits) -> Server {
+        let service = common::embedded_service(limits).await;
+        let any = "127.0.0.1:0".parse().unwrap();
+        let running = server::start(Arc::clone(&service), any, any)
+            .await
+            .expect("listen");
+        Server { service, running }
+    }
+
+    fn http(&self, path: &str) -> String {
+        format!("http://{}{path}", self.running.http_addr)
+    }
+
+    async fn grpc(&self) -> pb::trinocular_client::TrinocularClient<tonic::transport::Channel> {
+        pb::trinocular_client::TrinocularClient::connect(format!(
+            "http://{}",
+            self.running.grpc_addr
+        ))
+        .await
+        .expect("connect")
+        .max_decoding_message_size(64 << 20)
+        .max_encoding_message_size(64 << 20)
+    }
+
+    /// Waits until no compute job is queued or running: the work of a stopped request ended.
+    async fn idle_within(&self, limit: Duration) -> bool {
+        let start = Instant::now();
+        while start.elapsed() < limit {
+            if self.service.pool().in_flight() == 0 {
+                return true;
+            }
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        false
+    }
+}
+
+fn limits() -> Limits {
+    Limits {
+        threads: 2,
+        max_jobs: 4,
+        ..Limits::default()
+    }
+}
+
+fn lists_of(request: &pb::MatchRequest) -> Vec<pb::SegmentList> {
+    match &request.input {
+        Some(pb::match_request::Input::Segments(t)) => t.lists.clone(),
+        _ => panic!("the example request has segments"),
+    }
+}
+
+fn with_lists(request: &pb::MatchRequest, lists: Vec<pb::SegmentList>) -> pb::MatchRequest {
+    pb::MatchRequest {
+        input: Some(pb::match_request::Input::Segments(pb::SegmentTriplet {
+            lists,
+        })),
+        ..request.clone()
+    }
+}
+
+/// A gRPC request with a deadline.
+fn deadline<T>(message: T, timeout: Duration) -> tonic::Request<T> {
+    let mut request = tonic::Request::new(message);
+    request.set_timeout(timeout);
+    request
+}
+
+/// The normal Match's latency right now, over gRPC.
+async fn normal_match(server: &Server, request: &pb::MatchRequest) -> Duration {
+    let mut client = server.grpc().await;
+    let start = Instant::now();
+    let response = client
+        .r#match(request.clone())
+        .await
+        .expect("a normal Match is answered");
+    assert!(!response.get_ref().segments_3d.is_empty());
+    start.elapsed()
+}
+
+/// The 99th percentile of the normal Match's latency, unloaded (20 calls).
+async fn unloaded_p99(server: &Server, request: &pb::MatchRequest) -> Duration {
+    let mut times = Vec::new();
+    for _ in 0..20 {
+        times.push(normal_match(server, request).await);
+    }
+    times.sort();
+    times[times.len() * 99 / 100]
+}
+
+/// Posts JSON, returning the status and the body as JSON.
+async fn post_json(url: &str, body: &Value) -> (u16, Value) {
+    let response = reqwest::Client::new()
+        .post(url)
+        .header("content-type", "application/json")
+        .body(body.to_string())
+        .send()
+        .await
+        .expect("HTTP answer");
+    let status = response.status().as_u16();
+    let text = response.text().await.expect("body");
+    (
+        status,
+        serde_json::from_str(&text).unwrap_or(Value::String(text)),
+    )
+}
+
+fn board(rows: u32, cols: u32) -> pb::GridBoard {
+    pb::GridBoard {
+        origin: Some(pb::Point3::default()),
+        u_axis: Some(pb::Point3 {
+            x: 1.0,
+            ..Default::default()
+        }),
+        v_axis: Some(pb::Point3 {
+            y: 1.0,
+            ..Default::default()
+        }),
+        rows,
+        cols,
+        square: 0.04,
+        pitch: 0.06,
+        missing: vec![],
+    }
+}
+
+#[test]
+fn a_huge_calibration_board_is_refused_at_once_on_both_transports() {
+    runtime().block_on(async {
+        let server = Server::start(limits()).await;
+        for (rows, cols) in [(u32::MAX, u32::MAX), (1000, 1000), (3000, 3000)] {
+            let request = pb::CalibrateRequest {
+                pattern: Some(pb::CalibrationPattern {
+                    boards: vec![board(rows, cols)],
+                }),
+                input: Some(pb::calibrate_request::Input::Correspondences(
+                    pb::Correspondences::default(),
+                )),
+                ..Default::default()
+            };
+            let start = Instant::now();
+            let status = server
+                .grpc()
+                .await
+                .calibrate(request.clone())
+                .await
+                .unwrap_err();
+            assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+            assert!(status.message().contains("pattern.boards[0].rows"));
+            assert!(status.message().len() < 200, "{}", status.message());
+            let json: Value = serde_json::from_str(&api::to_json(&request)).unwrap();
+            let (code, body) = post_json(&server.http("/v1/calibrate"), &json).await;
+            assert_eq!(code, 400, "{body}");
+            assert_eq!(body["error"]["field"], "pattern.boards[0].rows");
+            assert!(start.elapsed() < Duration::from_secs(1));
+            assert!(server.idle_within(Duration::from_millis(100)).await);
+        }
+    });
+}
+
+#[test]
+fn copies_of_segments_stay_bounded_and_a_crowd_stops_at_its_deadline() {
+    runtime().block_on(async {
+        let server = Server::start(limits()).await;
+        let example = example_request();
+        let p99 = unloaded_p99(&server, &example).await;
+        let lists = lists_of(&example);
+
+        // A thousand exact copies of every segment of one matched triplet (the finding: n³
+        // hypotheses, 8.8 GB for n = 1000): the copies are dropped.
+        let matched = server
+            .grpc()
+            .await
+            .r#match(example.clone())
+            .await
+            .unwrap()
+            .into_inner();
+        let t = &matched.triplets[0];
+        let picked = [t.s1, t.s2, t.s3];
+        let copies: Vec<pb::SegmentList> = (0..3)
+            .map(|v| pb::SegmentList {
+                segments: vec![lists[v].segments[picked[v] as usize]; 1000],
+                ..lists[v].clone()
+            })
+            .collect();
+        let request = with_lists(&example, copies);
+        let answer = server
+            .grpc()
+            .await
+            .r#match(deadline(request.clone(), Duration::from_secs(5)))
+            .await
+            .expect("answered")
+            .into_inner();
+        let stats = answer.stats.unwrap();
+        assert_eq!(stats.duplicates_dropped, vec![999; 3]);
+        assert!(stats.hypotheses <= 1);
+        let json: Value = serde_json::from_str(&api::to_json(&request)).unwrap();
+        let (code, body) = post_json(&server.http("/v1/match"), &json).await;
+        assert_eq!(code, 200, "{body}");
+        assert_eq!(body["stats"]["duplicatesDropped"], json!([999, 999, 999]));
+
+        // The most segments a list may hold, spread at random: stopped at the deadline (or
+        // refused for its hypotheses), its work ended, on both transports.
+        let mut rng = trinocular::synth::rng::Rng::new(5);
+        let crowd: Vec<pb::SegmentList> = (0..3)
+            .map(|_| pb::SegmentList {
+                oriented: false,
+                segments: (0..100_000)
+                    .map(|_| {
+                        let (u, v) = (rng.range(0.0, 512.0), rng.range(0.0, 512.0));
+                        pb::Segment {
+                            u1: u,
+                            v1: v,
+                            u2: (u + rng.symmetric(100.0)).clamp(0.0, 511.0),
+                            v2: (v + rng.symmetric(100.0)).clamp(0.0, 511.0),
+                            ..Default::default()
+                        }
+                    })
+                    .collect(),
+            })
+            .collect();
+        let crowd = with_lists(&example, crowd);
+        let timeout = Duration::from_millis(1500);
+        let hostile = {
+            let request = crowd.clone();
+            let mut client = server.grpc().await;
+            tokio::spawn(async move {
+                let start = Instant::now();
+                let result = client.r#match(deadline(request, timeout)).await;
+                (result.map(|_| ()).unwrap_err(), start.elapsed())
+            })
+        };
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let meanwhile = normal_match(&server, &example).await;
+        let (status, took) = hostile.await.unwrap();
+        assert!(
+            matches!(
+                status.code(),
+                Code::DeadlineExceeded | Code::InvalidArgument
+            ),
+            "{status:?}"
+        );
+        assert!(took <= timeout + DEADLINE_SLACK, "answered after {took:?}");
+        assert!(
+            server.idle_within(DEADLINE_SLACK).await,
+            "its work went on past the deadline"
+        );
+        assert!(
+            meanwhile <= 2 * p99 + Duration::from_millis(5),
+            "a normal Match took {meanwhile:?} meanwhile (unloaded p99 {p99:?})"
+        );
+
+        let body = crowd.encode_to_vec();
+        let start = Instant::now();
+        let response = reqwest::Client::new()
+            .post(server.http("/v1/match?timeout_ms=1500"))
+            .header("content-type", "application/x-protobuf")
+            .body(body)
+            .send()
+            .await
+            .unwrap();
+        assert!(matches!(response.status().as_u16(), 400 | 504));
+        assert!(start.elapsed() <= timeout + DEADLINE_SLACK);
+        assert!(server.idle_within(DEADLINE_SLACK).await);
+    });
+}
+
+/// A raw HTTP/1.1 request that declares `length` body bytes and sends only `sent` of them.
+fn stalled_upload(addr: std::net::SocketAddr, length: usize, sent: usize) -> TcpStream {
+    let mut stream = TcpStream::connect(addr).unwrap();
+    write!(
+        stream,
+        "POST /v1/match HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+         content-length: {length}\r\n\r\n"
+    )
+    .unwrap();
+    stream.write_all(&vec![b' '; sent]).unwrap();
+    stream
+}
+
+/// The status of the answer read from `stream` (0 if the connection closed without one).
+fn status_of(stream: &mut TcpStream, within: Duration) -> u16 {
+    stream.set_read_timeout(Some(within)).unwrap();
+    let mut answer = Vec::new();
+    let mut buf = [0u8; 4096];
+    while let Ok(n) = stream.read(&mut buf) {
+        if n == 0 {
+            break;
+        }
+        answer.extend_from_slice(&buf[..n]);
+        if answer.windows(4).any(|w| w == b"\r\n\r\n") {
+            break;
+        }
+    }
+    String::from_utf8_lossy(&answer)
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0)
+}
+
+#[test]
+fn stalled_uploads_hold_no_more_than_the_body_budget_and_time_out() {
+    runtime().block_on(async {
+        let mut limits = limits();
+        limits.max_message_bytes = 8 << 20;
+        limits.max_body_bytes_in_flight = 16 << 20;
+        limits.connections.body_timeout = Duration::from_secs(1);
+        let server = Server::start(limits).await;
+        let addr = server.running.http_addr;
+        let example = example_request();
+        let started = Instant::now();
+        // Two declared 8 MiB bodies hold the whole budget; the third is refused before a byte
+        // of its body is read.
+        let mut held: Vec<TcpStream> = (0..2).map(|_| stalled_upload(addr, 8 << 20, 10)).collect();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let mut third = stalled_upload(addr, 8 << 20, 10);
+        let status =
+            tokio::task::spawn_blocking(move || status_of(&mut third, Duration::from_secs(1)))
+                .await
+                .unwrap();
+        assert_eq!(status, 429, "refused at once");
+        // Larger than the limit by declaration: 413 without reading it.
+        let mut huge = stalled_upload(addr, 9 << 20, 10);
+        let status =
+            tokio::task::spawn_blocking(move || status_of(&mut huge, Duration::from_secs(1)))
+                .await
+                .unwrap();
+        assert_eq!(status, 413);
+        // Meanwhile a normal Match is answered (it needs no body over gRPC).
+        normal_match(&server, &example).await;
+        // The stalled ones time out after body_timeout.
+        let statuses = tokio::task::spawn_blocking(move || {
+            held.iter_mut()
+                .map(|s| status_of(s, Duration::from_secs(3)))
+                .collect::<Vec<_>>()
+        })
+        .await
+        .unwrap();
+        assert_eq!(statuses, vec![408, 408]);
+        assert!(started.elapsed() < Duration::from_secs(3));
+        // The budget is back: a normal Match over HTTP goes through.
+        let json: Value = serde_json::from_str(&api::to_json(&example)).unwrap();
+        let (code, body) = post_json(&server.http("/v1/match"), &json).await;
+        assert_eq!(code, 200, "{body}");
+    });
+}
+
+#[test]
+fn connections_past_the_cap_get_a_503_and_idle_ones_are_closed() {
+    runtime().block_on(async {
+        let mut limits = limits();
+        limits.connections.max_connections = 4;
+        limits.connections.header_timeout = Duration::from_millis(500);
+        let server = Server::start(limits).await;
+        let addr = server.running.http_addr;
+        let idle: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(addr).unwrap()).collect();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let status = tokio::task::spawn_blocking(move || {
+            let mut fifth = TcpStream::connect(addr).unwrap();
+            status_of(&mut fifth, Duration::from_secs(1))
+        })
+        .await
+        .unwrap();
+        assert_eq!(status, 503);
+        // Sending nothing, they are closed after the header timeout; then the cap has room.
+        let closed = tokio::task::spawn_blocking(move || {
+            idle.into_iter()
+                .map(|mut s| status_of(&mut s, Duration::from_secs(2)))
+                .collect::<Vec<_>>()
+        })
+        .await
+        .unwrap();
+        assert!(closed.iter().all(|&s| s == 0 || s == 408), "{closed:?}");
+        let response = reqwest::get(server.http("/healthz")).await.unwrap();
+        assert_eq!(response.status().as_u16(), 200);
+    });
+}
+
+/// A PNG of `width` × `height` 16-bit RGBA pixels: its header only, no pixel data (nothing
+/// is decoded if the header is refused, which is the point).
+fn png_header(width: u32, height: u32) -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xedb8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        !crc
+    }
+    let chunk = |out: &mut Vec<u8>, kind: &[u8], data: &[u8]| {
+        out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+        let mut body = kind.to_vec();
+        body.extend_from_slice(data);
+        out.extend_from_slice(&body);
+        out.extend_from_slice(&crc32(&body).to_be_bytes());
+    };
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend_from_slice(&width.to_be_bytes());
+    ihdr.extend_from_slice(&height.to_be_bytes());
+    ihdr.extend_from_slice(&[16, 6, 0, 0, 0]); // 16-bit, RGBA
+    chunk(&mut png, b"IHDR", &ihdr);
+    chunk(&mut png, b"IDAT", &[0x78, 0x9c, 0x03, 0x00]);
+    chunk(&mut png, b"IEND", &[]);
+    png
+}
+
+#[test]
+fn a_small_file_of_a_huge_wide_image_is_refused_from_its_header() {
+    runtime().block_on(async {
+        let server = Server::start(limits()).await;
+        let example = example_request();
+        let png = png_header(6000, 6000);
+        let image = || pb::Image {
+            source: Some(pb::image::Source::Encoded(png.clone())),
+        };
+        // Match: not its camera's size (512 x 512), said before decoding.
+        let request = pb::MatchRequest {
+            input: Some(pb::match_request::Input::Images(pb::ImageTriplet {
+                images: vec![image(), image(), image()],
+            })),
+            ..example.clone()
+        };
+        let start = Instant::now();
+        let status = server
+            .grpc()
+            .await
+            .r#match(request.clone())
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), Code::InvalidArgument);
+        assert!(status.message().starts_with("images.images[0].encoded"));
+        assert!(status.message().contains("calibration is for 512 x 512"));
+        let response = reqwest::Client::new()
+            .post(server.http("/v1/match"))
+            .header("content-type", "application/x-protobuf")
+            .body(request.encode_to_vec())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status().as_u16(), 400);
+        // Calibrate (no camera size known yet): 16-bit RGBA at 36 megapixels is more than the
+        // decoded budget.
+        let request = pb::CalibrateRequest {
+            input: Some(pb::calibrate_request::Input::Images(pb::ImageTriplet {
+                images: vec![image(), image(), image()],
+            })),
+            ..Default::default()
+        };
+        let status = server.grpc().await.calibrate(request).await.unwrap_err();
+        assert_eq!(status.code(), Code::InvalidArgument);
+        assert!(status.message().contains("8-bit"), "{}", status.message());
+        assert!(start.elapsed() < Duration::from_secs(1));
+    });
+}
+
+#[test]
+fn sigterm_ends_the_process_within_the_grace_period_with_stalled_clients() {
+    let server = common::ServerProcess::spawn_with_env(
+        &[],
+        &[("TRINOCULAR__SERVER__SHUTDOWN_GRACE_MS", "1000")],
+    );
+    // A half-sent HTTP request, and a gRPC connection that sent its preface and a request's
+    // headers but never its message.
+    let _http = stalled_upload(server.http_addr, 1000, 10);
+    let mut grpc = TcpStream::connect(server.grpc_addr).unwrap();
+    grpc.write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n").unwrap();
+    grpc.write_all(&[0, 0, 0, 4, 0, 0, 0, 0, 0]).unwrap(); // empty SETTINGS
+    std::thread::sleep(Duration::from_millis(200));
+    let pid = server.child.id().to_string();
+    let start = Instant::now();
+    let killed = std::process::Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let mut server = server;
+    loop {
+        if let Some(status) = server.child.try_wait().unwrap() {
+            assert!(status.success(), "{status}");
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(3),
+            "still running 3 s after SIGTERM (grace 1 s)"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Sends `bytes` as the message of a gRPC call to `method`, whatever they are.
+async fn raw_grpc_call(
+    addr: std::net::SocketAddr,
+    method: &'static str,
+    bytes: Vec<u8>,
+) -> tonic::Status {
+    #[derive(Clone, Default)]
+    struct RawCodec;
+    struct RawEncoder;
+    struct RawDecoder;
+    impl tonic::codec::Encoder for RawEncoder {
+        type Item = Vec<u8>;
+        type Error = tonic::Status;
+        fn encode(
+            &mut self,
+            item: Vec<u8>,
+            dst: &mut tonic::codec::EncodeBuf<'_>,
+        ) -> Result<(), tonic::Status> {
+            use bytes::BufMut;
+            dst.put_slice(&item);
+            Ok(())
+        }
+    }
+    impl tonic::codec::Decoder for RawDecoder {
+        type Item = Vec<u8>;
+        type Error = tonic::Status;
+        fn decode(
+            &mut self,
+            src: &mut tonic::codec::DecodeBuf<'_>,
+        ) -> Result<Option<Vec<u8>>, tonic::Status> {
+            use bytes::Buf;
+            Ok(Some(src.copy_to_bytes(src.remaining()).to_vec()))
+        }
+    }
+    impl tonic::codec::Codec for RawCodec {
+        type Encode = Vec<u8>;
+        type Decode = Vec<u8>;
+        type Encoder = RawEncoder;
+        type Decoder = RawDecoder;
+        fn encoder(&mut self) -> RawEncoder {
+            RawEncoder
+        }
+        fn decoder(&mut self) -> RawDecoder {
+            RawDecoder
+        }
+    }
+    let channel = tonic::transport::Channel::from_shared(format!("http://{addr}"))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    let mut grpc = tonic::client::Grpc::new(channel);
+    grpc.ready().await.unwrap();
+    grpc.unary(
+        tonic::Request::new(bytes),
+        tonic::codegen::http::uri::PathAndQuery::from_static(method),
+        RawCodec,
+    )
+    .await
+    .unwrap_err()
+}
+
+#[test]
+fn small_findings_get_clear_errors_on_both_transports() {
+    runtime().block_on(async {
+        let server = Server::start(limits()).await;
+        // Malformed protobuf over gRPC: INVALID_ARGUMENT, counted.
+        let status = raw_grpc_call(
+            server.running.grpc_addr,
+            "/trinocular.v1.Trinocular/Match",
+            vec![0xff, 0xff, 0xff, 0xff, 0x0f],
+        )
+        .await;
+        assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+        assert!(status.message().contains("invalid protobuf"));
+        assert!(server
+            .service
+            .metrics_text()
+            .contains("trinocular_grpc_malformed_messages 1"));
+
+        // Calibration values no camera has: the field is named.
+        let example: Value = serde_json::from_str(&api::to_json(&example_request())).unwrap();
+        type Change = Box<dyn Fn(&mut Value)>;
+        let cases: Vec<(Change, &str)> = vec![
+            (
+                Box::new(|r| r["calibration"]["cameras"][0]["name"] = json!("n".repeat(100_000))),
+                "calibration.cameras[0].name",
+            ),
+            (
+                Box::new(|r| {
+                    r["calibration"]["cameras"][1]["distortion"] =
+                        json!({"k1": 0.0, "k2": 0.0, "k3": 1e15, "p1": 0.0, "p2": 0.0})
+                }),
+                "calibration.cameras[1].distortion.k3",
+            ),
+            (
+                Box::new(|r| {
+                    let cam = &mut r["calibration"]["cameras"][2];
+                    cam.as_object_mut().unwrap().remove("projection");
+                    cam["intrinsics"] =
+                        json!([600.0, 0.0, 256.0, 0.0, 600.0, 256.0, 0.0, 0.0, 1.0]);
+                    cam["rotation"] = json!([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]);
+                    cam["translation"] = json!([1.7e308, 0.0, 0.0]);
+                }),
+                "calibration.cameras[2].translation",
+            ),
+        ];
+        for (change, field) in cases {
+            let mut request = example.clone();
+            change(&mut request);
+            let (code, body) = post_json(&server.http("/v1/match"), &request).await;
+            assert_eq!(code, 400, "{body}");
+            assert_eq!(body["error"]["field"], field);
+            let message: pb::MatchRequest =
+                api::from_json("request", &request.to_string()).unwrap();
+            let status = server.grpc().await.r#match(message).await.unwrap_err();
+            assert_eq!(status.code(), Code::InvalidArgument);
+            assert!(status.message().starts_with(field), "{}", status.message());
+        }
+        // P scaled by 1e300 is the same camera: accepted, the same answer.
+        let mut scaled = example.clone();
+        for p in scaled["calibration"]["cameras"][0]["projection"]
+            .as_array_mut()
+            .unwrap()
+        {
+            *p = json!(p.as_f64().unwrap() * 1e300);
+        }
+        let (code, body) = post_json(&server.http("/v1/match"), &scaled).await;
+        assert_eq!(code, 200, "{body}");
+        let (_, plain) = post_json(&server.http("/v1/match"), &example).await;
+        let indices = |v: &Value| -> Vec<(Value, Value, Value)> {
+            v["triplets"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|t| (t["s1"].clone(), t["s2"].clone(), t["s3"].clone()))
+                .collect()
+        };
+        assert_eq!(indices(&body), indices(&plain), "the same triplets");
+
+        // A session id of 10,000 characters is refused without being echoed or stored.
+        let long = "x".repeat(10_000);
+        let response = reqwest::get(server.http(&format!("/v1/sessions/{long}")))
+            .await
+            .unwrap();
+        assert_eq!(response.status().as_u16(), 400);
+        assert!(response.text().await.unwrap().len() < 1500);
+    });
+}
+
+#[test]
+fn api_keys_keep_each_tenant_to_its_own_sessions_a_page_at_a_time() {
+    runtime().block_on(async {
+        let keys = trinocular::service::auth::ApiKeys::parse(
+            Some("robot-a aaaaaaaaaaaaaaaaaaaa\nrobot-b bbbbbbbbbbbbbbbbbbbb\n"),
+            None,
+        )
+        .unwrap();
+        let dir = common::scratch_dir("hostile-auth");
+        let store = trinocular::service::store::open("embedded", &dir, common::TEST_SESSION_TTL)
+            .await
+            .unwrap();
+        let service = Arc::new(
+            Service::new(limits(), store, common::TEST_SESSION_TTL)
+                .unwrap()
+                .with_api_keys(keys, 3),
+        );
+        let any = "127.0.0.1:0".parse().unwrap();
+        let running = server::start(Arc::clone(&service), any, any).await.unwrap();
+        let server = Server { service, running };
+        let http = reqwest::Client::new();
+        let calibration: Value = serde_json::from_str(&api::to_json(&example_request())).unwrap();
+        let create = json!({"name": "room", "calibration": calibration["calibration"]});
+
+        // No key, or a wrong one: 401 / UNAUTHENTICATED; the probes stay open.
+        let response = http.get(server.http("/v1/sessions")).send().await.unwrap();
+        assert_eq!(response.status().as_u16(), 401);
+        assert_eq!(response.headers()["www-authenticate"], "Bearer");
+        let response = http
+            .get(server.http("/v1/sessions"))
+            .bearer_auth("not-a-key-not-a-key")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status().as_u16(), 401);
+        let status = server
+            .grpc()
+            .await
+            .list_sessions(pb::ListSessionsRequest::default())
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), Code::Unauthenticated);
+        for probe in ["/healthz", "/readyz", "/metrics"] {
+            let response = http.get(server.http(probe)).send().await.unwrap();
+            assert_eq!(response.status().as_u16(), 200, "{probe}");
+        }
+
+        // A's sessions: three, then the quota.
+        let mut ids = Vec::new();
+        for attempt in 0..4 {
+            let response = http
+                .post(server.http("/v1/sessions"))
+                .bearer_auth("aaaaaaaaaaaaaaaaaaaa")
+                .header("content-type", "application/json")
+                .body(create.to_string())
+                .send()
+                .await
+                .unwrap();
+            if attempt == 3 {
+                assert_eq!(response.status().as_u16(), 429, "the quota of 3");
+                break;
+            }
+            assert_eq!(response.status().as_u16(), 200);
+            let body: Value = serde_json::from_str(&response.text().await.unwrap()).unwrap();
+            ids.push(body["id"].as_str().unwrap().to_string());
+        }
+
+        // B sees none of them, and cannot reach one by its id, over either transport.
+        fn with_key<T>(key: &str, message: T) -> tonic::Request<T> {
+            let mut request = tonic::Request::new(message);
+            request
+                .metadata_mut()
+                .insert("authorization", format!("Bearer {key}").parse().unwrap());
+            request
+        }
+        let listed = server
+            .grpc()
+            .await
+            .list_sessions(with_key(
+                "bbbbbbbbbbbbbbbbbbbb",
+                pb::ListSessionsRequest::default(),
+            ))
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(listed.sessions.is_empty());
+        let status = server
+            .grpc()
+            .await
+            .get_session(with_key(
+                "bbbbbbbbbbbbbbbbbbbb",
+                pb::GetSessionRequest {
+                    session_id: ids[0].clone(),
+                },
+            ))
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), Code::NotFound);
+        assert!(!status.message().contains("robot-a"));
+        let response = http
+            .delete(server.http(&format!("/v1/sessions/{}", ids[0])))
+            .bearer_auth("bbbbbbbbbbbbbbbbbbbb")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status().as_u16(), 404);
+
+        // A lists its own, two per page.
+        let mut seen = Vec::new();
+        let mut token = String::new();
+        loop {
+            let page = server
+                .grpc()
+                .await
+                .list_sessions(with_key(
+                    "aaaaaaaaaaaaaaaaaaaa",
+                    pb::ListSessionsRequest {
+                        page_size: 2,
+                        page_token: token.clone(),
+                    },
+                ))
+                .await
+                .unwrap()
+                .into_inner();
+            assert!(page.sessions.len() <= 2);
+            seen.extend(page.sessions.into_iter().map(|s| s.id));
+            if page.next_page_token.is_empty() {
+                break;
+            }
+            token = page.next_page_token;
+        }
+        ids.sort();
+        assert_eq!(seen, ids);
+        let response = http
+            .get(server.http("/v1/sessions?page_size=100000"))
+            .bearer_auth("aaaaaaaaaaaaaaaaaaaa")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status().as_u16(), 400);
+    });
+}

@@ -102,6 +102,12 @@ struct ServeArgs {
     /// Log one JSON object per line.
     #[arg(long)]
     log_json: bool,
+    /// TLS on both ports: the server's certificate chain, PEM (with --tls-key).
+    #[arg(long, requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// TLS on both ports: the certificate's private key, PEM (with --tls-cert).
+    #[arg(long, requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -413,6 +419,10 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     if args.log_json {
         config.log.json = true;
     }
+    if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
+        config.tls.cert_file = cert.clone();
+        config.tls.key_file = key.clone();
+    }
     config
         .validate()
         .map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))?;
@@ -475,14 +485,21 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
                 .context("cannot start the service")?
                 .with_api_keys(keys, config.auth.max_sessions_per_key),
         );
-        let running = server::start(
+        let tls = trinocular::service::tls::ServerTls::from_config(
+            &config.tls.cert_file,
+            &config.tls.key_file,
+        )
+        .context("TLS")?;
+        let scheme = if tls.is_some() { "TLS" } else { "plain TCP" };
+        let running = server::start_with_tls(
             Arc::clone(&service),
             config.server.grpc_addr,
             config.server.http_addr,
+            tls,
         )
         .await
         .context("cannot listen")?;
-        tracing::info!(grpc = %running.grpc_addr, http = %running.http_addr, "listening");
+        tracing::info!(grpc = %running.grpc_addr, http = %running.http_addr, transport = scheme, "listening");
         let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
             .context("cannot handle SIGTERM")?;
         tokio::select! {

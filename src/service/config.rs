@@ -48,6 +48,18 @@ pub struct Config {
     pub log: LogConfig,
     pub store: StoreConfig,
     pub auth: AuthConfig,
+    pub tls: TlsConfig,
+}
+
+/// TLS on both ports ([`super::tls`]): a PEM certificate chain and its private key; neither
+/// leaves both ports plain TCP.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct TlsConfig {
+    /// The server's certificate chain, PEM (leaf first); empty: no TLS.
+    pub cert_file: PathBuf,
+    /// Its private key, PEM (PKCS#8, PKCS#1 or SEC1); never logged.
+    pub key_file: PathBuf,
 }
 
 /// API keys ([`super::auth`]): from `keys_file` and the `TRINOCULAR_API_KEYS` variable; none
@@ -282,6 +294,11 @@ impl Config {
         }
         if self.auth.max_sessions_per_key == 0 {
             problems.push("auth.max_sessions_per_key must be at least 1".to_string());
+        }
+        if self.tls.cert_file.as_os_str().is_empty() != self.tls.key_file.as_os_str().is_empty() {
+            problems.push(
+                "tls.cert_file and tls.key_file go together: give both or neither".to_string(),
+            );
         }
         if self.store.session_ttl_s == 0 {
             problems.push("store.session_ttl_s must be at least 1".to_string());

@@ -4,7 +4,9 @@
 //! kept-alive connection, a deadline for each request's body, and a shutdown that waits for
 //! connections only as long as its grace period, then cuts them.
 //!
-//! HTTP/1.1 and HTTP/2 (prior knowledge, for h2c clients) on one port, as before.
+//! HTTP/1.1 and HTTP/2 (prior knowledge, for h2c clients) on one port, as before; with TLS
+//! ([`super::tls`]) the handshake is done on the connection's own task, within the header
+//! timeout, and ALPN picks the protocol.
 
 use std::future::Future;
 use std::io;
@@ -19,7 +21,7 @@ use http_body::{Frame, SizeHint};
 use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto;
 use hyper_util::service::TowerToHyperService;
-use tokio::io::AsyncWriteExt;
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
 use tokio::task::JoinSet;
@@ -53,12 +55,14 @@ impl Default for ConnectionLimits {
 const REFUSAL: &str =
     "{\"error\": {\"code\": \"UNAVAILABLE\", \"message\": \"too many open connections; retry later\"}}\n";
 
-/// Serves `app` on `listener` until `stop` turns true; then stops accepting, lets open
-/// connections finish for `limits.shutdown_grace`, and cuts those still open.
+/// Serves `app` on `listener` (over TLS when `tls` is given) until `stop` turns true; then
+/// stops accepting, lets open connections finish for `limits.shutdown_grace`, and cuts
+/// those still open.
 pub async fn serve(
     listener: TcpListener,
     app: Router,
     limits: ConnectionLimits,
+    tls: Option<tokio_rustls::TlsAcceptor>,
     mut stop: watch::Receiver<bool>,
 ) -> io::Result<()> {
     let mut builder = auto::Builder::new(TokioExecutor::new());
@@ -102,19 +106,34 @@ pub async fn serve(
                     }
                 };
                 let Ok(permit) = Arc::clone(&open).try_acquire_owned() else {
-                    connections.spawn(refuse(stream));
+                    if tls.is_some() {
+                        // A plain-text 503 means nothing to a TLS client, and a handshake
+                        // to send it is the cost the cap is there to avoid: just close.
+                        drop(stream);
+                    } else {
+                        connections.spawn(refuse(stream));
+                    }
                     continue;
                 };
                 let _ = stream.set_nodelay(true);
-                let service = TowerToHyperService::new(app.clone());
-                let connection = builder
-                    .serve_connection_with_upgrades(TokioIo::new(stream), service)
-                    .into_owned();
-                let connection = graceful.watch(connection);
-                connections.spawn(async move {
-                    let _ = connection.await;
-                    drop(permit);
-                });
+                let (builder, app, watcher) = (builder.clone(), app.clone(), graceful.watcher());
+                match &tls {
+                    None => connections.spawn(async move {
+                        serve_connection(builder, app, stream, watcher).await;
+                        drop(permit);
+                    }),
+                    Some(acceptor) => {
+                        let (acceptor, handshake_timeout) = (acceptor.clone(), limits.header_timeout);
+                        connections.spawn(async move {
+                            match tokio::time::timeout(handshake_timeout, acceptor.accept(stream)).await {
+                                Ok(Ok(stream)) => serve_connection(builder, app, stream, watcher).await,
+                                Ok(Err(e)) => tracing::debug!(error = %e, "http: TLS handshake failed"),
+                                Err(_) => tracing::debug!("http: TLS handshake timed out"),
+                            }
+                            drop(permit);
+                        })
+                    }
+                };
             }
         }
     }
@@ -131,6 +150,21 @@ pub async fn serve(
     connections.abort_all();
     while connections.join_next().await.is_some() {}
     Ok(())
+}
+
+/// Serves one connection's requests until it closes or, once shutdown begins, until its
+/// in-flight requests are answered.
+async fn serve_connection<I>(
+    builder: auto::Builder<TokioExecutor>,
+    app: Router,
+    io: I,
+    watcher: hyper_util::server::graceful::Watcher,
+) where
+    I: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
+    let connection =
+        builder.serve_connection_with_upgrades(TokioIo::new(io), TowerToHyperService::new(app));
+    let _ = watcher.watch(connection.into_owned()).await;
 }
 
 /// Answers a connection past the cap with a whole 503, and closes it.

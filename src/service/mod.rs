@@ -19,6 +19,7 @@ pub mod request_id;
 pub mod server;
 pub mod sessions;
 pub mod store;
+pub mod tls;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;

@@ -9,6 +9,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tonic::transport::server::TcpIncoming;
 
+use super::tls::ServerTls;
 use super::Service;
 use crate::api::{grpc, http, pb};
 
@@ -34,11 +35,21 @@ pub struct Running {
     shutdown_grace: std::time::Duration,
 }
 
-/// Binds both addresses (port 0: any free port) and starts serving.
+/// Binds both addresses (port 0: any free port) and starts serving plain TCP.
 pub async fn start(
     service: Arc<Service>,
     grpc_addr: SocketAddr,
     http_addr: SocketAddr,
+) -> std::io::Result<Running> {
+    start_with_tls(service, grpc_addr, http_addr, None).await
+}
+
+/// [`start`], with TLS on both ports when `tls` is given.
+pub async fn start_with_tls(
+    service: Arc<Service>,
+    grpc_addr: SocketAddr,
+    http_addr: SocketAddr,
+    tls: Option<ServerTls>,
 ) -> std::io::Result<Running> {
     let grpc_listener = TcpListener::bind(grpc_addr).await?;
     let http_listener = TcpListener::bind(http_addr).await?;
@@ -71,8 +82,14 @@ pub async fn start(
     // A stalled or half-sent call ends with the longest a body may take plus the longest a
     // request may run (the compute deadline answers before that).
     let call_timeout = connections.body_timeout + service.limits().max_request_time;
+    let mut grpc_server = tonic::transport::Server::builder();
+    if let Some(tls) = &tls {
+        grpc_server = grpc_server
+            .tls_config(tls.grpc(connections.header_timeout))
+            .map_err(std::io::Error::other)?;
+    }
     let grpc = tokio::spawn(
-        tonic::transport::Server::builder()
+        grpc_server
             .timeout(call_timeout)
             .http2_keepalive_interval(Some(connections.header_timeout))
             .http2_keepalive_timeout(Some(connections.header_timeout))
@@ -127,6 +144,7 @@ pub async fn start(
         http_listener,
         app,
         connections,
+        tls.as_ref().map(ServerTls::acceptor),
         http_stop,
     ));
     Ok(Running {

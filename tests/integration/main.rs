@@ -8,3 +8,4 @@ mod common;
 mod images;
 mod service;
 mod sessions;
+mod tls;

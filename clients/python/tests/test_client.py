@@ -1,5 +1,6 @@
 """The client against a live server: $TRINOCULAR_BIN (default <repo>/target/release/trinocular)."""
 
+import contextlib
 import json
 import os
 import re
@@ -25,13 +26,14 @@ def _binary() -> Path:
     return b
 
 
-@pytest.fixture(scope="session")
-def server():
-    """Starts `trinocular serve` on ephemeral ports; yields (grpc_addr, http_addr)."""
+@contextlib.contextmanager
+def _serve(*extra_args, env=None):
+    """`trinocular serve` on ephemeral ports with `extra_args`; yields (grpc_addr, http_addr)."""
     proc = subprocess.Popen(
         [str(_binary()), "serve", "--grpc-addr", "127.0.0.1:0", "--http-addr", "127.0.0.1:0",
-         "--store", "memory", "--threads", "2"],
+         "--store", "memory", "--threads", "2", *extra_args],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, **(env or {})},
     )
     found = {}
     ready = threading.Event()
@@ -57,6 +59,13 @@ def server():
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@pytest.fixture(scope="session")
+def server():
+    """The plain-TCP server most tests share; yields (grpc_addr, http_addr)."""
+    with _serve() as addrs:
+        yield addrs
 
 
 @pytest.fixture(scope="session")
@@ -318,3 +327,27 @@ def test_calibrate_blank_images(client):
 
 def test_version():
     assert trinocular.__version__
+
+
+def test_tls_with_a_private_certificate_and_an_api_key(tmp_path, demo):
+    """The docs' Python form: `Client(target, ca_cert=..., api_key=...)` against
+    `serve --tls-cert --tls-key`; a client without TLS gets UNAVAILABLE."""
+    trustme = pytest.importorskip("trustme", reason="trustme (pip) makes the test certificate")
+    ca = trustme.CA()
+    issued = ca.issue_cert("localhost", "127.0.0.1")
+    cert, key, root = tmp_path / "cert.pem", tmp_path / "key.pem", tmp_path / "ca.pem"
+    issued.cert_chain_pems[0].write_to_path(str(cert))
+    issued.private_key_pem.write_to_path(str(key))
+    ca.cert_pem.write_to_path(str(root))
+    api_key = "python-tls-test-key-0123456789"
+    with _serve("--tls-cert", str(cert), "--tls-key", str(key),
+                env={"TRINOCULAR_API_KEYS": f"py:{api_key}"}) as (grpc_addr, _):
+        port = grpc_addr.rsplit(":", 1)[1]
+        with Client(f"localhost:{port}", timeout=60, ca_cert=root, api_key=api_key) as c:
+            r = c.match_images(demo / "calibration.json", *_paths(demo))
+            assert len(r.segments_3d) > 0
+            s = c.create_session(demo / "calibration.json", name="over-tls")
+            assert c.get_session(s.id).id == s.id
+        with Client(f"localhost:{port}", timeout=5, api_key=api_key) as plain:
+            with pytest.raises(TrinocularError):
+                plain.match_images(demo / "calibration.json", *_paths(demo))

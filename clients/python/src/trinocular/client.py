@@ -345,17 +345,29 @@ class Client:
 
     def __init__(self, target: str = "localhost:50051", timeout: Optional[float] = None,
                  max_message_mib: int = 64, channel: Optional[grpc.Channel] = None,
-                 api_key: Optional[str] = None):
+                 api_key: Optional[str] = None, tls: bool = False,
+                 ca_cert: Union[str, Path, bytes, None] = None):
         """`api_key`: sent as `authorization: Bearer <key>` on every call, for a service
-        started with API keys (its sessions are then this key's own)."""
+        started with API keys (its sessions are then this key's own).
+
+        `tls=True`: the server serves TLS (`--tls-cert`/`--tls-key`) and its certificate is
+        trusted by the system; `ca_cert` (a PEM file's path, or its bytes): trust this
+        certificate (a private CA or a self-signed server certificate) instead, which implies
+        TLS. `target`'s host must be a name the certificate carries."""
         self.target = target
         self.timeout = timeout
         self._metadata = [("authorization", f"Bearer {api_key}")] if api_key else None
         n = max_message_mib * 1024 * 1024
-        self._channel = channel or grpc.insecure_channel(
-            target,
-            options=[("grpc.max_send_message_length", n), ("grpc.max_receive_message_length", n)],
-        )
+        options = [("grpc.max_send_message_length", n), ("grpc.max_receive_message_length", n)]
+        if channel is not None:
+            self._channel = channel
+        elif tls or ca_cert is not None:
+            if isinstance(ca_cert, (str, Path)):
+                ca_cert = Path(ca_cert).read_bytes()
+            credentials = grpc.ssl_channel_credentials(root_certificates=ca_cert)
+            self._channel = grpc.secure_channel(target, credentials, options=options)
+        else:
+            self._channel = grpc.insecure_channel(target, options=options)
         self._stub = pb_grpc.TrinocularStub(self._channel)
 
     def close(self) -> None:

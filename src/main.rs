@@ -448,7 +448,16 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
         limits = ?limits,
         "effective configuration"
     );
-    let runtime = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
+    let network_nice = config.compute.network_nice;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .on_thread_start(move || {
+            if let Err(e) = trinocular::service::priority::lower_this_thread(network_nice) {
+                tracing::warn!(error = %e, "cannot lower the network threads' priority");
+            }
+        })
+        .build()
+        .context("cannot start the async runtime")?;
     runtime.block_on(async {
         let ttl = config.store.session_ttl();
         let store = store::open(&config.store.url, &config.store.data_dir, ttl)

@@ -16,6 +16,7 @@
 //! Errors are `{"error": {"code": "INVALID_ARGUMENT", "field": "...", "message": "..."}}` with
 //! the HTTP status of the gRPC code.
 
+use std::pin::Pin;
 use std::sync::Arc;
 
 use axum::body::Bytes;
@@ -123,7 +124,12 @@ async fn admit(
         // A small body is read and dropped so the connection stays open for the client's
         // retry: a new connection per refusal costs both sides more than the bytes.
         if declared.is_some_and(|n| n <= DRAIN_BEFORE_REFUSING) {
-            let _ = Bytes::from_request(request, &()).await;
+            // Frame by frame, dropped as they come: nothing gathered or copied.
+            let mut body = request.into_body();
+            while let Some(Ok(_)) =
+                std::future::poll_fn(|cx| http_body::Body::poll_frame(Pin::new(&mut body), cx))
+                    .await
+            {}
         }
         return refuse(ServiceError::Busy {
             max_jobs: service.limits().max_jobs,

@@ -13,6 +13,7 @@
 //! [compute]
 //! threads = 2          # 0: one per core
 //! max_jobs = 4         # 0: two per thread
+//! network_nice = 10    # the network threads this many nice levels below the compute threads
 //! [limits]
 //! max_message_mib = 32
 //! max_image_pixels = 40000000
@@ -144,13 +145,26 @@ pub struct ServerConfig {
     pub shutdown_grace_ms: u64,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ComputeConfig {
     /// Compute threads; 0: one per core.
     pub threads: usize,
     /// Jobs queued or running at once; 0: two per thread.
     pub max_jobs: usize,
+    /// How many nice levels below the compute threads the network threads run (0 to 19; 0:
+    /// the same), so that under overload the CPU goes to admitted work ([`super::priority`]).
+    pub network_nice: i32,
+}
+
+impl Default for ComputeConfig {
+    fn default() -> Self {
+        ComputeConfig {
+            threads: 0,
+            max_jobs: 0,
+            network_nice: super::priority::DEFAULT_NETWORK_NICE,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -272,6 +286,12 @@ impl Config {
             problems.push(format!(
                 "limits.max_bodies_mib must be at least limits.max_message_mib ({}), got {}",
                 self.limits.max_message_mib, self.limits.max_bodies_mib
+            ));
+        }
+        if !(0..=19).contains(&self.compute.network_nice) {
+            problems.push(format!(
+                "compute.network_nice must be 0 to 19, got {}",
+                self.compute.network_nice
             ));
         }
         if self.server.max_connections == 0 {

@@ -15,6 +15,7 @@ pub mod error;
 pub mod http_server;
 pub mod metrics;
 pub mod pool;
+pub mod priority;
 pub mod request_id;
 pub mod server;
 pub mod sessions;

@@ -83,9 +83,13 @@ struct ServeArgs {
     /// Largest request, MiB (default 32).
     #[arg(long)]
     max_message_mib: Option<usize>,
-    /// Largest image, pixels (default 40,000,000).
+    /// Largest image, pixels (default 12,000,000).
     #[arg(long)]
     max_image_pixels: Option<u64>,
+    /// The compute jobs' working memory at once, MiB (default 1024): each request reserves
+    /// its estimate (28 bytes per image pixel, 512 per segment) before it runs.
+    #[arg(long)]
+    max_working_mib: Option<u64>,
     /// Most segments in one list of a request (default 100,000).
     #[arg(long)]
     max_segments_per_list: Option<usize>,
@@ -403,6 +407,9 @@ fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     }
     if let Some(n) = args.max_image_pixels {
         config.limits.max_image_pixels = n;
+    }
+    if let Some(n) = args.max_working_mib {
+        config.limits.max_working_mib = n;
     }
     if let Some(n) = args.max_segments_per_list {
         config.limits.max_segments_per_list = n;

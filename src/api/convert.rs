@@ -387,6 +387,63 @@ pub struct RequestLimits {
     pub max_segments_per_list: usize,
 }
 
+/// What a Match request brings, counted without decoding anything: pixels from the images'
+/// headers (a raw image: its bytes), segments from the lists' lengths. The service estimates
+/// a job's working memory from these before it runs. An image that decoding will refuse
+/// from its header anyway (not its camera's size, or over the pixel limit) counts nothing,
+/// so that its answer names it rather than the memory it would have needed.
+pub fn request_size(request: &pb::MatchRequest, limits: &DecodeLimits) -> (u64, u64) {
+    match &request.input {
+        Some(pb::match_request::Input::Images(triplet)) => {
+            let cameras = request.calibration.as_ref().map(|c| c.cameras.as_slice());
+            let size_of = |i: usize| cameras.and_then(|c| c.get(i)).map(|c| (c.width, c.height));
+            (triplet_pixels(triplet, limits, size_of), 0)
+        }
+        Some(pb::match_request::Input::Segments(pb::SegmentTriplet { lists })) => {
+            (0, lists.iter().map(|l| l.segments.len() as u64).sum())
+        }
+        None => (0, 0),
+    }
+}
+
+/// The pixels of a triplet's images (at most its first three) that will be decoded, from
+/// their headers: an image over the pixel limit, or not of the size `expected(i)` gives,
+/// counts nothing.
+pub fn triplet_pixels(
+    triplet: &pb::ImageTriplet,
+    limits: &DecodeLimits,
+    expected: impl Fn(usize) -> Option<(u32, u32)>,
+) -> u64 {
+    triplet
+        .images
+        .iter()
+        .take(3)
+        .enumerate()
+        .map(|(i, image)| {
+            let size = match &image.source {
+                Some(pb::image::Source::Encoded(bytes)) => decode::dimensions(bytes, limits),
+                Some(pb::image::Source::Raw(raw)) => Some((raw.width, raw.height)),
+                None => None,
+            };
+            match size {
+                Some((w, h)) if expected(i).is_none_or(|e| e == (w, h)) => {
+                    let pixels = u64::from(w) * u64::from(h);
+                    let raw_bytes = match &image.source {
+                        Some(pb::image::Source::Raw(raw)) => raw.data.len() as u64,
+                        _ => pixels,
+                    };
+                    if pixels <= limits.max_pixels && raw_bytes == pixels {
+                        pixels
+                    } else {
+                        0
+                    }
+                }
+                _ => 0,
+            }
+        })
+        .sum()
+}
+
 /// Segments per list accepted by default: ten times the densest real scene we have seen.
 pub const MAX_SEGMENTS_PER_LIST: usize = 100_000;
 

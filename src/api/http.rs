@@ -196,7 +196,9 @@ pub fn error_response(e: &ServiceError) -> Response {
         .into_response();
     if matches!(
         e,
-        ServiceError::Busy { .. } | ServiceError::BodiesInFlight { .. }
+        ServiceError::Busy { .. }
+            | ServiceError::BodiesInFlight { .. }
+            | ServiceError::MemoryBusy { .. }
     ) {
         response
             .headers_mut()

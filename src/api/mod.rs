@@ -15,8 +15,9 @@ pub mod session;
 
 pub use convert::{
     calibration_to_pb, camera_to_pb, extract_params, images, match_params, match_request,
-    match_response, rig_from_calibration, segment_list_to_pb, segment_lists, Executed, MatchInput,
-    MatchSource, RequestLimits, RunError, MAX_SEGMENTS_PER_LIST,
+    match_response, request_size, rig_from_calibration, segment_list_to_pb, segment_lists,
+    triplet_pixels, Executed, MatchInput, MatchSource, RequestLimits, RunError,
+    MAX_SEGMENTS_PER_LIST,
 };
 pub use fast_json::match_request_from_json;
 

@@ -44,12 +44,14 @@ const DECODED_BYTES_PER_PIXEL: u64 = 3;
 
 /// Bounds on what [`decode`] and [`from_raw`] accept.
 ///
-/// The defaults fit nearly every industrial and consumer camera while bounding the memory
-/// one request can take: 40 megapixels (8000 × 5000) decodes to at most 160 MB of `f32`
-/// grey, plus, transiently, the decoded file (120 MB for 8-bit RGB). 32 MiB of encoded data
-/// holds such an image as a high-quality JPEG or a typical PNG; uncompressed files (PGM,
-/// BMP) fit up to 33 megapixels of 8-bit grey, beyond which a client can send raw pixels
-/// ([`from_raw`]), to which the byte limit does not apply.
+/// The defaults fit most industrial and consumer cameras while bounding the memory one
+/// request can take: 12 megapixels (4000 × 3000) decodes to at most 48 MB of `f32` grey,
+/// plus, transiently, the decoded file (36 MB for 8-bit RGB), and extracting segments from
+/// three such images needs up to about 1 GB (28 bytes a pixel on the worst content), which is
+/// what the service's default working-memory budget allows one request. 32 MiB of encoded
+/// data holds such an image as a JPEG or PNG, or uncompressed (PGM, BMP) as 8-bit grey;
+/// beyond that a client can send raw pixels ([`from_raw`]), to which the byte limit does not
+/// apply.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DecodeLimits {
     /// Largest encoded upload accepted, in bytes (checked before anything else).
@@ -62,7 +64,7 @@ impl Default for DecodeLimits {
     fn default() -> Self {
         DecodeLimits {
             max_bytes: 32 * 1024 * 1024,
-            max_pixels: 40_000_000,
+            max_pixels: 12_000_000,
         }
     }
 }
@@ -204,6 +206,17 @@ pub fn decode_sized(
     }
     let decoded = DynamicImage::from_decoder(decoder).map_err(|e| image_error(name, e))?;
     to_grey(&decoded)
+}
+
+/// An encoded image's width and height from its header alone (no pixel decoded), or `None`
+/// when the header cannot be read (decoding will then say why).
+pub fn dimensions(bytes: &[u8], limits: &DecodeLimits) -> Option<(u32, u32)> {
+    let mut reader = ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .ok()?;
+    format_name(reader.format()?)?;
+    reader.limits(image_limits(limits));
+    reader.into_dimensions().ok()
 }
 
 /// Wraps a raw 8-bit grey buffer, row by row, one byte per pixel, `width × height` bytes.
@@ -735,7 +748,7 @@ mod tests {
             DecodeError::TooManyPixels {
                 width: 100_000,
                 height: 100_000,
-                max: 40_000_000
+                max: DecodeLimits::default().max_pixels
             }
         );
         // Just under the limit, the header passes and the missing pixel data is reported.
@@ -789,7 +802,7 @@ mod tests {
             Err(DecodeError::TooManyPixels {
                 width: u32::MAX,
                 height: u32::MAX,
-                max: 40_000_000
+                max: DecodeLimits::default().max_pixels
             })
         );
     }

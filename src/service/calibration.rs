@@ -23,9 +23,19 @@ impl Service {
             max_bytes: self.limits.max_message_bytes,
             max_pixels: self.limits.max_image_pixels,
         };
-        let job = self.pool.run(move |abandoned| -> Result<_, api::RunError> {
+        let working = std::sync::Arc::clone(&self.working);
+        let job = self.pool.run(move |abandoned| -> Result<_, ServiceError> {
             let stop = || abandoned.is_set();
-            api::calibrate::calibrate_request(&read()?, &limits)?.run_until(Checkpoint::new(&stop))
+            let request = read()?;
+            let pixels = match &request.input {
+                Some(pb::calibrate_request::Input::Images(triplet)) => {
+                    api::triplet_pixels(triplet, &limits, |_| None)
+                }
+                _ => 0,
+            };
+            let _reserved = super::reserve(&working, super::memory::estimate(pixels, 0), "images")?;
+            Ok(api::calibrate::calibrate_request(&request, &limits)?
+                .run_until(Checkpoint::new(&stop))?)
         });
         let result = super::within(job, self.deadline(timeout)).await;
         self.observe(transport, "calibrate", start, &result);

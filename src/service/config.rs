@@ -16,10 +16,11 @@
 //! network_nice = 10    # the network threads this many nice levels below the compute threads
 //! [limits]
 //! max_message_mib = 32
-//! max_image_pixels = 40000000
+//! max_image_pixels = 12000000
 //! max_segments_per_list = 100000
 //! max_request_ms = 60000   # a request's deadline when it gives none, and the cap on its own
 //! max_bodies_mib = 128     # request bodies held at once, reserved before they are read
+//! max_working_mib = 1024   # the compute jobs' working memory, reserved from an estimate
 //! [log]
 //! json = false
 //! level = "info"
@@ -177,6 +178,8 @@ pub struct LimitsConfig {
     pub max_request_ms: u64,
     /// Request bodies held at once, MiB (reserved before they are read).
     pub max_bodies_mib: usize,
+    /// The compute jobs' working memory at once, MiB (each reserves its estimate first).
+    pub max_working_mib: u64,
 }
 
 impl Default for ServerConfig {
@@ -197,16 +200,22 @@ impl Default for LimitsConfig {
     fn default() -> Self {
         LimitsConfig {
             max_message_mib: 32,
-            max_image_pixels: 40_000_000,
+            max_image_pixels: crate::extract::DecodeLimits::default().max_pixels,
             max_segments_per_list: crate::api::MAX_SEGMENTS_PER_LIST,
             max_request_ms: super::MAX_REQUEST_TIME.as_millis() as u64,
             max_bodies_mib: super::Limits::default().max_body_bytes_in_flight >> 20,
+            max_working_mib: super::Limits::default().max_working_bytes >> 20,
         }
     }
 }
 
 /// Longest request time accepted by configuration: an hour, as for `timeout_ms`.
 const MAX_REQUEST_MS: u64 = 3_600_000;
+
+/// The working-memory budget accepted by configuration, MiB: at least one small request's,
+/// at most a terabyte.
+const MIN_WORKING_MIB: u64 = 16;
+const MAX_WORKING_MIB: u64 = 1 << 20;
 
 /// Largest request accepted by configuration, MiB.
 const MAX_MESSAGE_MIB: usize = 1024;
@@ -271,6 +280,12 @@ impl Config {
             problems.push(format!(
                 "log.level: {:?} is not a log filter",
                 self.log.level
+            ));
+        }
+        if !(MIN_WORKING_MIB..=MAX_WORKING_MIB).contains(&self.limits.max_working_mib) {
+            problems.push(format!(
+                "limits.max_working_mib must be {MIN_WORKING_MIB} to {MAX_WORKING_MIB}, got {}",
+                self.limits.max_working_mib
             ));
         }
         if self.limits.max_image_pixels == 0 {
@@ -350,6 +365,7 @@ impl Config {
             max_segments_per_list: self.limits.max_segments_per_list,
             max_request_time: Duration::from_millis(self.limits.max_request_ms),
             max_body_bytes_in_flight: self.limits.max_bodies_mib << 20,
+            max_working_bytes: self.limits.max_working_mib << 20,
             connections: super::http_server::ConnectionLimits {
                 max_connections: self.server.max_connections,
                 header_timeout: Duration::from_millis(self.server.header_timeout_ms),

@@ -30,6 +30,12 @@ pub enum ServiceError {
          (limits.max_bodies_mib); retry later"
     )]
     BodiesInFlight { limit_bytes: usize },
+    /// The compute jobs running hold the working-memory budget: retry after a moment.
+    #[error(
+        "the jobs running hold the service's {} MiB of working memory \
+         (limits.max_working_mib); retry later", limit_bytes >> 20
+    )]
+    MemoryBusy { limit_bytes: u64 },
     /// The request body did not arrive in time.
     #[error("the request body did not arrive within {seconds} s (server.body_timeout_ms)")]
     BodyTimeout { seconds: f64 },
@@ -80,6 +86,7 @@ impl ServiceError {
             ServiceError::Input(_) => Code::InvalidArgument,
             ServiceError::Busy { .. }
             | ServiceError::BodiesInFlight { .. }
+            | ServiceError::MemoryBusy { .. }
             | ServiceError::QuotaExceeded { .. } => Code::ResourceExhausted,
             ServiceError::Unauthenticated { .. } => Code::Unauthenticated,
             ServiceError::BodyTimeout { .. } => Code::DeadlineExceeded,
@@ -100,6 +107,7 @@ impl ServiceError {
             ServiceError::NotFound { field, .. } => Some(field),
             ServiceError::Busy { .. }
             | ServiceError::BodiesInFlight { .. }
+            | ServiceError::MemoryBusy { .. }
             | ServiceError::Unauthenticated { .. }
             | ServiceError::QuotaExceeded { .. }
             | ServiceError::BodyTimeout { .. }

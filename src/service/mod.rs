@@ -13,6 +13,7 @@ pub mod calibration;
 pub mod config;
 pub mod error;
 pub mod http_server;
+pub mod memory;
 pub mod metrics;
 pub mod pool;
 pub mod priority;
@@ -63,6 +64,9 @@ pub struct Limits {
     /// largest message when it is not given, before the body is read); past it,
     /// RESOURCE_EXHAUSTED / 429 at once.
     pub max_body_bytes_in_flight: usize,
+    /// Working memory of the compute jobs at once, bytes: each reserves its estimate
+    /// ([`memory`]) before it decodes or extracts anything.
+    pub max_working_bytes: u64,
     /// Connections, header and body timeouts, and the shutdown grace period.
     pub connections: http_server::ConnectionLimits,
 }
@@ -82,6 +86,7 @@ impl Default for Limits {
             max_segments_per_list: api::MAX_SEGMENTS_PER_LIST,
             max_request_time: MAX_REQUEST_TIME,
             max_body_bytes_in_flight: 128 << 20,
+            max_working_bytes: 1 << 30,
             connections: http_server::ConnectionLimits::default(),
         }
     }
@@ -97,6 +102,8 @@ pub struct Service {
     store_ttl: std::time::Duration,
     /// Request-body bytes held now, in KiB permits ([`Limits::max_body_bytes_in_flight`]).
     bodies: Arc<tokio::sync::Semaphore>,
+    /// The compute jobs' working memory ([`Limits::max_working_bytes`]).
+    working: Arc<memory::WorkingMemory>,
     /// The API keys; none: the service is open.
     keys: auth::ApiKeys,
     /// Sessions one key may hold at once.
@@ -130,6 +137,7 @@ impl Service {
             keys: auth::ApiKeys::default(),
             max_sessions_per_key: MAX_SESSIONS_PER_KEY,
             bodies: Arc::new(tokio::sync::Semaphore::new(body_kib)),
+            working: memory::WorkingMemory::new(limits.max_working_bytes),
             pool: ComputePool::new(limits.threads, limits.max_jobs)?,
             limits,
             ready: AtomicBool::new(true),
@@ -184,7 +192,9 @@ impl Service {
         }
         if matches!(
             error,
-            ServiceError::Busy { .. } | ServiceError::BodiesInFlight { .. }
+            ServiceError::Busy { .. }
+                | ServiceError::BodiesInFlight { .. }
+                | ServiceError::MemoryBusy { .. }
         ) {
             // Under overload these come by the thousand a second: a log line each would cost
             // more than the refusal. They are counted (trinocular_rejections_total).
@@ -272,8 +282,13 @@ impl Service {
             max_segments_per_list: self.limits.max_segments_per_list,
         };
         let stopped = Arc::clone(&self.metrics);
-        let job = self.pool.run(move |abandoned| -> Result<_, RunError> {
-            let input = api::match_request(&read()?, &limits)?;
+        let working = Arc::clone(&self.working);
+        let job = self.pool.run(move |abandoned| -> Result<_, ServiceError> {
+            let request = read()?;
+            let (pixels, segments) = api::request_size(&request, &limits.decode);
+            let field = if pixels > 0 { "images" } else { "segments" };
+            let _reserved = reserve(&working, memory::estimate(pixels, segments), field)?;
+            let input = api::match_request(&request, &limits)?;
             let stop = || abandoned.is_set();
             let response = input.run_until(Checkpoint::new(&stop)).inspect_err(|e| {
                 if let RunError::Stopped { stage } = e {
@@ -292,6 +307,27 @@ impl Service {
         let max = self.limits.max_request_time;
         timeout.map_or(max, |t| t.min(max))
     }
+}
+
+/// Reserves a job's working memory, or the error to answer: INVALID_ARGUMENT naming `field`
+/// when the whole budget is too small, RESOURCE_EXHAUSTED when it is taken now.
+pub(crate) fn reserve(
+    working: &Arc<memory::WorkingMemory>,
+    bytes: u64,
+    field: &str,
+) -> Result<memory::Reservation, ServiceError> {
+    working.try_reserve(bytes).map_err(|refused| match refused {
+        memory::Refused::Never { needed, total } => ServiceError::Input(InputError::new(
+            field,
+            format!(
+                "needs about {} MiB of working memory, more than this service's {} MiB \
+                 (limits.max_working_mib): send smaller images or fewer segments",
+                needed.div_ceil(1 << 20),
+                total >> 20
+            ),
+        )),
+        memory::Refused::NotNow { total, .. } => ServiceError::MemoryBusy { limit_bytes: total },
+    })
 }
 
 /// Awaits a compute-pool job, or answers DEADLINE_EXCEEDED past `timeout` and drops the job:

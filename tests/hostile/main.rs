@@ -468,8 +468,15 @@ fn a_small_file_of_a_huge_wide_image_is_refused_from_its_header() {
             .await
             .unwrap_err();
         assert_eq!(status.code(), Code::InvalidArgument);
+        // Over the pixel limit (12 Mpx by default) and not its camera's size: either is said
+        // from the header.
         assert!(status.message().starts_with("images.images[0].encoded"));
-        assert!(status.message().contains("calibration is for 512 x 512"));
+        assert!(
+            status.message().contains("calibration is for 512 x 512")
+                || status.message().contains("pixels"),
+            "{}",
+            status.message()
+        );
         let response = reqwest::Client::new()
             .post(server.http("/v1/match"))
             .header("content-type", "application/x-protobuf")
@@ -478,11 +485,15 @@ fn a_small_file_of_a_huge_wide_image_is_refused_from_its_header() {
             .await
             .unwrap();
         assert_eq!(response.status().as_u16(), 400);
-        // Calibrate (no camera size known yet): 16-bit RGBA at 36 megapixels is more than the
-        // decoded budget.
+        // Calibrate (no camera size known yet): 16-bit RGBA at 9 megapixels, within the pixel
+        // limit, decodes to more than 8-bit RGB at the limit would.
+        let wide = png_header(3000, 3000);
+        let wide_image = || pb::Image {
+            source: Some(pb::image::Source::Encoded(wide.clone())),
+        };
         let request = pb::CalibrateRequest {
             input: Some(pb::calibrate_request::Input::Images(pb::ImageTriplet {
-                images: vec![image(), image(), image()],
+                images: vec![wide_image(), wide_image(), wide_image()],
             })),
             ..Default::default()
         };
@@ -818,4 +829,145 @@ fn api_keys_keep_each_tenant_to_its_own_sessions_a_page_at_a_time() {
             .unwrap();
         assert_eq!(response.status().as_u16(), 400);
     });
+}
+
+/// Three raw images of per-pixel noise (the content that needs the most memory to extract:
+/// an edge nearly everywhere) at `side`², with the example's calibration scaled to that size.
+fn noise_request(side: u32, seed: u64) -> pb::MatchRequest {
+    let mut request = example_request();
+    let calibration = request.calibration.as_mut().unwrap();
+    for camera in &mut calibration.cameras {
+        let scale = f64::from(side) / f64::from(camera.width);
+        camera.width = side;
+        camera.height = side;
+        for p in camera.projection.iter_mut().take(8) {
+            *p *= scale;
+        }
+    }
+    let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut noise = |n: usize| -> Vec<u8> {
+        (0..n)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 24) as u8
+            })
+            .collect()
+    };
+    let image = |data: Vec<u8>| pb::Image {
+        source: Some(pb::image::Source::Raw(pb::RawImage {
+            width: side,
+            height: side,
+            data,
+        })),
+    };
+    let n = (side * side) as usize;
+    request.input = Some(pb::match_request::Input::Images(pb::ImageTriplet {
+        images: vec![image(noise(n)), image(noise(n)), image(noise(n))],
+    }));
+    request
+}
+
+fn peak_rss_mib(pid: u32) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(f64::NAN, |kib| kib / 1024.0)
+}
+
+#[test]
+fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
+    if !std::path::Path::new("/proc/self/status").exists() {
+        eprintln!("SKIPPED working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound: no /proc to read the peak RSS from");
+        return;
+    }
+    // The documented bound (docs/HARDENING.md#memory): base + request bodies + working memory
+    // + 24 MiB per compute thread (what each thread's allocator arena and a refused request's
+    // decoding hold beyond the jobs' use). Base is what an idle server holds (measured below,
+    // before any request). Four compute threads: without the budget four 76 MB jobs would
+    // run at once (~340 MiB).
+    let (bodies_mib, working_mib) = (32.0, 100.0);
+    let server = common::ServerProcess::spawn_with_env(
+        &[
+            "--store",
+            "memory",
+            "--threads",
+            "4",
+            "--max-jobs",
+            "8",
+            "--max-message-mib",
+            "8",
+            "--max-working-mib",
+            "100",
+        ],
+        &[("TRINOCULAR__LIMITS__MAX_BODIES_MIB", "32")],
+    );
+    let base_mib = peak_rss_mib(server.child.id());
+    // Over HTTP, whose bodies are reserved from their budget before they are read (gRPC
+    // messages are buffered by tonic before any handler: docs/HARDENING.md#memory).
+    let url = format!("http://{}/v1/match", server.http_addr);
+    let rt = runtime();
+    let outcomes = rt.block_on(async move {
+        let post = move |request: pb::MatchRequest| {
+            let url = url.clone();
+            async move {
+                let response = reqwest::Client::new()
+                    .post(url)
+                    .header("content-type", "application/x-protobuf")
+                    .body(request.encode_to_vec())
+                    .send()
+                    .await
+                    .expect("an answer");
+                let status = response.status().as_u16();
+                (status, response.text().await.unwrap_or_default())
+            }
+        };
+        // More than the whole budget (3 × 1.44 Mpx × 28 B = 121 MB): never runs, said at once.
+        let (status, body) = post(noise_request(1200, 9)).await;
+        assert_eq!(status, 400, "{body}");
+        assert!(
+            body.contains("\"field\":\"images\"") && body.contains("limits.max_working_mib"),
+            "{body}"
+        );
+        // Eight at once, each 3 × 1 Mpx (88 MB estimated): one runs at a time; the others are
+        // refused as a full pool is, and succeed when retried.
+        let mut handles = Vec::new();
+        for seed in 0..8u64 {
+            let (post, request) = (post.clone(), noise_request(1024, seed));
+            handles.push(tokio::spawn(async move {
+                let mut refused = 0;
+                loop {
+                    match post(request.clone()).await {
+                        (200, body) => return (refused, !body.is_empty()),
+                        (429, _) => {
+                            refused += 1;
+                            tokio::time::sleep(Duration::from_millis(50)).await;
+                        }
+                        (status, body) => panic!("{status}: {body}"),
+                    }
+                }
+            }));
+        }
+        let mut outcomes = Vec::new();
+        for h in handles {
+            outcomes.push(h.await.unwrap());
+        }
+        outcomes
+    });
+    assert!(outcomes.iter().all(|&(_, answered)| answered));
+    let refused: u32 = outcomes.iter().map(|&(r, _)| r).sum();
+    assert!(
+        refused > 0,
+        "eight 88 MB jobs in a 100 MiB budget: some must wait their turn"
+    );
+    let peak = peak_rss_mib(server.child.id());
+    let bound = base_mib + bodies_mib + working_mib + 4.0 * 24.0;
+    eprintln!("peak RSS {peak:.1} MiB (base {base_mib:.1} MiB, bound {bound:.1} MiB), {refused} refusals retried");
+    assert!(
+        peak <= bound,
+        "peak RSS {peak:.1} MiB over the bound {bound:.1} MiB"
+    );
 }

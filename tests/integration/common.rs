@@ -111,19 +111,17 @@ impl ServerProcess {
     /// `TRINOCULAR__SECTION__KEY`).
     pub fn spawn_with_env(args: &[&str], env: &[(&str, &str)]) -> ServerProcess {
         use std::io::BufRead;
+        // One thread and room for the tests' concurrent streams (they test stores, not
+        // admission), unless the test says otherwise.
+        let mut defaults = vec!["--grpc-addr", "127.0.0.1:0", "--http-addr", "127.0.0.1:0"];
+        for (flag, value) in [("--threads", "1"), ("--max-jobs", "64")] {
+            if !args.contains(&flag) {
+                defaults.extend([flag, value]);
+            }
+        }
         let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
-            .args([
-                "serve",
-                "--grpc-addr",
-                "127.0.0.1:0",
-                "--http-addr",
-                "127.0.0.1:0",
-                "--threads",
-                "1",
-                // Room for the tests' concurrent streams: they test stores, not admission.
-                "--max-jobs",
-                "64",
-            ])
+            .arg("serve")
+            .args(&defaults)
             .args(args)
             .envs(env.iter().copied())
             .env("RUST_LOG", "info")

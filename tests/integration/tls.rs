@@ -249,21 +249,27 @@ fn on_path(name: &str) -> Option<PathBuf> {
     })
 }
 
+/// `trinocular serve` on ephemeral ports, to be given its TLS configuration.
+fn serve_on_any_port() -> std::process::Command {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"));
+    command.args([
+        "serve",
+        "--store",
+        "memory",
+        "--grpc-addr",
+        "127.0.0.1:0",
+        "--http-addr",
+        "127.0.0.1:0",
+    ]);
+    command
+}
+
 #[test]
 fn a_key_that_is_not_the_certificates_stops_the_server_naming_both_files() {
     let dir = scratch_dir("tls-mismatch");
     let cert = certificate(&dir);
     let other = certificate(&scratch_dir("tls-other"));
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
-        .args([
-            "serve",
-            "--store",
-            "memory",
-            "--grpc-addr",
-            "127.0.0.1:0",
-            "--http-addr",
-            "127.0.0.1:0",
-        ])
+    let out = serve_on_any_port()
         .args(["--tls-cert", cert.cert_file.to_str().unwrap()])
         .args(["--tls-key", other.key_file.to_str().unwrap()])
         .output()
@@ -276,16 +282,7 @@ fn a_key_that_is_not_the_certificates_stops_the_server_naming_both_files() {
         "{err}"
     );
     // Half a configuration is refused before anything is read.
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular"))
-        .args([
-            "serve",
-            "--store",
-            "memory",
-            "--grpc-addr",
-            "127.0.0.1:0",
-            "--http-addr",
-            "127.0.0.1:0",
-        ])
+    let out = serve_on_any_port()
         .env("TRINOCULAR__TLS__CERT_FILE", &cert.cert_file)
         .output()
         .expect("the binary runs");

@@ -120,17 +120,22 @@ async fn unloaded_p99(server: &Server, request: &pb::MatchRequest) -> Duration {
     times[times.len() * 99 / 100]
 }
 
-/// Posts JSON, returning the status and the body as JSON.
-async fn post_json(url: &str, body: &Value) -> (u16, Value) {
+/// Posts `body` as `content_type`, returning the status and the body's text.
+async fn post(url: &str, content_type: &str, body: Vec<u8>) -> (u16, String) {
     let response = reqwest::Client::new()
         .post(url)
-        .header("content-type", "application/json")
-        .body(body.to_string())
+        .header("content-type", content_type)
+        .body(body)
         .send()
         .await
         .expect("HTTP answer");
     let status = response.status().as_u16();
-    let text = response.text().await.expect("body");
+    (status, response.text().await.expect("body"))
+}
+
+/// Posts JSON, returning the status and the body as JSON.
+async fn post_json(url: &str, body: &Value) -> (u16, Value) {
+    let (status, text) = post(url, "application/json", body.to_string().into_bytes()).await;
     (
         status,
         serde_json::from_str(&text).unwrap_or(Value::String(text)),
@@ -911,22 +916,12 @@ fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
     let url = format!("http://{}/v1/match", server.http_addr);
     let rt = runtime();
     let outcomes = rt.block_on(async move {
-        let post = move |request: pb::MatchRequest| {
+        let send = move |request: pb::MatchRequest| {
             let url = url.clone();
-            async move {
-                let response = reqwest::Client::new()
-                    .post(url)
-                    .header("content-type", "application/x-protobuf")
-                    .body(request.encode_to_vec())
-                    .send()
-                    .await
-                    .expect("an answer");
-                let status = response.status().as_u16();
-                (status, response.text().await.unwrap_or_default())
-            }
+            async move { post(&url, "application/x-protobuf", request.encode_to_vec()).await }
         };
         // More than the whole budget (3 × 1.44 Mpx × 28 B = 121 MB): never runs, said at once.
-        let (status, body) = post(noise_request(1200, 9)).await;
+        let (status, body) = send(noise_request(1200, 9)).await;
         assert_eq!(status, 400, "{body}");
         assert!(
             body.contains("\"field\":\"images\"") && body.contains("limits.max_working_mib"),
@@ -936,11 +931,11 @@ fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
         // refused as a full pool is, and succeed when retried.
         let mut handles = Vec::new();
         for seed in 0..8u64 {
-            let (post, request) = (post.clone(), noise_request(1024, seed));
+            let (send, request) = (send.clone(), noise_request(1024, seed));
             handles.push(tokio::spawn(async move {
                 let mut refused = 0;
                 loop {
-                    match post(request.clone()).await {
+                    match send(request.clone()).await {
                         (200, body) => return (refused, !body.is_empty()),
                         (429, _) => {
                             refused += 1;

@@ -449,20 +449,26 @@ fn png_header(width: u32, height: u32) -> Vec<u8> {
     png
 }
 
+/// A triplet of three copies of one encoded image.
+fn three_of(encoded: &[u8]) -> pb::ImageTriplet {
+    let image = || pb::Image {
+        source: Some(pb::image::Source::Encoded(encoded.to_vec())),
+    };
+    pb::ImageTriplet {
+        images: vec![image(), image(), image()],
+    }
+}
+
 #[test]
 fn a_small_file_of_a_huge_wide_image_is_refused_from_its_header() {
     runtime().block_on(async {
         let server = Server::start(limits()).await;
         let example = example_request();
-        let png = png_header(6000, 6000);
-        let image = || pb::Image {
-            source: Some(pb::image::Source::Encoded(png.clone())),
-        };
         // Match: not its camera's size (512 x 512), said before decoding.
         let request = pb::MatchRequest {
-            input: Some(pb::match_request::Input::Images(pb::ImageTriplet {
-                images: vec![image(), image(), image()],
-            })),
+            input: Some(pb::match_request::Input::Images(three_of(&png_header(
+                6000, 6000,
+            )))),
             ..example.clone()
         };
         let start = Instant::now();
@@ -492,14 +498,10 @@ fn a_small_file_of_a_huge_wide_image_is_refused_from_its_header() {
         assert_eq!(response.status().as_u16(), 400);
         // Calibrate (no camera size known yet): 16-bit RGBA at 9 megapixels, within the pixel
         // limit, decodes to more than 8-bit RGB at the limit would.
-        let wide = png_header(3000, 3000);
-        let wide_image = || pb::Image {
-            source: Some(pb::image::Source::Encoded(wide.clone())),
-        };
         let request = pb::CalibrateRequest {
-            input: Some(pb::calibrate_request::Input::Images(pb::ImageTriplet {
-                images: vec![wide_image(), wide_image(), wide_image()],
-            })),
+            input: Some(pb::calibrate_request::Input::Images(three_of(&png_header(
+                3000, 3000,
+            )))),
             ..Default::default()
         };
         let status = server.grpc().await.calibrate(request).await.unwrap_err();

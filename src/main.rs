@@ -87,7 +87,7 @@ struct ServeArgs {
     #[arg(long)]
     max_image_pixels: Option<u64>,
     /// The compute jobs' working memory at once, MiB (default 1024): each request reserves
-    /// its estimate (28 bytes per image pixel, 512 per segment) before it runs.
+    /// its estimate (36 bytes per image pixel, 512 per segment) before it runs.
     #[arg(long)]
     max_working_mib: Option<u64>,
     /// Most segments in one list of a request (default 100,000).

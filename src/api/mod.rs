@@ -10,6 +10,7 @@ pub mod codec;
 pub(crate) mod convert;
 mod fast_json;
 pub mod grpc;
+pub mod grpc_body;
 pub mod http;
 pub mod session;
 

@@ -87,6 +87,9 @@ pub fn link(map: &EdgeMap) -> Chains {
             previous[q as usize] = p as u32;
         }
     }
+    // Freed before the chains are built (together with the chains they were the peak of a
+    // noisy image); the junctions ask again at the chains' ends.
+    drop((forward, backward));
 
     let mut chain_of = vec![NONE; n];
     let mut position = vec![0u32; n];
@@ -131,15 +134,12 @@ pub fn link(map: &EdgeMap) -> Chains {
         if chain.closed {
             continue;
         }
+        let (first, last) = (chain.points[0], chain.points[chain.points.len() - 1]);
         let ends = [
-            (true, chain.points[0], backward[chain.points[0] as usize]),
-            (
-                false,
-                chain.points[chain.points.len() - 1],
-                forward[chain.points[chain.points.len() - 1] as usize],
-            ),
+            (true, best_neighbours(map, first as usize).1),
+            (false, best_neighbours(map, last as usize).0),
         ];
-        for (at_start, _, wanted) in ends {
+        for (at_start, wanted) in ends {
             if wanted == NONE || chain_of[wanted as usize] == id as u32 {
                 continue;
             }

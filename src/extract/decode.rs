@@ -45,10 +45,10 @@ const DECODED_BYTES_PER_PIXEL: u64 = 3;
 /// Bounds on what [`decode`] and [`from_raw`] accept.
 ///
 /// The defaults fit most industrial and consumer cameras while bounding the memory one
-/// request can take: 12 megapixels (4000 × 3000) decodes to at most 48 MB of `f32` grey,
+/// command can take: 12 megapixels (4000 × 3000) decodes to at most 48 MB of `f32` grey,
 /// plus, transiently, the decoded file (36 MB for 8-bit RGB), and extracting segments from
-/// three such images needs up to about 1 GB (28 bytes a pixel on the worst content), which is
-/// what the service's default working-memory budget allows one request. 32 MiB of encoded
+/// three such images needs up to about 1.3 GB (36 bytes a pixel on the worst content). The
+/// service, many requests on one machine, sets its own lower limit. 32 MiB of encoded
 /// data holds such an image as a JPEG or PNG, or uncompressed (PGM, BMP) as 8-bit grey;
 /// beyond that a client can send raw pixels ([`from_raw`]), to which the byte limit does not
 /// apply.

@@ -16,11 +16,11 @@
 //! network_nice = 10    # the network threads this many nice levels below the compute threads
 //! [limits]
 //! max_message_mib = 32
-//! max_image_pixels = 12000000
+//! max_image_pixels = 3000000
 //! max_segments_per_list = 100000
 //! max_request_ms = 60000   # a request's deadline when it gives none, and the cap on its own
-//! max_bodies_mib = 128     # request bodies held at once, reserved before they are read
-//! max_working_mib = 1024   # the compute jobs' working memory, reserved from an estimate
+//! max_bodies_mib = 32      # request bodies held at once, reserved before they are read
+//! max_working_mib = 320    # the compute jobs' working memory, reserved from an estimate
 //! [log]
 //! json = false
 //! level = "info"
@@ -200,7 +200,7 @@ impl Default for LimitsConfig {
     fn default() -> Self {
         LimitsConfig {
             max_message_mib: 32,
-            max_image_pixels: crate::extract::DecodeLimits::default().max_pixels,
+            max_image_pixels: super::Limits::default().max_image_pixels,
             max_segments_per_list: crate::api::MAX_SEGMENTS_PER_LIST,
             max_request_ms: super::MAX_REQUEST_TIME.as_millis() as u64,
             max_bodies_mib: super::Limits::default().max_body_bytes_in_flight >> 20,

@@ -1,15 +1,17 @@
 //! The compute jobs' working memory, reserved from a budget before the work that needs it.
 //!
-//! Admission counts jobs, but jobs are not alike: three 12-megapixel photographs of brick
+//! Admission counts jobs, but jobs are not alike: three 3-megapixel photographs of brick
 //! need a thousand times the memory of three lists of 600 segments. So each Match (and
 //! Calibrate) reserves an estimate of its peak from `limits.max_working_mib` before it decodes
 //! or extracts anything, and returns it when it ends. RSS is then bounded by the budget, the
 //! body budget and the process's base, whatever the mix of requests and however many cores.
 //!
-//! The estimates come from measured peaks (`/usr/bin/time -f %M trinocular match`, worst
-//! content we could make): 3 × 2048² pixels of per-pixel random noise peaked at 347 MB,
-//! 26 B per pixel over the base (ordinary scenes: 9 B); 3 × 100,000 random segments at
-//! 150 MB, 445 B per segment. A request whose estimate exceeds the whole budget can never
+//! The estimates come from measured peaks (worst content we could make): 3 × 2000² pixels
+//! of per-pixel random noise sent over HTTP to a server with four compute threads (the three
+//! images extracted at once) peaked 34 B per pixel over the base and the body, the decoded
+//! request included (ordinary scenes: 9 B; one such image alone, `trinocular extract`:
+//! 36 B/pixel with the decoder's own buffers, a third of them its 1.4 M edge points and
+//! 300,000 chains); 3 × 100,000 random segments at 150 MB, 445 B per segment. A request whose estimate exceeds the whole budget can never
 //! run: INVALID_ARGUMENT naming its input. One that would exceed what is free now is
 //! refused like a full compute pool: RESOURCE_EXHAUSTED, retry later.
 //!
@@ -20,15 +22,16 @@
 //! same six leave 30–40 MB, at no measurable cost to 512² image requests. What the allocator
 //! still holds while jobs run grows with the compute threads (each its own arena, and a
 //! refused request decoded on each): eight 88 MB jobs in a 100 MiB budget with 32 MiB of
-//! bodies peaked 10 MiB over base + bodies + budget on 2 threads, 39–59 MiB on 4. So the bound
-//! is base + `max_bodies_mib` + `max_working_mib` + 24 MiB per compute thread. Also tried: a fixed 4 MiB
+//! bodies peaked 10 MiB over base + bodies + budget on 2 threads, 39–59 MiB on 4. A request
+//! body is held twice while it is decoded (the bytes and the message). So the bound is
+//! base + 2 × `max_bodies_mib` + `max_working_mib` + 24 MiB per compute thread. Also tried: a fixed 4 MiB
 //! mmap threshold (flat RSS, but 1 Mpx noise triplets lost a quarter of their throughput, and
 //! the same peak), a single arena (a third of segment requests' throughput).
 
 use std::sync::{Arc, Mutex};
 
-/// Bytes reserved per image pixel (measured worst 26 B).
-pub const BYTES_PER_PIXEL: u64 = 28;
+/// Bytes reserved per image pixel (measured worst 34 B).
+pub const BYTES_PER_PIXEL: u64 = 36;
 /// Bytes reserved per input segment (measured 445 B).
 pub const BYTES_PER_SEGMENT: u64 = 512;
 /// Bytes reserved per request whatever its size (its own structures, the response).

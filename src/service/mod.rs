@@ -71,6 +71,13 @@ pub struct Limits {
     pub connections: http_server::ConnectionLimits,
 }
 
+/// The default of [`Limits::max_image_pixels`]: 3 megapixels (2048 × 1536), more than robot
+/// cameras and the real photograph sets we measure (1536 × 1024, 1600 × 1200) need, and what
+/// lets a triplet of the largest images fit the default working memory (3 × 3 Mpx × 36 B +
+/// 4 MiB = 313 MiB of 320) so that one server stays under 512 MiB (docs/HARDENING.md#memory).
+/// The command line, one request on the whole machine, keeps the core's 12 Mpx.
+pub const MAX_IMAGE_PIXELS: u64 = 3_000_000;
+
 /// The default of [`Limits::max_request_time`]: a minute, ten times what the largest image
 /// triplet within the other limits takes on one core.
 pub const MAX_REQUEST_TIME: std::time::Duration = std::time::Duration::from_secs(60);
@@ -82,11 +89,11 @@ impl Default for Limits {
             threads,
             max_jobs: JOBS_PER_THREAD * threads,
             max_message_bytes: 32 << 20,
-            max_image_pixels: DecodeLimits::default().max_pixels,
+            max_image_pixels: MAX_IMAGE_PIXELS,
             max_segments_per_list: api::MAX_SEGMENTS_PER_LIST,
             max_request_time: MAX_REQUEST_TIME,
-            max_body_bytes_in_flight: 128 << 20,
-            max_working_bytes: 1 << 30,
+            max_body_bytes_in_flight: 32 << 20,
+            max_working_bytes: 320 << 20,
             connections: http_server::ConnectionLimits::default(),
         }
     }

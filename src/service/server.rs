@@ -91,6 +91,10 @@ pub async fn start_with_tls(
     let grpc = tokio::spawn(
         grpc_server
             .timeout(call_timeout)
+            // Each message's bytes come out of the same budget as HTTP bodies.
+            .layer(crate::api::grpc_body::BodyBudgetLayer::new(Arc::clone(
+                &service,
+            )))
             .http2_keepalive_interval(Some(connections.header_timeout))
             .http2_keepalive_timeout(Some(connections.header_timeout))
             .max_concurrent_streams(Some(GRPC_MAX_STREAMS))

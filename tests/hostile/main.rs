@@ -347,9 +347,9 @@ fn stalled_uploads_hold_no_more_than_the_body_budget_and_time_out() {
         let addr = server.running.http_addr;
         let example = example_request();
         let started = Instant::now();
-        // Two declared 8 MiB bodies hold the whole budget; the third is refused before a byte
-        // of its body is read.
-        let mut held: Vec<TcpStream> = (0..2).map(|_| stalled_upload(addr, 8 << 20, 10)).collect();
+        // Two declared 7 MiB bodies hold all but 2 MiB of the budget; a third is refused before
+        // a byte of its body is read.
+        let mut held: Vec<TcpStream> = (0..2).map(|_| stalled_upload(addr, 7 << 20, 10)).collect();
         tokio::time::sleep(Duration::from_millis(100)).await;
         let mut third = stalled_upload(addr, 8 << 20, 10);
         let status =
@@ -364,8 +364,22 @@ fn stalled_uploads_hold_no_more_than_the_body_budget_and_time_out() {
                 .await
                 .unwrap();
         assert_eq!(status, 413);
-        // Meanwhile a normal Match is answered (it needs no body over gRPC).
+        // Meanwhile a normal Match over gRPC is answered within its share of what is left...
         normal_match(&server, &example).await;
+        // ...but a gRPC message draws on the same budget: 3 MiB, more than is free, is refused
+        // from its 5-byte prefix, before tonic gathers it.
+        let refused = raw_grpc_call(
+            server.running.grpc_addr,
+            "/trinocular.v1.Trinocular/Match",
+            vec![0xFF; 3 << 20],
+        )
+        .await;
+        assert_eq!(
+            refused.code(),
+            tonic::Code::ResourceExhausted,
+            "{refused:?}"
+        );
+        assert!(refused.message().contains("bod"), "{}", refused.message());
         // The stalled ones time out after body_timeout.
         let statuses = tokio::task::spawn_blocking(move || {
             held.iter_mut()
@@ -380,6 +394,14 @@ fn stalled_uploads_hold_no_more_than_the_body_budget_and_time_out() {
         let json: Value = serde_json::from_str(&api::to_json(&example)).unwrap();
         let (code, body) = post_json(&server.http("/v1/match"), &json).await;
         assert_eq!(code, 200, "{body}");
+        // And the same 3 MiB over gRPC are read and refused for what they are, not their size.
+        let garbage = raw_grpc_call(
+            server.running.grpc_addr,
+            "/trinocular.v1.Trinocular/Match",
+            vec![0xFF; 3 << 20],
+        )
+        .await;
+        assert_eq!(garbage.code(), tonic::Code::InvalidArgument, "{garbage:?}");
     });
 }
 
@@ -479,7 +501,7 @@ fn a_small_file_of_a_huge_wide_image_is_refused_from_its_header() {
             .await
             .unwrap_err();
         assert_eq!(status.code(), Code::InvalidArgument);
-        // Over the pixel limit (12 Mpx by default) and not its camera's size: either is said
+        // Over the pixel limit (3 Mpx by default) and not its camera's size: either is said
         // from the header.
         assert!(status.message().starts_with("images.images[0].encoded"));
         assert!(
@@ -496,11 +518,11 @@ fn a_small_file_of_a_huge_wide_image_is_refused_from_its_header() {
             .await
             .unwrap();
         assert_eq!(response.status().as_u16(), 400);
-        // Calibrate (no camera size known yet): 16-bit RGBA at 9 megapixels, within the pixel
-        // limit, decodes to more than 8-bit RGB at the limit would.
+        // Calibrate (no camera size known yet): 16-bit RGBA at 2.25 megapixels, within the
+        // pixel limit, decodes to more than 8-bit RGB at the limit would.
         let request = pb::CalibrateRequest {
             input: Some(pb::calibrate_request::Input::Images(three_of(&png_header(
-                3000, 3000,
+                1500, 1500,
             )))),
             ..Default::default()
         };
@@ -891,12 +913,12 @@ fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
         eprintln!("SKIPPED working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound: no /proc to read the peak RSS from");
         return;
     }
-    // The documented bound (docs/HARDENING.md#memory): base + request bodies + working memory
-    // + 24 MiB per compute thread (what each thread's allocator arena and a refused request's
-    // decoding hold beyond the jobs' use). Base is what an idle server holds (measured below,
-    // before any request). Four compute threads: without the budget four 76 MB jobs would
-    // run at once (~340 MiB).
-    let (bodies_mib, working_mib) = (32.0, 100.0);
+    // The documented bound (docs/HARDENING.md#memory): base + twice the request bodies (as
+    // received, then decoded) + working memory + 24 MiB per compute thread (what each
+    // thread's allocator arena holds beyond the jobs' use). Base is what an idle server holds
+    // (measured below, before any request). Four compute threads: without the budget four
+    // such jobs would run at once (~340 MiB).
+    let (bodies_mib, working_mib) = (32.0, 128.0);
     let server = common::ServerProcess::spawn_with_env(
         &[
             "--store",
@@ -908,13 +930,12 @@ fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
             "--max-message-mib",
             "8",
             "--max-working-mib",
-            "100",
+            "128",
         ],
         &[("TRINOCULAR__LIMITS__MAX_BODIES_MIB", "32")],
     );
     let base_mib = peak_rss_mib(server.child.id());
-    // Over HTTP, whose bodies are reserved from their budget before they are read (gRPC
-    // messages are buffered by tonic before any handler: docs/HARDENING.md#memory).
+    // Over HTTP here; both transports at once in the next test.
     let url = format!("http://{}/v1/match", server.http_addr);
     let rt = runtime();
     let outcomes = rt.block_on(async move {
@@ -922,14 +943,14 @@ fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
             let url = url.clone();
             async move { post(&url, "application/x-protobuf", request.encode_to_vec()).await }
         };
-        // More than the whole budget (3 × 1.44 Mpx × 28 B = 121 MB): never runs, said at once.
+        // More than the whole budget (3 × 1.44 Mpx × 36 B = 160 MB): never runs, said at once.
         let (status, body) = send(noise_request(1200, 9)).await;
         assert_eq!(status, 400, "{body}");
         assert!(
             body.contains("\"field\":\"images\"") && body.contains("limits.max_working_mib"),
             "{body}"
         );
-        // Eight at once, each 3 × 1 Mpx (88 MB estimated): one runs at a time; the others are
+        // Eight at once, each 3 × 1 Mpx (117 MB estimated): one runs at a time; the others are
         // refused as a full pool is, and succeed when retried.
         let mut handles = Vec::new();
         for seed in 0..8u64 {
@@ -958,13 +979,78 @@ fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
     let refused: u32 = outcomes.iter().map(|&(r, _)| r).sum();
     assert!(
         refused > 0,
-        "eight 88 MB jobs in a 100 MiB budget: some must wait their turn"
+        "eight 117 MB jobs in a 128 MiB budget: some must wait their turn"
     );
     let peak = peak_rss_mib(server.child.id());
-    let bound = base_mib + bodies_mib + working_mib + 4.0 * 24.0;
+    let bound = base_mib + 2.0 * bodies_mib + working_mib + 4.0 * 24.0;
     eprintln!("peak RSS {peak:.1} MiB (base {base_mib:.1} MiB, bound {bound:.1} MiB), {refused} refusals retried");
     assert!(
         peak <= bound,
         "peak RSS {peak:.1} MiB over the bound {bound:.1} MiB"
     );
+}
+
+#[test]
+fn with_the_default_limits_rss_stays_under_512_mib_on_both_transports() {
+    if !std::path::Path::new("/proc/self/status").exists() {
+        eprintln!("SKIPPED with_the_default_limits_rss_stays_under_512_mib_on_both_transports: no /proc to read the peak RSS from");
+        return;
+    }
+    // The defaults but for the threads: four compute threads (and their default eight jobs),
+    // the most the documented 512 MiB covers (docs/HARDENING.md#memory).
+    let server = common::ServerProcess::spawn_with_env(
+        &["--store", "memory", "--threads", "4", "--max-jobs", "8"],
+        &[],
+    );
+    let defaults = Limits::default();
+    let side = (defaults.max_image_pixels as f64).sqrt() as u32;
+    let (http_url, grpc_url) = (
+        format!("http://{}/v1/match", server.http_addr),
+        format!("http://{}", server.grpc_addr),
+    );
+    let answered = runtime().block_on(async move {
+        // Triplets of the largest noise images the defaults accept (3 × 3 Mpx, 9 MB bodies),
+        // two over each transport at once: each needs nearly all the working memory, so they
+        // take turns, refused and retried.
+        let mut handles = Vec::new();
+        for seed in 0..4u64 {
+            let request = noise_request(side, seed);
+            let (http_url, grpc_url) = (http_url.clone(), grpc_url.clone());
+            handles.push(tokio::spawn(async move {
+                let mut grpc = pb::trinocular_client::TrinocularClient::connect(grpc_url)
+                    .await
+                    .unwrap()
+                    .max_encoding_message_size(64 << 20)
+                    .max_decoding_message_size(64 << 20);
+                let body = request.encode_to_vec();
+                loop {
+                    let retry = if seed % 2 == 0 {
+                        match post(&http_url, "application/x-protobuf", body.clone()).await {
+                            (200, _) => return true,
+                            (429, _) => true,
+                            (status, body) => panic!("{status}: {body}"),
+                        }
+                    } else {
+                        match grpc.r#match(request.clone()).await {
+                            Ok(_) => return true,
+                            Err(s) if s.code() == Code::ResourceExhausted => true,
+                            Err(s) => panic!("{s:?}"),
+                        }
+                    };
+                    if retry {
+                        tokio::time::sleep(Duration::from_millis(100)).await;
+                    }
+                }
+            }));
+        }
+        let mut answered = 0;
+        for h in handles {
+            answered += usize::from(h.await.unwrap());
+        }
+        answered
+    });
+    assert_eq!(answered, 4);
+    let peak = peak_rss_mib(server.child.id());
+    eprintln!("peak RSS {peak:.1} MiB with the default limits on 4 threads");
+    assert!(peak < 512.0, "peak RSS {peak:.1} MiB, not under 512 MiB");
 }

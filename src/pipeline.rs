@@ -16,7 +16,9 @@ use nalgebra::Point2;
 use thiserror::Error;
 
 use crate::extract::{self, Adjacent, Extraction, GreyImage};
-use crate::geometry::{Line3Estimate, LineObservation, Rectification, RectifyError, Rig};
+use crate::geometry::{
+    Line3Estimate, LineObservation, Rectification, RectifyError, Rig, RigFrames,
+};
 use crate::matching::{self, Hypothesis, MatchParams, ParamError, RectSegment, Views};
 use crate::reconstruct::{reconstruct, reconstruct_pieces};
 use crate::segment::{CrowdingModel, LineNoise, Segment3, SegmentList};
@@ -161,6 +163,12 @@ pub struct MatchStats {
     pub reconstruct_ms: f64,
     pub total_ms: f64,
     pub collinear_rig: bool,
+    /// The plane of the three centres does not face the scene: each searched pair had its own
+    /// rectified frame, the third view reached through 3D points (`RigFrames`).
+    pub per_pair_rectification: bool,
+    /// Angle between the two searched pairs' epipolar lines at the centre of image 1, degrees
+    /// ([`crate::geometry::rectify::epipolar_angle_deg`]); 0 when one pair alone is searched.
+    pub epipolar_angle_deg: f64,
     /// Image input: extraction time of each image, milliseconds.
     pub extract_ms: Option<[f64; 3]>,
 }
@@ -264,6 +272,8 @@ impl From<Stopped> for MatchError {
 /// Segments of one view after checking, kept for matching.
 struct Prepared {
     rect: Vec<RectSegment>,
+    /// View 1 in the second pair frame, index for index with `rect` (per-pair frames only).
+    rect_second: Vec<RectSegment>,
     zero_length: u32,
     duplicates: u32,
 }
@@ -380,17 +390,22 @@ fn check_list(rig: &Rig, list_index: usize, list: &SegmentList) -> Result<u32, M
     Ok(zero)
 }
 
+/// The segments of `view` that matching uses, rectified in its frame of `frames` (view 1 of
+/// per-pair frames: in both, and only those that map into both).
 fn prepare(
     rig: &Rig,
-    rect: &Rectification,
+    frames: &RigFrames,
     view: usize,
     list: &SegmentList,
     zero_length: u32,
     params: &MatchParams,
 ) -> (Prepared, Vec<LineObservation>) {
     let cam = rig.camera(view);
+    let rect = frames.frame_of(view);
+    let second = (view == 0 && !frames.shared).then(|| &frames.pair_frames[1]);
     let mut out = Prepared {
         rect: Vec::with_capacity(list.segments.len()),
+        rect_second: Vec::new(),
         zero_length,
         duplicates: 0,
     };
@@ -412,6 +427,13 @@ fn prepare(
             continue;
         };
         let gradient = s.gradient.unwrap_or(f64::NAN);
+        if let Some(second) = second {
+            let (Some(a2), Some(b2)) = (second.to_rect(view, p), second.to_rect(view, q)) else {
+                continue;
+            };
+            out.rect_second
+                .push(RectSegment::new(a2, b2, gradient, index as u32));
+        }
         out.rect
             .push(RectSegment::new(a, b, gradient, index as u32));
         // Crowding is added later, only for the segments that reach reconstruction.
@@ -537,9 +559,11 @@ pub fn match_segments_until(
     for (i, list) in lists.iter().enumerate() {
         zero[i] = check_list(rig, i, list)?;
     }
-    let rect = Rectification::new(rig)?;
+    let frames = RigFrames::new(rig)?;
+    // Validation and the extraction graph work in the first frame, where views 1 and 2 are.
+    let rect = &frames.pair_frames[0];
     let (prepared, mut observed): (Vec<Prepared>, Vec<Vec<LineObservation>>) = (0..3)
-        .map(|v| prepare(rig, &rect, v, &lists[v], zero[v], params))
+        .map(|v| prepare(rig, &frames, v, &lists[v], zero[v], params))
         .unzip();
     let mut stats = MatchStats {
         noise_scale: 1.0,
@@ -548,6 +572,13 @@ pub fn match_segments_until(
         zero_length_dropped: std::array::from_fn(|v| prepared[v].zero_length),
         duplicates_dropped: std::array::from_fn(|v| prepared[v].duplicates),
         collinear_rig: rect.collinear(),
+        per_pair_rectification: !frames.shared,
+        // One pair searched alone loses the directions along its epipolar lines.
+        epipolar_angle_deg: if frames.searched == [true, true] {
+            crate::geometry::rectify::epipolar_angle_deg(rig)
+        } else {
+            0.0
+        },
         rectify_ms: ms(start),
         ..MatchStats::default()
     };
@@ -558,8 +589,13 @@ pub fn match_segments_until(
 
     checkpoint.before("predict")?;
     let t = Instant::now();
-    let hypotheses =
-        matching::predict_until(&rect, &views, params, checkpoint).map_err(|e| match e {
+    let first: [&[RectSegment]; 2] = if frames.shared {
+        [&prepared[0].rect, &prepared[0].rect]
+    } else {
+        [&prepared[0].rect, &prepared[0].rect_second]
+    };
+    let hypotheses = matching::predict_in_frames_until(&frames, &views, first, params, checkpoint)
+        .map_err(|e| match e {
             matching::PredictError::Stopped(s) => MatchError::from(s),
             matching::PredictError::TooManyHypotheses { limit } => {
                 MatchError::TooManyHypotheses { limit }
@@ -570,7 +606,7 @@ pub fn match_segments_until(
 
     let kept = validate_and_reconstruct(
         rig,
-        &rect,
+        rect,
         &views,
         &mut observed,
         lists,

@@ -781,6 +781,8 @@ pub fn match_response(
             reconstruct_ms: s.reconstruct_ms,
             total_ms: s.total_ms,
             collinear_rig: s.collinear_rig,
+            per_pair_rectification: s.per_pair_rectification,
+            epipolar_angle_deg: s.epipolar_angle_deg,
             extract_ms: s.extract_ms.map_or_else(Vec::new, |m| m.to_vec()),
             uncertain: s.uncertain,
             inconsistent: s.inconsistent,

@@ -13,7 +13,7 @@ pub mod rectify;
 
 pub use camera::{Camera, CameraError, Distortion, Rig, RigError};
 pub use line::{across_basis, estimate_line, Line3Estimate, LineObservation};
-pub use rectify::{Rectification, RectifyError};
+pub use rectify::{Rectification, RectifyError, RigFrames};
 
 #[cfg(test)]
 mod proptests;

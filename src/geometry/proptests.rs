@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, Point2, Point3, Rotation3, Vector3};
 use proptest::prelude::*;
 
-use super::{estimate_line, Camera, Distortion, LineObservation, Rectification, Rig};
+use super::{estimate_line, Camera, Distortion, LineObservation, Rectification, Rig, RigFrames};
 use crate::segment::LineNoise;
 
 /// A rig looking along rig +y (z up), cameras at the given centres with small rotations.
@@ -104,6 +104,47 @@ proptest! {
         prop_assert!((predicted - rects[2]).norm() < 1e-6);
         let back = rect.point(0, rects[0], delta);
         prop_assert!((back - x).norm() < 1e-6 * x.coords.norm().max(1.0));
+    }
+
+    /// Any rig shape — the third camera ahead, behind, above or beside the first two: each
+    /// pair found in its frame transfers exactly into the third view's.
+    #[test]
+    fn every_rig_shape_transfers_exactly(
+        third in (-0.4..0.4f64, -0.4..0.4f64, -0.4..0.4f64),
+        b2 in 0.1..0.5f64,
+        angles in prop::array::uniform3(prop::array::uniform3(-0.06..0.06f64)),
+        focals in prop::array::uniform3(400.0..900.0f64),
+        x in arb_point(),
+    ) {
+        let c3 = Vector3::new(third.0, third.1, third.2);
+        prop_assume!(c3.norm() > 0.05 && (c3 - Vector3::new(b2, 0.0, 0.0)).norm() > 0.05);
+        let rig = rig([Vector3::zeros(), Vector3::new(b2, 0.0, 0.0), c3], angles, focals, 0.0);
+        let Ok(frames) = RigFrames::new(&rig) else {
+            return Ok(()); // a pair looking along its own baseline: refused, said elsewhere
+        };
+        prop_assume!((0..3).all(|i| seen(rig.camera(i), &x).is_some()));
+        prop_assume!((0..3).all(|i| rig.camera(i).depth(&x) > 0.5));
+        let in_frame = |frame: &Rectification, i: usize| {
+            frame.to_rect(i, rig.camera(i).undistort(rig.camera(i).project(&x).unwrap()))
+        };
+        for (f, (j, k)) in [(1usize, 2usize), (2, 1)].into_iter().enumerate() {
+            let frame = &frames.pair_frames[f];
+            let (Some(a1), Some(aj)) = (in_frame(frame, 0), in_frame(frame, j)) else {
+                continue;
+            };
+            // The pair's epipolar lines are parallel in its frame: the two images share a row.
+            let e = frame.epipolar(0, j).normalize();
+            prop_assert!((aj - a1).perp(&e).abs() < 1e-6 * (1.0 + (aj - a1).norm()));
+            let delta = frame.disparity(0, a1, j, aj);
+            let Some(expected) = in_frame(frames.frame_of(k), k) else {
+                continue;
+            };
+            let predicted = frames.transfer(f, a1, delta, k).unwrap();
+            prop_assert!(
+                (predicted - expected).norm() < 1e-6 * (1.0 + expected.coords.norm()),
+                "pair (1, {}) to view {}: {predicted} vs {expected}", j + 1, k + 1
+            );
+        }
     }
 
     /// The maximum-likelihood estimate of exact images of a segment is that segment, with a
@@ -274,6 +315,23 @@ fn collinear_rig_is_detected() {
         0.0,
     );
     assert!(!Rectification::new(&r).unwrap().collinear());
+    assert!(RigFrames::new(&r).unwrap().shared);
+    // The third camera ahead, all at one height: the plane of centres is level, at right
+    // angles to the view, so each pair gets its own frame; the forward pair is not searched.
+    let r = rig(
+        [
+            Vector3::zeros(),
+            Vector3::new(0.3, 0.0, 0.0),
+            Vector3::new(0.15, 0.25, 0.0),
+        ],
+        [[0.0; 3]; 3],
+        [600.0; 3],
+        0.0,
+    );
+    let frames = RigFrames::new(&r).unwrap();
+    assert!(!frames.shared);
+    assert_eq!(frames.searched, [true, false]);
+    assert!(!frames.pair_frames[0].collinear());
 }
 
 #[test]

@@ -13,7 +13,7 @@ pub mod validate;
 use nalgebra::{Point2, Vector2};
 use thiserror::Error;
 
-pub use predict::{predict, predict_until, Hypothesis, PredictError};
+pub use predict::{predict, predict_in_frames_until, predict_until, Hypothesis, PredictError};
 pub use validate::{adjacency, rank, rank_until, select, validate};
 
 /// Matching parameters. Units are in the names; `Default` gives the documented defaults.

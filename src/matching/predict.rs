@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use super::bucket::{angle_key, period, Buckets};
 use super::{gradients_compatible, MatchParams, RectSegment, Views};
 use crate::checkpoint::{Checkpoint, Stopped};
-use crate::geometry::Rectification;
+use crate::geometry::{Rectification, RigFrames};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// Shortest common part of two segments along the epipolar lines, and of a predicted segment
@@ -69,6 +69,9 @@ pub struct Hypothesis {
     pub s1_span: (f64, f64),
     /// Disparity at those two positions (δ is affine along an image line).
     pub disparity: (f64, f64),
+    /// The pair frame the span and disparities are in (`RigFrames::pair_frames`): 0 once
+    /// prediction returns.
+    pub frame: u8,
 }
 
 impl Hypothesis {
@@ -88,6 +91,9 @@ impl Hypothesis {
 struct Pair<'a> {
     j: usize,
     k: usize,
+    /// The frame the pair is searched in (`RigFrames::pair_frames`), and view 1 rectified there.
+    frame: usize,
+    first: &'a [RectSegment],
     /// Epipolar vector c1 − cj (metres) and its unit direction.
     e_j: Vector2<f64>,
     e_j_len: f64,
@@ -149,20 +155,43 @@ pub fn predict_until(
     params: &MatchParams,
     checkpoint: Checkpoint,
 ) -> Result<Vec<Hypothesis>, PredictError> {
+    let frames = RigFrames {
+        pair_frames: [rect.clone(), rect.clone()],
+        shared: true,
+        searched: [true, true],
+    };
+    let first = views.segments[0];
+    predict_in_frames_until(&frames, views, [first, first], params, checkpoint)
+}
+
+/// [`predict_until`] in a rig's [`RigFrames`]: `views` holds view 1 and 2 rectified in the
+/// first pair frame and view 3 in the second, `first` view 1 in each (the same segments,
+/// index for index). The hypotheses' spans and disparities are in the first frame.
+pub fn predict_in_frames_until(
+    frames: &RigFrames,
+    views: &Views,
+    first: [&[RectSegment]; 2],
+    params: &MatchParams,
+    checkpoint: Checkpoint,
+) -> Result<Vec<Hypothesis>, PredictError> {
     let period = period(views.oriented);
     let tol = params.tolerance_px;
-    let grid2 = Buckets::build(views.segments[1], rect.epipolar(0, 1), tol, period);
-    let grid3 = Buckets::build(views.segments[2], rect.epipolar(0, 2), tol, period);
+    let [frame_a, frame_b] = &frames.pair_frames;
+    let grid2 = Buckets::build(views.segments[1], frame_a.epipolar(0, 1), tol, period);
+    let grid3 = Buckets::build(views.segments[2], frame_b.epipolar(0, 2), tol, period);
     let pair = |j: usize| {
-        let (k, grid_j, grid_k) = if j == 1 {
-            (2, &grid2, &grid3)
+        let (k, frame, grid_j, grid_k) = if j == 1 {
+            (2, 0, &grid2, &grid3)
         } else {
-            (1, &grid3, &grid2)
+            (1, 1, &grid3, &grid2)
         };
+        let rect = &frames.pair_frames[frame];
         let e_j = rect.epipolar(0, j);
         Pair {
             j,
             k,
+            frame,
+            first: first[frame],
             e_j,
             e_j_len: e_j.norm(),
             e_k: rect.epipolar(0, k),
@@ -171,9 +200,12 @@ pub fn predict_until(
         }
     };
     let pairs = [pair(1), pair(2)];
-    let (d_min, d_max) = rect.disparity_range(params.depth_min_m, params.depth_max_m);
+    // The two frames share their focal length (the cameras' mean) and view 1's centre: the
+    // disparity range is the same in both.
+    let (d_min, d_max) = frame_a.disparity_range(params.depth_min_m, params.depth_max_m);
     let search = Search {
         views,
+        frames,
         params,
         period,
         d_min,
@@ -210,7 +242,56 @@ pub fn predict_until(
             limit: MAX_HYPOTHESES,
         });
     }
-    Ok(per_s1.into_iter().flatten().collect())
+    let mut hypotheses: Vec<Hypothesis> = per_s1.into_iter().flatten().collect();
+    if !frames.shared {
+        // Hypotheses found in the second frame, in the first's terms (validation compares
+        // disparities along S1), through the 3D points at the ends of their span; dropped
+        // where those do not map into the first frame.
+        hypotheses.retain_mut(|h| {
+            if h.frame == 0 {
+                return true;
+            }
+            match in_first_frame(frames, first, h) {
+                Some(moved) => {
+                    *h = moved;
+                    true
+                }
+                None => false,
+            }
+        });
+    }
+    Ok(hypotheses)
+}
+
+/// `h`, found in the second pair frame, with its span and disparities in the first.
+fn in_first_frame(
+    frames: &RigFrames,
+    first: [&[RectSegment]; 2],
+    h: &Hypothesis,
+) -> Option<Hypothesis> {
+    let i1 = h.segments[0] as usize;
+    let (s_from, s_to) = (&first[1][i1], &first[0][i1]);
+    let [to, from] = [&frames.pair_frames[0], &frames.pair_frames[1]];
+    let moved = |t: f64, d: f64| -> Option<(f64, f64)> {
+        let point = from.point(0, s_from.a + s_from.dir * t, d);
+        let (a, delta) = to.project(0, &point)?;
+        Some((s_to.along(a), delta))
+    };
+    let (t0, d0) = moved(h.s1_span.0, h.disparity.0)?;
+    let (t1, d1) = moved(h.s1_span.1, h.disparity.1)?;
+    let (s1_span, disparity) = if t0 <= t1 {
+        ((t0, t1), (d0, d1))
+    } else {
+        ((t1, t0), (d1, d0))
+    };
+    (s1_span.0.is_finite() && s1_span.1.is_finite() && d0.is_finite() && d1.is_finite()).then_some(
+        Hypothesis {
+            s1_span,
+            disparity,
+            frame: 0,
+            ..*h
+        },
+    )
 }
 
 /// Keeps the `max` hypotheses of smallest residual (ties: the earlier), in their order.
@@ -231,6 +312,7 @@ fn keep_best(out: &mut Vec<Hypothesis>, max: usize) {
 
 struct Search<'a> {
     views: &'a Views<'a>,
+    frames: &'a RigFrames,
     params: &'a MatchParams,
     period: f64,
     d_min: f64,
@@ -240,14 +322,18 @@ struct Search<'a> {
 
 impl Search<'_> {
     fn one(&self, i1: u32, scratch: &mut Scratch, out: &mut Vec<Hypothesis>) {
-        let s1 = &self.views.segments[0][i1 as usize];
-        // 1. The pair whose epipolar direction is farthest from S1's.
-        let sin_to = |p: &Pair| (s1.dir.perp(&p.e_j) / p.e_j_len).abs();
-        let pair = if sin_to(&self.pairs[0]) >= sin_to(&self.pairs[1]) {
-            &self.pairs[0]
-        } else {
-            &self.pairs[1]
+        // 1. The pair whose epipolar direction is farthest from S1's (in the pair's frame).
+        let sin_to = |p: &Pair| {
+            let s1 = &p.first[i1 as usize];
+            (s1.dir.perp(&p.e_j) / p.e_j_len).abs()
         };
+        let pair = match self.frames.searched {
+            [true, false] => &self.pairs[0],
+            [false, true] => &self.pairs[1],
+            _ if sin_to(&self.pairs[0]) >= sin_to(&self.pairs[1]) => &self.pairs[0],
+            _ => &self.pairs[1],
+        };
+        let s1 = &pair.first[i1 as usize];
         let tol = self.params.tolerance_px;
         let grid = pair.grid_j;
         let (ax, ay) = grid.frame(s1.a);
@@ -348,8 +434,15 @@ impl Search<'_> {
         // 3. Transfer into the verifying view.
         let p0 = s1.a + s1.dir * t0;
         let p1 = s1.a + s1.dir * t1;
-        let q0: Point2<f64> = p0 + pair.e_k * d0;
-        let q1: Point2<f64> = p1 + pair.e_k * d1;
+        let (q0, q1): (Point2<f64>, Point2<f64>) = if self.frames.shared {
+            (p0 + pair.e_k * d0, p1 + pair.e_k * d1)
+        } else {
+            let transfer = |p, d| self.frames.transfer(pair.frame, p, d, pair.k);
+            let (Some(q0), Some(q1)) = (transfer(p0, d0), transfer(p1, d1)) else {
+                return;
+            };
+            (q0, q1)
+        };
         let q = q1 - q0;
         let q_len = q.norm();
         if q_len < MIN_OVERLAP_PX {
@@ -415,6 +508,7 @@ impl Search<'_> {
                 residual_px: residual,
                 s1_span: (t0, t1),
                 disparity: (d0, d1),
+                frame: pair.frame as u8,
             });
         }
     }

@@ -310,6 +310,7 @@ mod tests {
             residual_px,
             s1_span: (0.0, len),
             disparity: (disparity, disparity),
+            frame: 0,
         }
     }
 

@@ -37,7 +37,7 @@ pub use bvh::SceneIndex;
 pub use defects::{observe, Defects, Observation};
 pub use pattern::{pattern_scene, pattern_views};
 pub use render::{render, render_image, render_triplet, RenderParams};
-pub use rig::{cam_from_rig_rotation, CameraSpec, Pose, RigSpec, SynthError};
+pub use rig::{cam_from_rig_rotation, CameraSpec, Pose, RigShape, RigSpec, SynthError};
 pub use rng::Rng;
 pub use scatter::scattered_capture;
 pub use scene::{Box3, Face, Hit, Scene, Tracer};
@@ -76,6 +76,17 @@ pub fn standard_capture(seed: u64, defects: Defects, collinear: bool) -> (Scene,
     let rig = spec
         .build(&pose)
         .expect("preset rigs are valid for every seed");
+    let obs = observe(&scene, &rig, &defects, seed);
+    (scene, rig, obs)
+}
+
+/// The standard room of [`standard_capture`] seen by a rig of `shape` from the same place.
+pub fn shaped_capture(seed: u64, defects: Defects, shape: RigShape) -> (Scene, Rig, Observation) {
+    let scene = Scene::room(seed);
+    let pose = Pose::from_position_yaw(Point3::from(STANDARD_RIG_POSITION), 0.0);
+    let rig = RigSpec::shaped(shape, seed)
+        .build(&pose)
+        .expect("shaped rigs are valid for every seed");
     let obs = observe(&scene, &rig, &defects, seed);
     (scene, rig, obs)
 }

@@ -286,6 +286,28 @@ impl RigSpec {
         }
     }
 
+    /// A rig of [`RigShape`] `shape`: the optical centres and yaws of the shape, each camera
+    /// with the intrinsics, pitch and roll of [`RigSpec::non_collinear`]'s (seeded jitter
+    /// included), so that shapes differ by their geometry alone.
+    pub fn shaped(shape: RigShape, seed: u64) -> RigSpec {
+        let mut spec = RigSpec::non_collinear(seed);
+        let Some((centres, yaws_deg)) = shape.geometry() else {
+            return spec;
+        };
+        let root = Rng::new(seed).fork(0x816_0004);
+        for (i, camera) in spec.cameras.iter_mut().enumerate() {
+            let mut r = root.fork(i as u64);
+            let c = centres[i];
+            camera.centre = Point3::new(
+                c[0] + r.symmetric(0.003),
+                c[1] + r.symmetric(0.003),
+                c[2] + r.symmetric(0.003),
+            );
+            camera.yaw_rad = deg(yaws_deg[i] + r.symmetric(0.5));
+        }
+        spec
+    }
+
     /// The same rig with `distortion` on every camera.
     pub fn with_distortion(mut self, distortion: Distortion) -> RigSpec {
         for c in &mut self.cameras {
@@ -378,5 +400,77 @@ mod tests {
         let m = pose.to_matrix();
         let p = m * Point3::new(0.3, 0.0, 0.0).to_homogeneous();
         assert!((p.xyz() - Vector3::new(2.0, 3.3, 1.2)).norm() < 1e-12);
+    }
+}
+
+/// The rig geometries matching must serve ("any three calibrated cameras"): the office-like
+/// triangle facing the scene and the shapes that once lost their third camera or a
+/// direction. Rig frame: x right, y forward (the viewing direction), z up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RigShape {
+    /// [`RigSpec::non_collinear`]: centres in a triangle across the view (the reference).
+    FacingTriangle,
+    /// Three cameras at one height, the third 25 cm ahead of the middle of the other two.
+    ThirdAhead,
+    /// The same with the third 25 cm behind.
+    ThirdBehind,
+    /// An L: the third camera 25 cm above the first.
+    LShape,
+    /// A triangle only 2 cm off a line: horizontal segments are seen by a 7.6° epipolar angle.
+    NearCollinear,
+    /// The triangle at twice the size (0.6 m baseline).
+    Wide,
+    /// The triangle at a third of the size (0.1 m baseline).
+    Narrow,
+    /// Cameras 1 and 2 turned 15° towards each other.
+    Converging,
+    /// Cameras 1 and 2 turned 15° away from each other.
+    Diverging,
+}
+
+impl RigShape {
+    pub const ALL: [RigShape; 9] = [
+        RigShape::FacingTriangle,
+        RigShape::ThirdAhead,
+        RigShape::ThirdBehind,
+        RigShape::LShape,
+        RigShape::NearCollinear,
+        RigShape::Wide,
+        RigShape::Narrow,
+        RigShape::Converging,
+        RigShape::Diverging,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            RigShape::FacingTriangle => "facing triangle",
+            RigShape::ThirdAhead => "third camera ahead",
+            RigShape::ThirdBehind => "third camera behind",
+            RigShape::LShape => "L-shape",
+            RigShape::NearCollinear => "near-collinear",
+            RigShape::Wide => "wide (0.6 m)",
+            RigShape::Narrow => "narrow (0.1 m)",
+            RigShape::Converging => "converging 2 x 15°",
+            RigShape::Diverging => "diverging 2 x 15°",
+        }
+    }
+
+    /// Nominal centres (metres) and yaws (degrees) of the three cameras; `None` for the
+    /// reference, which is [`RigSpec::non_collinear`] itself.
+    fn geometry(self) -> Option<([[f64; 3]; 3], [f64; 3])> {
+        let facing = [[0.0, 0.0, 0.0], [0.30, 0.0, 0.0], [0.15, 0.0, 0.25]];
+        let scaled = |k: f64| facing.map(|c| c.map(|x| x * k));
+        let level = [0.0; 3];
+        Some(match self {
+            RigShape::FacingTriangle => return None,
+            RigShape::ThirdAhead => ([[0.0; 3], [0.30, 0.0, 0.0], [0.15, 0.25, 0.0]], level),
+            RigShape::ThirdBehind => ([[0.0; 3], [0.30, 0.0, 0.0], [0.15, -0.25, 0.0]], level),
+            RigShape::LShape => ([[0.0; 3], [0.30, 0.0, 0.0], [0.0, 0.0, 0.25]], level),
+            RigShape::NearCollinear => ([[0.0; 3], [0.30, 0.0, 0.0], [0.15, 0.0, 0.02]], level),
+            RigShape::Wide => (scaled(2.0), level),
+            RigShape::Narrow => (scaled(1.0 / 3.0), level),
+            RigShape::Converging => (facing, [-15.0, 15.0, 0.0]),
+            RigShape::Diverging => (facing, [15.0, -15.0, 0.0]),
+        })
     }
 }

@@ -6,6 +6,7 @@ mod bad_input;
 mod calibration;
 mod common;
 mod images;
+mod rigs;
 mod service;
 mod sessions;
 mod tls;

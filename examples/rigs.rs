@@ -1,0 +1,70 @@
+//! Accuracy of every rig shape of `synth::RigShape` on the standard room: 3D error and
+//! completeness (strict scorer, as `tests/integration/rigs.rs`) of the default answer,
+//! rendered images in, pooled over seeds.
+//!
+//!     cargo run --release --example rigs [-- SEEDS]
+
+use trinocular::extract::Params;
+use trinocular::matching::MatchParams;
+use trinocular::pipeline::{match_images, match_segments};
+use trinocular::segment::Segment3;
+use trinocular::synth::{
+    eligible_intervals, render_triplet, rig_centre, score, shaped_capture, Defects, RenderParams,
+    RigShape,
+};
+
+fn main() {
+    let seeds: u64 = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(4);
+    // `lists`: the exact projections as segment lists, every match (the geometry alone).
+    let lists = std::env::args().any(|a| a == "lists");
+    // `all`: every match of the images, not only what meets the accuracy gate.
+    let all = std::env::args().any(|a| a == "all");
+    println!(
+        "| rig | segments | 3D error | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|"
+    );
+    for shape in RigShape::ALL {
+        let (mut n, mut correct, mut eligible, mut covered) = (0usize, 0usize, 0.0, 0.0);
+        let (mut per_pair, mut angle) = (false, 0.0);
+        for seed in 1..=seeds {
+            let (scene, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
+            let out = if lists {
+                let params = MatchParams {
+                    include_uncertain: true,
+                    ..MatchParams::default()
+                };
+                match_segments(&rig, &obs.lists, &params).expect("match")
+            } else {
+                let images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
+                match_images(
+                    &rig,
+                    [&images[0], &images[1], &images[2]],
+                    &Params::default(),
+                    &MatchParams {
+                        include_uncertain: all,
+                        ..MatchParams::default()
+                    },
+                )
+                .expect("match")
+                .output
+            };
+            let segs: Vec<Segment3> = out.segments_3d.iter().map(|r| r.segment).collect();
+            let e = eligible_intervals(&obs);
+            let s = score(&segs, &obs.ground_truth, &e, rig_centre(&rig));
+            n += s.n_segments;
+            correct += s.n_correct;
+            eligible += s.eligible_length_m;
+            covered += s.covered_length_m;
+            per_pair = out.stats.per_pair_rectification;
+            angle = out.stats.epipolar_angle_deg;
+        }
+        println!(
+            "| {} | {n} | {:.1}% | {:.1}% | {per_pair} | {angle:.0}° |",
+            shape.name(),
+            100.0 * (1.0 - correct as f64 / n.max(1) as f64),
+            100.0 * covered / eligible,
+        );
+    }
+}

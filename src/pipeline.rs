@@ -141,6 +141,8 @@ pub struct MatchStats {
     pub zero_length_dropped: [u32; 3],
     /// Segments dropped per list as near-copies of an earlier one ([`DUPLICATE_PX`]).
     pub duplicates_dropped: [u32; 3],
+    /// Segments not used per list for being fainter than `MatchParams::min_gradient`.
+    pub low_contrast_dropped: [u32; 3],
     pub hypotheses: u32,
     pub triplets: u32,
     pub segments_3d: u32,
@@ -275,6 +277,8 @@ struct Prepared {
     /// View 1 in the second pair frame, index for index with `rect` (per-pair frames only).
     rect_second: Vec<RectSegment>,
     zero_length: u32,
+    /// Segments fainter than `MatchParams::min_gradient`.
+    low_contrast: u32,
     duplicates: u32,
 }
 
@@ -407,6 +411,7 @@ fn prepare(
         rect: Vec::with_capacity(list.segments.len()),
         rect_second: Vec::new(),
         zero_length,
+        low_contrast: 0,
         duplicates: 0,
     };
     let mut copies = Copies::default();
@@ -427,6 +432,11 @@ fn prepare(
             continue;
         };
         let gradient = s.gradient.unwrap_or(f64::NAN);
+        // A list without gradients (NaN) is not filtered: nothing says its segments are faint.
+        if gradient < params.min_gradient {
+            out.low_contrast += 1;
+            continue;
+        }
         if let Some(second) = second {
             let (Some(a2), Some(b2)) = (second.to_rect(view, p), second.to_rect(view, q)) else {
                 continue;
@@ -571,6 +581,7 @@ pub fn match_segments_until(
         segments_used: std::array::from_fn(|v| prepared[v].rect.len() as u32),
         zero_length_dropped: std::array::from_fn(|v| prepared[v].zero_length),
         duplicates_dropped: std::array::from_fn(|v| prepared[v].duplicates),
+        low_contrast_dropped: std::array::from_fn(|v| prepared[v].low_contrast),
         collinear_rig: rect.collinear(),
         per_pair_rectification: !frames.shared,
         // One pair searched alone loses the directions along its epipolar lines.
@@ -1308,6 +1319,48 @@ mod tests {
                 limit: matching::predict::MAX_HYPOTHESES
             }
         );
+    }
+
+    #[test]
+    fn faint_segments_are_left_out_when_asked_and_lists_without_gradients_never() {
+        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
+        // Every other segment faint (gradient 4), the others strong (40).
+        let graded = lists.clone().map(|mut l| {
+            for (i, s) in l.segments.iter_mut().enumerate() {
+                s.gradient = Some(if i % 2 == 0 { 4.0 } else { 40.0 });
+            }
+            l
+        });
+        let params = MatchParams {
+            min_gradient: 10.0,
+            ..MatchParams::default()
+        };
+        let out = match_segments(&rig, &graded, &params).unwrap();
+        let all = match_segments(&rig, &graded, &MatchParams::default()).unwrap();
+        for v in 0..3 {
+            // Every faint one that was otherwise usable (long enough, not a copy, in view).
+            let faint = graded[v].segments.iter().step_by(2).count() as u32;
+            let unusable = all.stats.segments_in[v] - all.stats.segments_used[v];
+            let dropped = out.stats.low_contrast_dropped[v];
+            assert!(dropped <= faint && dropped + unusable >= faint, "view {v}");
+            assert_eq!(
+                out.stats.segments_used[v],
+                all.stats.segments_used[v] - dropped
+            );
+        }
+        assert!(!out.triplets.is_empty());
+        for t in &out.triplets {
+            assert!(t.segments.iter().all(|&s| s % 2 == 1), "{t:?}");
+        }
+        // No gradients given: nothing is known to be faint.
+        let out = match_segments(&rig, &lists, &params).unwrap();
+        assert_eq!(out.stats.low_contrast_dropped, [0, 0, 0]);
+        assert!(MatchParams {
+            min_gradient: -1.0,
+            ..MatchParams::default()
+        }
+        .check()
+        .is_err());
     }
 
     #[test]

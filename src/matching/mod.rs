@@ -33,6 +33,10 @@ pub struct MatchParams {
     pub min_length_px: f64,
     /// Largest ratio of the gradient magnitudes of two matched segments (when both known).
     pub gradient_ratio_max: f64,
+    /// Segments whose mean gradient is known and below this are not matched, grey levels
+    /// per pixel. On real photographs faint repetitive texture (mortar between bricks) is
+    /// where false matches come from (docs/RIGS.md#real-photographs); 0 matches everything.
+    pub min_gradient: f64,
     /// Run local-consistency validation.
     pub validate: bool,
     /// Endpoints closer than this share a vertex (neighbour support), pixels.
@@ -67,6 +71,7 @@ impl Default for MatchParams {
             verify_angle_tolerance_deg: 3.0,
             min_length_px: 8.0,
             gradient_ratio_max: 3.0,
+            min_gradient: 0.0,
             validate: true,
             neighbour_radius_px: 8.0,
             max_residual_px: 1.5,
@@ -105,7 +110,7 @@ impl ParamError {
 impl MatchParams {
     /// Checks every field; reports the first problem.
     pub fn check(&self) -> Result<(), ParamError> {
-        let fields: [(&'static str, f64); 15] = [
+        let fields: [(&'static str, f64); 16] = [
             ("depth_min_m", self.depth_min_m),
             ("depth_max_m", self.depth_max_m),
             ("tolerance_px", self.tolerance_px),
@@ -116,6 +121,7 @@ impl MatchParams {
             ),
             ("min_length_px", self.min_length_px),
             ("gradient_ratio_max", self.gradient_ratio_max),
+            ("min_gradient", self.min_gradient),
             ("neighbour_radius_px", self.neighbour_radius_px),
             ("max_residual_px", self.max_residual_px),
             ("line_noise_px", self.line_noise_px),
@@ -176,6 +182,12 @@ impl MatchParams {
             self.min_length_px >= 0.0,
             "min_length_px",
             self.min_length_px,
+            "at least 0",
+        )?;
+        check(
+            self.min_gradient >= 0.0,
+            "min_gradient",
+            self.min_gradient,
             "at least 0",
         )?;
         check(

@@ -1337,9 +1337,9 @@ mod tests {
         };
         let out = match_segments(&rig, &graded, &params).unwrap();
         let all = match_segments(&rig, &graded, &MatchParams::default()).unwrap();
-        for v in 0..3 {
+        for (v, list) in graded.iter().enumerate() {
             // Every faint one that was otherwise usable (long enough, not a copy, in view).
-            let faint = graded[v].segments.iter().step_by(2).count() as u32;
+            let faint = list.segments.iter().step_by(2).count() as u32;
             let unusable = all.stats.segments_in[v] - all.stats.segments_used[v];
             let dropped = out.stats.low_contrast_dropped[v];
             assert!(dropped <= faint && dropped + unusable >= faint, "view {v}");

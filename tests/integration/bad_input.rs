@@ -58,6 +58,9 @@ fn non_finite_numbers_are_named() {
     r["options"] = json!({"tolerancePx": "NaN"});
     assert_eq!(field_of(&r), "options.tolerance_px");
     let mut r = request_json();
+    r["options"] = json!({"minGradient": -1});
+    assert_eq!(field_of(&r), "options.min_gradient");
+    let mut r = request_json();
     r["segments"]["lists"][0]["segments"][0]["gradient"] = json!("-Infinity");
     assert_eq!(field_of(&r), "segments.lists[0].segments[0].gradient");
 }

@@ -234,6 +234,7 @@ mod tests {
         let list = SegmentList {
             segments: vec![seg(2.0, 5.0, 17.0, 5.0), seg(10.0, 1.0, 10.0, 3.0)],
             oriented: true,
+            background_gradient: None,
         };
         let labels = [Some(0), None];
         let pic = triplet_overlay([&img; 3], [&list; 3], [&labels[..]; 3]);

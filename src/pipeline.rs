@@ -141,7 +141,8 @@ pub struct MatchStats {
     pub zero_length_dropped: [u32; 3],
     /// Segments dropped per list as near-copies of an earlier one ([`DUPLICATE_PX`]).
     pub duplicates_dropped: [u32; 3],
-    /// Segments not used per list for being fainter than `MatchParams::min_gradient`.
+    /// Segments not used per list for being fainter than `MatchParams::min_gradient` or
+    /// `min_gradient_to_background` times the list's background.
     pub low_contrast_dropped: [u32; 3],
     pub hypotheses: u32,
     pub triplets: u32,
@@ -277,7 +278,8 @@ struct Prepared {
     /// View 1 in the second pair frame, index for index with `rect` (per-pair frames only).
     rect_second: Vec<RectSegment>,
     zero_length: u32,
-    /// Segments fainter than `MatchParams::min_gradient`.
+    /// Segments fainter than the floor of `MatchParams::min_gradient` and
+    /// `min_gradient_to_background`.
     low_contrast: u32,
     duplicates: u32,
 }
@@ -414,6 +416,9 @@ fn prepare(
         low_contrast: 0,
         duplicates: 0,
     };
+    let floor = params
+        .min_gradient
+        .max(params.min_gradient_to_background * list.background_gradient.unwrap_or(0.0));
     let mut copies = Copies::default();
     // Undistorted image segments with their noise, parallel to `out.rect`: kept apart, since
     // their noise gains its crowding after prediction while the views borrow `rect`.
@@ -433,7 +438,7 @@ fn prepare(
         };
         let gradient = s.gradient.unwrap_or(f64::NAN);
         // A list without gradients (NaN) is not filtered: nothing says its segments are faint.
-        if gradient < params.min_gradient {
+        if gradient < floor {
             out.low_contrast += 1;
             continue;
         }
@@ -1290,6 +1295,7 @@ mod tests {
                 .map(|_| jitter(lists[v].segments[[a, b, c][v] as usize]))
                 .collect(),
             oriented: lists[v].oriented,
+            background_gradient: None,
         });
         let out = match_segments(&rig, &pile, &params).unwrap();
         let used = out.stats.segments_used[0] as usize;
@@ -1311,6 +1317,7 @@ mod tests {
                     })
                     .collect(),
                 oriented: false,
+                background_gradient: None,
             }
         });
         assert_eq!(
@@ -1357,6 +1364,52 @@ mod tests {
         assert_eq!(out.stats.low_contrast_dropped, [0, 0, 0]);
         assert!(MatchParams {
             min_gradient: -1.0,
+            ..MatchParams::default()
+        }
+        .check()
+        .is_err());
+    }
+
+    #[test]
+    fn segments_that_do_not_stand_out_from_their_images_background_are_left_out() {
+        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
+        // Every other segment at 4 grey levels per pixel, the others at 40, on images whose
+        // typical pixel has 2: the faint ones are under 2.5 times that.
+        let textured = lists.clone().map(|mut l| {
+            for (i, s) in l.segments.iter_mut().enumerate() {
+                s.gradient = Some(if i % 2 == 0 { 4.0 } else { 40.0 });
+            }
+            l.background_gradient = Some(2.0);
+            l
+        });
+        let out = match_segments(&rig, &textured, &MatchParams::default()).unwrap();
+        let off = MatchParams {
+            min_gradient_to_background: 0.0,
+            ..MatchParams::default()
+        };
+        let all = match_segments(&rig, &textured, &off).unwrap();
+        assert_eq!(all.stats.low_contrast_dropped, [0, 0, 0]);
+        for v in 0..3 {
+            let dropped = out.stats.low_contrast_dropped[v];
+            assert!(dropped > 0, "view {v}");
+            assert_eq!(
+                out.stats.segments_used[v],
+                all.stats.segments_used[v] - dropped
+            );
+        }
+        assert!(!out.triplets.is_empty());
+        for t in &out.triplets {
+            assert!(t.segments.iter().all(|&s| s % 2 == 1), "{t:?}");
+        }
+        // The same lists from a clean image (background 0.4): nothing is faint.
+        let clean = textured.map(|mut l| {
+            l.background_gradient = Some(0.4);
+            l
+        });
+        let out = match_segments(&rig, &clean, &MatchParams::default()).unwrap();
+        assert_eq!(out.stats.low_contrast_dropped, [0, 0, 0]);
+        assert!(MatchParams {
+            min_gradient_to_background: f64::NAN,
             ..MatchParams::default()
         }
         .check()

@@ -1,6 +1,6 @@
 //! Reconstruction (DESIGN §2.6): each matched triplet becomes a 3D segment in the rig frame —
 //! the maximum-likelihood line of its three image lines, weighted by their noise, with its
-//! covariance, its χ² and an extent on which at least two views agree
+//! covariance, its χ² and the extent every view saw
 //! ([`crate::geometry::estimate_line`]).
 
 use rayon::prelude::*;

@@ -88,6 +88,10 @@ pub struct SegmentList {
     pub segments: Vec<Segment2>,
     /// True when every segment is oriented by contrast.
     pub oriented: bool,
+    /// The median gradient magnitude of the image the segments come from, grey levels per
+    /// pixel (`extract::gradient::background_magnitude`): the contrast of its noise and
+    /// texture. `None` when unknown (a list from elsewhere that does not say).
+    pub background_gradient: Option<f64>,
 }
 
 /// A 3D segment in metres.

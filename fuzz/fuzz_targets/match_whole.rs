@@ -362,7 +362,11 @@ fuzz_target!(|input: Input| {
             lists: lists
                 .into_iter()
                 .zip(input.head.oriented)
-                .map(|(segments, oriented)| pb::SegmentList { segments, oriented })
+                .map(|(segments, oriented)| pb::SegmentList {
+                    segments,
+                    oriented,
+                    background_gradient: None,
+                })
                 .collect(),
         })),
     };

@@ -261,6 +261,7 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         min_length_px,
         gradient_ratio_max,
         min_gradient,
+        min_gradient_to_background,
         validate,
         neighbour_radius_px,
         max_residual_px,
@@ -285,6 +286,8 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         min_length_px: min_length_px.unwrap_or(d.min_length_px),
         gradient_ratio_max: gradient_ratio_max.unwrap_or(d.gradient_ratio_max),
         min_gradient: min_gradient.unwrap_or(d.min_gradient),
+        min_gradient_to_background: min_gradient_to_background
+            .unwrap_or(d.min_gradient_to_background),
         validate: validate.unwrap_or(d.validate),
         neighbour_radius_px: neighbour_radius_px.unwrap_or(d.neighbour_radius_px),
         max_residual_px: max_residual_px.unwrap_or(d.max_residual_px),
@@ -484,6 +487,16 @@ pub fn segment_lists(
             ),
         ));
     }
+    for (i, list) in lists.iter().enumerate() {
+        if let Some(g) = list.background_gradient {
+            if !(g.is_finite() && g >= 0.0) {
+                return Err(InputError::new(
+                    format!("segments.lists[{i}].background_gradient"),
+                    format!("must be a finite number at least 0, got {g}"),
+                ));
+            }
+        }
+    }
     // A segment's noise is two numbers or none: one alone would be silently ignored.
     for (i, list) in lists.iter().enumerate() {
         for (j, s) in list.segments.iter().enumerate() {
@@ -501,9 +514,14 @@ pub fn segment_lists(
         }
     }
     Ok(std::array::from_fn(|i| {
-        let pb::SegmentList { segments, oriented } = &lists[i];
+        let pb::SegmentList {
+            segments,
+            oriented,
+            background_gradient,
+        } = &lists[i];
         SegmentList {
             oriented: *oriented,
+            background_gradient: *background_gradient,
             segments: segments
                 .iter()
                 .map(|s| {
@@ -665,6 +683,7 @@ impl MatchInput {
 pub fn segment_list_to_pb(list: &SegmentList) -> pb::SegmentList {
     pb::SegmentList {
         oriented: list.oriented,
+        background_gradient: list.background_gradient,
         segments: list
             .segments
             .iter()

@@ -63,6 +63,8 @@ struct SegmentList {
     segments: Vec<Segment>,
     #[serde(default)]
     oriented: bool,
+    #[serde(default, rename = "backgroundGradient")]
+    background_gradient: Option<Plain>,
 }
 
 #[derive(Deserialize)]
@@ -124,6 +126,7 @@ fn triplet_to_pb(t: SegmentTriplet) -> pb::SegmentTriplet {
             .into_iter()
             .map(|l| pb::SegmentList {
                 oriented: l.oriented,
+                background_gradient: l.background_gradient.map(|g| g.0),
                 segments: l
                     .segments
                     .into_iter()

@@ -170,6 +170,46 @@ pub fn gradient_at(
     (u * 0.125, v * 0.125)
 }
 
+/// Grid step of [`background_magnitude`]'s sample, pixels: one pixel in sixteen is plenty
+/// for a median and costs a few percent of the gradient pass.
+const BACKGROUND_STEP: usize = 4;
+/// Its histogram: bins of 1/16 grey level per pixel up to 64, the rest in the last bin (a
+/// median that high means an image that is all edges).
+const BACKGROUND_BINS_PER_LEVEL: f32 = 16.0;
+const BACKGROUND_BINS: usize = 64 * 16;
+
+/// The median gradient magnitude over the image, sampled on a grid, grey levels per pixel:
+/// what a typical pixel looks like. On a clean image of surfaces that is the smoothed sensor
+/// noise (well under one grey level per pixel); on a photograph of brick, foliage or gravel it
+/// is the texture's own contrast. An edge only a few times above it cannot be told from the
+/// texture around it, and there the false matches come from (docs/RIGS.md). 0 for an image
+/// too small to have an interior.
+pub fn background_magnitude(smoothed: &[f32], width: usize, height: usize) -> f32 {
+    if width < 3 || height < 3 || smoothed.len() != width * height {
+        return 0.0;
+    }
+    let mut histogram = vec![0u32; BACKGROUND_BINS];
+    let mut count = 0u32;
+    for y in (1..height - 1).step_by(BACKGROUND_STEP) {
+        for x in (1..width - 1).step_by(BACKGROUND_STEP) {
+            let (u, v) = gradient_at(smoothed, width, height, x, y);
+            let bin = ((u * u + v * v).sqrt() * BACKGROUND_BINS_PER_LEVEL) as usize;
+            histogram[bin.min(BACKGROUND_BINS - 1)] += 1;
+            count += 1;
+        }
+    }
+    let half = count.div_ceil(2);
+    let mut seen = 0u32;
+    for (bin, &n) in histogram.iter().enumerate() {
+        seen += n;
+        if seen >= half {
+            // The bin's centre: the median to within 1/32 grey level per pixel.
+            return (bin as f32 + 0.5) / BACKGROUND_BINS_PER_LEVEL;
+        }
+    }
+    0.0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -205,5 +245,26 @@ mod tests {
         assert_eq!(g.magnitude[0], 0.0, "frame stays zero");
         assert_eq!(gradient_at(&ramp, w, h, 4, 3), (g.gu[i], g.gv[i]));
         assert_eq!(gradient_at(&ramp, w, h, 0, 3), (0.0, 0.0));
+    }
+
+    #[test]
+    fn background_is_the_noise_on_a_flat_image_and_the_texture_on_a_textured_one() {
+        let (w, h) = (64, 48);
+        let mut rng = crate::synth::rng::Rng::new(7);
+        // Flat grey with σ = 2 sensor noise, smoothed like extraction does.
+        let flat: Vec<f32> = (0..w * h)
+            .map(|_| (128.0 + 2.0 * rng.normal() as f32).round())
+            .collect();
+        let flat = smooth(&GreyImage::new(w as u32, h as u32, flat).unwrap(), 1.0);
+        let noise = background_magnitude(&flat, w, h);
+        assert!(noise > 0.1 && noise < 1.0, "{noise}");
+        // Stripes of 30 grey levels, a period of 5 pixels: most pixels sit on a steep ramp.
+        let stripes: Vec<f32> = (0..w * h)
+            .map(|i| if (i % w) % 5 < 2 { 100.0 } else { 130.0 })
+            .collect();
+        let stripes = smooth(&GreyImage::new(w as u32, h as u32, stripes).unwrap(), 1.0);
+        let texture = background_magnitude(&stripes, w, h);
+        assert!(texture > 4.0, "{texture}");
+        assert_eq!(background_magnitude(&[0.0; 4], 2, 2), 0.0);
     }
 }

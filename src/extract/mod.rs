@@ -307,6 +307,7 @@ pub fn extract_until(
 
     checkpoint.before("extract")?;
     let t = Instant::now();
+    let background = gradient::background_magnitude(&smoothed, w, h);
     let candidates = edges::edge_points(&smoothed, w, h, params.gradient_low as f32);
     checkpoint.before("extract")?;
     let map = edges::hysteresis(candidates, params.gradient_high as f32);
@@ -494,6 +495,7 @@ pub fn extract_until(
         segments: SegmentList {
             segments,
             oriented: true,
+            background_gradient: Some(f64::from(background)),
         },
         graph,
         stats,

@@ -6,7 +6,8 @@
 //! distances of each observation, weighted by its noise ([`LineNoise`]), over the line's four
 //! parameters; the inverse normal matrix at the optimum is its covariance (first order), and
 //! the χ² at the optimum says whether the observations are one line at all. The 3D segment is
-//! the part of the line on which at least two views agree (the median of their ends).
+//! the part of the line every view saw (the overlap of their ends, a view holding only a
+//! fragment of the line aside).
 
 use nalgebra::{Matrix3, Matrix6, Point2, Point3, Vector3, Vector4};
 
@@ -16,6 +17,9 @@ use crate::segment::LineNoise;
 /// Smallest ratio of the middle to the largest eigenvalue of the plane normals' scatter: below
 /// it the planes (nearly) coincide and the line is not determined.
 const MIN_PLANE_SPREAD: f64 = 1e-8;
+/// A view whose segment covers less than this share of the longest view's holds a fragment
+/// of the line: its ends do not cut the 3D segment's extent.
+const FRAGMENT_SHARE: f64 = 0.25;
 /// Smallest sine between a back-projected ray and the 3D line for the ray to locate an endpoint.
 const MIN_RAY_LINE_SIN: f64 = 1e-3;
 
@@ -220,9 +224,13 @@ fn linear_start(
 ///    mapped onto the two endpoints; along the line each endpoint gets the spread of the
 ///    views' own ends around it (at least `end_sigma_px` back-projected), since where a
 ///    segment stops is decided by occlusion and contrast as much as by noise.
-/// 3. **Extent**: each view's observed ends back-projected onto the line; each end of the 3D
-///    segment is the median of the views' (with three views, the middle one), so one view
-///    whose segment is cut short or runs on does not decide it.
+/// 3. **Extent**: each view's observed ends back-projected onto the line; the 3D segment is
+///    their overlap, the part every view saw. Only there did the third view verify the match:
+///    a view whose segment runs on past the edge (merged with a collinear neighbour, a
+///    shadow) would otherwise extend it where nothing confirms it. A view whose segment is a
+///    fragment (under `FRAGMENT_SHARE` of the longest view's) does not cut it: a line broken
+///    by extraction in one view would shrink to the piece. Measured against the median of
+///    the views' ends in docs/ACCURACY.md.
 ///
 /// `None` when the line is undetermined, passes behind a camera, or the views share no part.
 pub fn estimate_line(
@@ -274,7 +282,7 @@ pub fn estimate_line(
             (h, chi2, sum_px, e1, e2)
         }
     };
-    // Extent: the median, over views, of each view's ends along the line.
+    // Extent: each view's ends along the line (a view's pieces together), then their overlap.
     let mut ends: Vec<(f64, f64)> = Vec::with_capacity(3);
     let mut first_sign = 0.0;
     for (view, cam) in cameras.iter().enumerate() {
@@ -304,17 +312,15 @@ pub fn estimate_line(
     if ends.len() < 2 {
         return None;
     }
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        }
+    // The part every view saw, which is what the third view verified; a view that holds only
+    // a fragment of the line says where the fragment stops, not the line.
+    let longest = ends.iter().map(|e| e.1 - e.0).fold(0.0, f64::max);
+    let whole = || {
+        ends.iter()
+            .filter(move |e| e.1 - e.0 >= FRAGMENT_SHARE * longest)
     };
-    let lo = median(ends.iter().map(|e| e.0).collect());
-    let hi = median(ends.iter().map(|e| e.1).collect());
+    let lo = whole().map(|e| e.0).fold(f64::NEG_INFINITY, f64::max);
+    let hi = whole().map(|e| e.1).fold(f64::INFINITY, f64::min);
     if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
         return None;
     }

@@ -37,6 +37,12 @@ pub struct MatchParams {
     /// per pixel. On real photographs faint repetitive texture (mortar between bricks) is
     /// where false matches come from (docs/RIGS.md#real-photographs); 0 matches everything.
     pub min_gradient: f64,
+    /// Segments whose mean gradient is below this multiple of their list's
+    /// `background_gradient` (when both are known) are not matched: an edge must stand out
+    /// from the noise and texture of its image. Clean images have a background well under one
+    /// grey level per pixel, below any edge extraction keeps; a photograph of brick has two
+    /// or more, and its mortar lines fall under the floor (docs/RIGS.md#real-photographs).
+    pub min_gradient_to_background: f64,
     /// Run local-consistency validation.
     pub validate: bool,
     /// Endpoints closer than this share a vertex (neighbour support), pixels.
@@ -72,6 +78,7 @@ impl Default for MatchParams {
             min_length_px: 8.0,
             gradient_ratio_max: 3.0,
             min_gradient: 0.0,
+            min_gradient_to_background: 2.5,
             validate: true,
             neighbour_radius_px: 8.0,
             max_residual_px: 1.5,
@@ -110,7 +117,7 @@ impl ParamError {
 impl MatchParams {
     /// Checks every field; reports the first problem.
     pub fn check(&self) -> Result<(), ParamError> {
-        let fields: [(&'static str, f64); 16] = [
+        let fields: [(&'static str, f64); 17] = [
             ("depth_min_m", self.depth_min_m),
             ("depth_max_m", self.depth_max_m),
             ("tolerance_px", self.tolerance_px),
@@ -122,6 +129,10 @@ impl MatchParams {
             ("min_length_px", self.min_length_px),
             ("gradient_ratio_max", self.gradient_ratio_max),
             ("min_gradient", self.min_gradient),
+            (
+                "min_gradient_to_background",
+                self.min_gradient_to_background,
+            ),
             ("neighbour_radius_px", self.neighbour_radius_px),
             ("max_residual_px", self.max_residual_px),
             ("line_noise_px", self.line_noise_px),
@@ -188,6 +199,12 @@ impl MatchParams {
             self.min_gradient >= 0.0,
             "min_gradient",
             self.min_gradient,
+            "at least 0",
+        )?;
+        check(
+            self.min_gradient_to_background >= 0.0,
+            "min_gradient_to_background",
+            self.min_gradient_to_background,
             "at least 0",
         )?;
         check(

@@ -523,6 +523,7 @@ pub fn observe(scene: &Scene, rig: &Rig, defects: &Defects, seed: u64) -> Observ
             SegmentList {
                 segments,
                 oriented: true,
+                background_gradient: None,
             },
             truth,
         )

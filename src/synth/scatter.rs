@@ -40,6 +40,7 @@ pub fn scattered_capture(
     let mut lists: [SegmentList; 3] = std::array::from_fn(|_| SegmentList {
         segments: Vec::with_capacity(n),
         oriented: true,
+        background_gradient: None,
     });
     let cam = rig.camera(0);
     let (w, h) = (cam.width() as f64, cam.height() as f64);

@@ -242,6 +242,7 @@ fn copies_of_segments_stay_bounded_and_a_crowd_stops_at_its_deadline() {
         let crowd: Vec<pb::SegmentList> = (0..3)
             .map(|_| pb::SegmentList {
                 oriented: false,
+                background_gradient: None,
                 segments: (0..100_000)
                     .map(|_| {
                         let (u, v) = (rng.range(0.0, 512.0), rng.range(0.0, 512.0));

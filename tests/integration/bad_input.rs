@@ -61,6 +61,15 @@ fn non_finite_numbers_are_named() {
     r["options"] = json!({"minGradient": -1});
     assert_eq!(field_of(&r), "options.min_gradient");
     let mut r = request_json();
+    r["options"] = json!({"minGradientToBackground": "-Infinity"});
+    assert_eq!(field_of(&r), "options.min_gradient_to_background");
+    let mut r = request_json();
+    r["segments"]["lists"][2]["backgroundGradient"] = json!("NaN");
+    assert_eq!(field_of(&r), "segments.lists[2].background_gradient");
+    let mut r = request_json();
+    r["segments"]["lists"][2]["backgroundGradient"] = json!(-0.5);
+    assert_eq!(field_of(&r), "segments.lists[2].background_gradient");
+    let mut r = request_json();
     r["segments"]["lists"][0]["segments"][0]["gradient"] = json!("-Infinity");
     assert_eq!(field_of(&r), "segments.lists[0].segments[0].gradient");
 }

@@ -44,6 +44,7 @@ fn trimmed(obs: &synth::Observation, edges: usize) -> [SegmentList; 3] {
     }
     std::array::from_fn(|v| SegmentList {
         oriented: obs.lists[v].oriented,
+        background_gradient: None,
         segments: obs.lists[v]
             .segments
             .iter()

@@ -67,14 +67,19 @@ fn bench_extract(c: &mut Criterion) {
     let (_, _, images) = &all[0];
     let img = &images[0];
     let (w, h) = (img.width() as usize, img.height() as usize);
-    let smoothed = gradient::smooth(img, params.smoothing_sigma_px);
+    // The stages at the smoothing the default chooses for this image.
+    let sigma = params
+        .smoothing_sigma_px
+        .unwrap_or_else(|| extract::scale::choose(img, params.gradient_high).smoothing_sigma_px);
+    let smoothed = gradient::smooth(img, sigma);
     let grad = gradient::gradient(&smoothed, w, h);
     let candidates = edges::non_maximum_suppression(&grad, params.gradient_low as f32);
     let map = edges::hysteresis(candidates.clone(), params.gradient_high as f32);
     let mut group = c.benchmark_group("stage");
-    group.bench_function("smooth", |b| {
-        b.iter(|| gradient::smooth(img, params.smoothing_sigma_px))
+    group.bench_function("choose_smoothing", |b| {
+        b.iter(|| extract::scale::choose(img, params.gradient_high))
     });
+    group.bench_function("smooth", |b| b.iter(|| gradient::smooth(img, sigma)));
     group.bench_function("gradient", |b| {
         b.iter(|| gradient::gradient(&smoothed, w, h))
     });

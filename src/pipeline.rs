@@ -659,12 +659,80 @@ struct Quality {
     certain: bool,
 }
 
-/// The largest variance across the line of a 3x3 covariance whose part along the line is
-/// not asked for: its largest eigenvalue in the plane `basis` spans (closed form for 2x2).
-fn worst_variance(m: &nalgebra::Matrix3<f64>, basis: &nalgebra::Matrix3x2<f64>) -> f64 {
+/// The largest and smallest variance across the line of a 3x3 covariance whose part along
+/// the line is not asked for: its eigenvalues in the plane `basis` spans (closed form, 2x2).
+fn principal_variances(m: &nalgebra::Matrix3<f64>, basis: &nalgebra::Matrix3x2<f64>) -> (f64, f64) {
     let c = basis.transpose() * m * basis;
     let (a, b, d) = (c[(0, 0)], 0.5 * (c[(0, 1)] + c[(1, 0)]), c[(1, 1)]);
-    (0.5 * (a + d) + (0.25 * (a - d) * (a - d) + b * b).sqrt()).max(0.0)
+    let (mean, spread) = (0.5 * (a + d), (0.25 * (a - d) * (a - d) + b * b).sqrt());
+    ((mean + spread).max(0.0), (mean - spread).max(0.0))
+}
+
+/// Whether an error across the line, Gaussian with principal variances `(major, minor)`, lies
+/// within `radius` with probability at least `confidence` — the promise asked exactly. The
+/// error is two-dimensional, and an elongated ellipse (a line's depth is known far worse than
+/// its sideways position) holds more of its probability inside the disc than a round one of
+/// the same major axis: the round bound refused half the segments it need not have.
+fn within_radius(variances: (f64, f64), radius: f64, confidence: f64) -> bool {
+    let (major, minor) = variances;
+    let round_bound = (-2.0 * (1.0 - confidence).ln()).sqrt();
+    if round_bound * major.sqrt() <= radius {
+        return true; // inside even if the error were round
+    }
+    // Not even the major axis alone stays inside often enough.
+    let major_sigma = major.sqrt();
+    if major_sigma <= 0.0 || erf(radius / (major_sigma * std::f64::consts::SQRT_2)) < confidence {
+        return false;
+    }
+    within_radius_probability(major, minor, radius) >= confidence
+}
+
+/// P(x² + y² ≤ r²) for independent x ~ N(0, major), y ~ N(0, minor): the integral over x of
+/// its density times P(|y| ≤ √(r² − x²)), with x = r sin t (smooth in t), by Simpson's rule.
+fn within_radius_probability(major: f64, minor: f64, radius: f64) -> f64 {
+    const INTERVALS: usize = 48; // even; the integrand is smooth, 48 gives 1e-6
+    let (sx, sy) = (major.sqrt(), minor.sqrt());
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    let h = 2.0 * half_pi / INTERVALS as f64;
+    let integrand = |t: f64| {
+        let x = radius * t.sin();
+        let across = (radius * radius - x * x).max(0.0).sqrt();
+        let inside_y = if sy <= 1e-12 * radius {
+            1.0
+        } else {
+            erf(across / (sy * std::f64::consts::SQRT_2))
+        };
+        let density = (-0.5 * (x / sx).powi(2)).exp() / (sx * (2.0 * std::f64::consts::PI).sqrt());
+        density * inside_y * radius * t.cos()
+    };
+    let sum: f64 = (0..=INTERVALS)
+        .map(|i| {
+            let weight = if i == 0 || i == INTERVALS {
+                1.0
+            } else if i % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
+            weight * integrand(-half_pi + i as f64 * h)
+        })
+        .sum();
+    (sum * h / 3.0).clamp(0.0, 1.0)
+}
+
+/// The error function (Abramowitz & Stegun 7.1.26, |error| < 1.5e-7).
+fn erf(x: f64) -> f64 {
+    let t = 1.0 / (1.0 + 0.327_591_1 * x.abs());
+    let poly = t
+        * (0.254_829_592
+            + t * (-0.284_496_736
+                + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+    let y = 1.0 - poly * (-x * x).exp();
+    if x < 0.0 {
+        -y
+    } else {
+        y
+    }
 }
 
 /// Upper `z`-standard-deviation quantile of χ² with `dof` degrees of freedom
@@ -782,26 +850,32 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     }
     let (e1, e2) = crate::geometry::across_basis(&u);
     let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
-    let direction_var = worst_variance(&est.direction_covariance(), &basis);
-    let direction_sigma_deg = direction_var.sqrt().to_degrees();
+    let direction_var = principal_variances(&est.direction_covariance(), &basis);
+    let direction_sigma_deg = direction_var.0.sqrt().to_degrees();
     if direction_sigma_deg > params.max_direction_sigma_deg {
         return None;
     }
-    let position_sigma_m = worst_variance(&est.midpoint_covariance(), &basis).sqrt();
+    let midpoint_var = principal_variances(&est.midpoint_covariance(), &basis);
+    let position_sigma_m = midpoint_var.0.sqrt();
     let mid = nalgebra::center(&est.start, &est.end);
-    let start_var = worst_variance(
+    let start_var = principal_variances(
         &est.covariance.fixed_view::<3, 3>(0, 0).into_owned(),
         &basis,
     );
-    let end_var = worst_variance(
+    let end_var = principal_variances(
         &est.covariance.fixed_view::<3, 3>(3, 3).into_owned(),
         &basis,
     );
+    let confidence = params.gate_confidence;
     let certain = long_enough
-        && k * direction_var.sqrt() <= params.gate_direction_deg.to_radians()
-        && k * position_sigma_m <= tolerance(&mid)
-        && k * start_var.sqrt() <= tolerance(&est.start)
-        && k * end_var.sqrt() <= tolerance(&est.end);
+        && within_radius(
+            direction_var,
+            params.gate_direction_deg.to_radians(),
+            confidence,
+        )
+        && within_radius(midpoint_var, tolerance(&mid), confidence)
+        && within_radius(start_var, tolerance(&est.start), confidence)
+        && within_radius(end_var, tolerance(&est.end), confidence);
     Some((
         est,
         Quality {
@@ -1329,15 +1403,48 @@ mod tests {
     }
 
     #[test]
-    fn faint_segments_are_left_out_when_asked_and_lists_without_gradients_never() {
-        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
-        // Every other segment faint (gradient 4), the others strong (40).
-        let graded = lists.clone().map(|mut l| {
+    fn the_gate_asks_the_disc_probability_exactly() {
+        // A round error: P(r) = 1 − exp(−r²/2σ²), so the 95% radius is 2.448σ.
+        for r in [0.5f64, 1.0, 2.0, 3.0] {
+            let exact = 1.0 - (-0.5 * r * r).exp();
+            assert!(
+                (within_radius_probability(1.0, 1.0, r) - exact).abs() < 1e-5,
+                "{r}"
+            );
+        }
+        assert!(within_radius((1.0, 1.0), 2.45, 0.95));
+        assert!(!within_radius((1.0, 1.0), 2.40, 0.95));
+        // A line-like error: the minor axis adds almost nothing, so 1.96σ of the major axis
+        // holds 95%, where the round bound would have asked for 2.448σ.
+        let p = within_radius_probability(1.0, 1e-6, 1.96);
+        assert!((p - 0.95).abs() < 1e-3, "{p}");
+        assert!(within_radius((1.0, 1e-6), 2.0, 0.95));
+        assert!(!within_radius((1.0, 1e-6), 1.9, 0.95));
+        // In between, the probability lies between the two and falls as the minor axis grows.
+        let probabilities: Vec<f64> = [0.01, 0.1, 0.5, 1.0]
+            .iter()
+            .map(|&minor| within_radius_probability(1.0, minor, 2.2))
+            .collect();
+        assert!(
+            probabilities.windows(2).all(|w| w[1] < w[0]),
+            "{probabilities:?}"
+        );
+    }
+
+    /// The lists with every other segment faint (gradient 4) and the others strong (40).
+    fn every_other_faint(lists: &[SegmentList; 3]) -> [SegmentList; 3] {
+        lists.clone().map(|mut l| {
             for (i, s) in l.segments.iter_mut().enumerate() {
                 s.gradient = Some(if i % 2 == 0 { 4.0 } else { 40.0 });
             }
             l
-        });
+        })
+    }
+
+    #[test]
+    fn faint_segments_are_left_out_when_asked_and_lists_without_gradients_never() {
+        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
+        let graded = every_other_faint(&lists);
         let params = MatchParams {
             min_gradient: 10.0,
             ..MatchParams::default()
@@ -1373,12 +1480,9 @@ mod tests {
     #[test]
     fn segments_that_do_not_stand_out_from_their_images_background_are_left_out() {
         let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
-        // Every other segment at 4 grey levels per pixel, the others at 40, on images whose
-        // typical pixel has 2: the faint ones are under 2.5 times that.
-        let textured = lists.clone().map(|mut l| {
-            for (i, s) in l.segments.iter_mut().enumerate() {
-                s.gradient = Some(if i % 2 == 0 { 4.0 } else { 40.0 });
-            }
+        // On images whose typical pixel has 2 grey levels per pixel, the faint ones (4) are
+        // under 2.5 times that.
+        let textured = every_other_faint(&lists).map(|mut l| {
             l.background_gradient = Some(2.0);
             l
         });

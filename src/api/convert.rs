@@ -315,7 +315,7 @@ pub fn extract_params(options: Option<&pb::ExtractOptions>) -> extract::Params {
         min_segment_px,
     } = o;
     extract::Params {
-        smoothing_sigma_px: smoothing_sigma_px.unwrap_or(d.smoothing_sigma_px),
+        smoothing_sigma_px: smoothing_sigma_px.or(d.smoothing_sigma_px),
         gradient_low: gradient_low.unwrap_or(d.gradient_low),
         gradient_high: gradient_high.unwrap_or(d.gradient_high),
         max_deviation_px: max_deviation_px.unwrap_or(d.max_deviation_px),

@@ -558,6 +558,9 @@ pub fn detect(image: &GreyImage, pattern: &CalibrationPattern) -> Result<Detecti
     detect_until(image, pattern, Checkpoint::NEVER)
 }
 
+/// Gaussian smoothing of the pattern's images before their segments are extracted, pixels.
+const DETECTION_SMOOTHING_PX: f64 = 1.0;
+
 /// [`detect`], asking `checkpoint` as it extracts and for each lattice it tries.
 pub fn detect_until(
     image: &GreyImage,
@@ -565,7 +568,13 @@ pub fn detect_until(
     checkpoint: Checkpoint,
 ) -> Result<Detection, DetectError> {
     pattern.check()?;
-    let extraction = extract::extract_until(image, None, &Params::default(), checkpoint)?;
+    // The detector's quads were tuned on corners rounded by 1 px of smoothing: it keeps that
+    // scale whatever the image, rather than the matcher's choice per image.
+    let params = Params {
+        smoothing_sigma_px: Some(DETECTION_SMOOTHING_PX),
+        ..Params::default()
+    };
+    let extraction = extract::extract_until(image, None, &params, checkpoint)?;
     let segments = &extraction.segments.segments;
     let quads = find_quads(segments, image.width(), image.height());
     // Boards of one pattern may differ in pitch ratio; grow with each ratio in use.

@@ -104,9 +104,10 @@ fn convolve(a: &[f64], b: &[f64]) -> Vec<f64> {
 /// median needs no sort and no image-sized buffer.
 const BIN: f64 = 0.05;
 const BINS: usize = 4096;
-/// Rows looked at: every row up to this many, then evenly spaced (a 6 Mpx photograph needs no
-/// more than a thousand rows to know its noise).
-const MAX_ROWS: usize = 1024;
+/// Pixels looked at, in evenly spaced whole rows: enough to know the noise to about 1% and the
+/// median gradient to a bin, and a small part of the extraction's cost (every pixel of a
+/// 512 × 512 image took 2.5 ms, more than the extraction itself).
+const SAMPLE_PIXELS: usize = 16_384;
 
 /// Immerkær's noise estimate (the mean absolute response to the difference of two Laplacians,
 /// which cancels smooth intensity) and the median central-difference gradient magnitude, over
@@ -118,7 +119,8 @@ fn noise_and_median_gradient(image: &GreyImage) -> (f64, f64) {
     }
     let p = image.pixels();
     let interior = h - 2;
-    let stride = interior.div_ceil(MAX_ROWS).max(1);
+    let rows = (SAMPLE_PIXELS / (w - 2)).clamp(1, interior);
+    let stride = interior.div_ceil(rows).max(1);
     let mut histogram = vec![0u32; BINS];
     let (mut laplacian_sum, mut count) = (0.0f64, 0usize);
     for v in (1..h - 1).step_by(stride) {
@@ -135,7 +137,7 @@ fn noise_and_median_gradient(image: &GreyImage) -> (f64, f64) {
             row_sum += response.abs();
             let gu = 0.5 * (row[u + 1] - row[u - 1]);
             let gv = 0.5 * (down[u] - up[u]);
-            let bin = (f64::from(gu.hypot(gv)) / BIN) as usize;
+            let bin = ((gu * gu + gv * gv).sqrt() / BIN as f32) as usize;
             histogram[bin.min(BINS - 1)] += 1;
         }
         laplacian_sum += f64::from(row_sum);

@@ -89,7 +89,7 @@ fn main() {
         for seed in 1..=seeds {
             let (_, rig, obs) = standard_capture(seed, defects, collinear);
             let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
-            let segs: Vec<Segment3> = out.segments_3d.iter().map(|r| r.segment).collect();
+            let segs: Vec<Segment3> = out.segments();
             let labels = match_labels(&out, &obs);
             let (elig, elig_c10) = (
                 eligible_intervals(&obs),

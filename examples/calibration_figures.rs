@@ -40,7 +40,7 @@ fn room_error_mm(truth: &Rig, with: &Rig, seed: u64) -> f64 {
     let scene = Scene::room(seed);
     let obs = observe(&scene, truth, &Defects::realistic(), seed);
     let output = match_segments(with, &obs.lists, &MatchParams::default()).expect("valid");
-    let segments: Vec<_> = output.segments_3d.iter().map(|r| r.segment).collect();
+    let segments: Vec<_> = output.segments();
     let s = score(
         &segments,
         &obs.ground_truth,

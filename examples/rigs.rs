@@ -7,10 +7,8 @@
 use trinocular::extract::Params;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{match_images, match_segments};
-use trinocular::segment::Segment3;
 use trinocular::synth::{
-    eligible_intervals, render_triplet, rig_centre, score, shaped_capture, Defects, RenderParams,
-    RigShape,
+    render_triplet, score_capture, shaped_capture, Defects, RenderParams, RigShape,
 };
 
 fn main() {
@@ -50,9 +48,7 @@ fn main() {
                 .expect("match")
                 .output
             };
-            let segs: Vec<Segment3> = out.segments_3d.iter().map(|r| r.segment).collect();
-            let e = eligible_intervals(&obs);
-            let s = score(&segs, &obs.ground_truth, &e, rig_centre(&rig));
+            let s = score_capture(&out.segments(), &obs, &rig);
             n += s.n_segments;
             correct += s.n_correct;
             eligible += s.eligible_length_m;

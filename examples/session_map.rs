@@ -173,7 +173,7 @@ fn main() -> Result<(), Error> {
             out.segments_3d.len(),
             out.stats.total_ms
         );
-        segments.push(out.segments_3d.iter().map(|r| r.segment).collect());
+        segments.push(out.segments());
         poses.push(pose(dir)?);
         ids.push(id);
     }

@@ -11,10 +11,7 @@
 use trinocular::extract;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::match_images;
-use trinocular::segment::Segment3;
-use trinocular::synth::{
-    eligible_intervals, render_triplet, rig_centre, score, standard_capture, Defects, RenderParams,
-};
+use trinocular::synth::{render_triplet, score_capture, standard_capture, Defects, RenderParams};
 
 fn list(arg: Option<&String>, default: &[f64]) -> Vec<f64> {
     arg.map(|s| {
@@ -53,18 +50,7 @@ fn main() {
                     &MatchParams::default(),
                 )
                 .expect("a rendered room matches");
-                let segments: Vec<Segment3> = result
-                    .output
-                    .segments_3d
-                    .iter()
-                    .map(|r| r.segment)
-                    .collect();
-                let s = score(
-                    &segments,
-                    &obs.ground_truth,
-                    &eligible_intervals(&obs),
-                    rig_centre(&rig),
-                );
+                let s = score_capture(&result.output.segments(), &obs, &rig);
                 n += s.n_segments;
                 wrong += s.n_segments - s.n_correct;
                 eligible += s.eligible_length_m;

@@ -13,7 +13,7 @@ use crate::overlay;
 use crate::pipeline::match_images;
 use crate::segment::Segment3;
 use crate::synth::{
-    eligible_intervals, render_triplet, rig_centre, score, standard_capture, Defects, RenderParams,
+    render_triplet, rig_centre, score_capture, standard_capture, Defects, RenderParams,
 };
 
 /// Top view scale, pixels per metre: a 6 m room in about 700 pixels.
@@ -51,19 +51,9 @@ pub fn run(seed: u64) -> Result<Demo, String> {
     )
     .map_err(|e| format!("the demo capture did not match: {e}"))?;
 
-    let segments: Vec<Segment3> = result
-        .output
-        .segments_3d
-        .iter()
-        .map(|r| r.segment)
-        .collect();
+    let segments = result.output.segments();
     let truth = &observation.ground_truth;
-    let s = score(
-        &segments,
-        truth,
-        &eligible_intervals(&observation),
-        rig_centre(&rig),
-    );
+    let s = score_capture(&segments, &observation, &rig);
     let lists = result.extracted.each_ref().map(|e| &e.segments);
     let labels = overlay::segment3_labels(&result.output, lists.map(|l| l.segments.len()));
     let picture = overlay::triplet_overlay(

@@ -183,6 +183,13 @@ pub struct MatchOutput {
     pub stats: MatchStats,
 }
 
+impl MatchOutput {
+    /// The 3D segments alone, in answer order (what a scorer or a picture takes).
+    pub fn segments(&self) -> Vec<Segment3> {
+        self.segments_3d.iter().map(|r| r.segment).collect()
+    }
+}
+
 /// Which coordinate of a segment is at fault.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Coordinate {

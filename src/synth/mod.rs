@@ -53,6 +53,7 @@ pub use visibility::{
 use nalgebra::Point3;
 
 use crate::geometry::Rig;
+use crate::segment::Segment3;
 
 /// Where [`standard_capture`] puts the rig origin (camera 1) in the room: 1.2 m high, a
 /// little left of the room's centre line so the rig centre is on it, 2.65 m from the north
@@ -141,6 +142,18 @@ pub fn panoramic_session(
 pub fn rig_centre(rig: &Rig) -> Point3<f64> {
     let c = rig.cameras();
     Point3::from((c[0].centre().coords + c[1].centre().coords + c[2].centre().coords) / 3.0)
+}
+
+/// The strict score (the shared scorer's criterion) of 3D segments matched in the capture
+/// `observation` of `rig`: its ground truth, its default eligible edges, tolerances from the
+/// rig's centre.
+pub fn score_capture(segments: &[Segment3], observation: &Observation, rig: &Rig) -> Score {
+    score(
+        segments,
+        &observation.ground_truth,
+        &eligible_intervals(observation),
+        rig_centre(rig),
+    )
 }
 
 #[cfg(test)]

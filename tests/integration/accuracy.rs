@@ -42,7 +42,7 @@ fn run(defects: &Defects, collinear: bool) -> (Pooled, Vec<(Observation, MatchOu
     for seed in SEEDS {
         let (_, rig, obs) = standard_capture(seed, *defects, collinear);
         let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
-        let segs: Vec<Segment3> = out.segments_3d.iter().map(|r| r.segment).collect();
+        let segs: Vec<Segment3> = out.segments();
         // Eligible: visible in all three views, >= 20 px and >= 10 grey levels in each.
         let eligible = eligible_intervals_with(&obs, 20.0, Some(10.0));
         strict.push(score(&segs, &obs.ground_truth, &eligible, rig_centre(&rig)));

@@ -11,10 +11,9 @@ use trinocular::api::{self, pb};
 use trinocular::extract::{self, edges, gradient, GreyImage, Params};
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::match_images;
-use trinocular::segment::Segment3;
 use trinocular::synth::{
-    edge_recall, eligible_intervals, render_image, render_triplet, rig_centre, score,
-    standard_capture, Defects, RenderParams,
+    edge_recall, render_image, render_triplet, score_capture, standard_capture, Defects,
+    RenderParams,
 };
 
 use crate::common::{calibration_json, run_json as run};
@@ -160,22 +159,11 @@ fn end_to_end(seed: u64, params: &MatchParams) -> (f64, f64, usize) {
         params,
     )
     .expect("valid input");
-    let segs: Vec<Segment3> = result
-        .output
-        .segments_3d
-        .iter()
-        .map(|r| r.segment)
-        .collect();
-    let s = score(
-        &segs,
-        &obs.ground_truth,
-        &eligible_intervals(&obs),
-        rig_centre(&rig),
-    );
+    let s = score_capture(&result.output.segments(), &obs, &rig);
     (
         s.error_rate.unwrap_or(1.0),
         s.completeness.unwrap_or(0.0),
-        segs.len(),
+        s.n_segments,
     )
 }
 

@@ -26,7 +26,7 @@ fn exact(shape: RigShape) -> (f64, f64, bool) {
         let (_, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
         let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
         per_pair = out.stats.per_pair_rectification;
-        let segs: Vec<Segment3> = out.segments_3d.iter().map(|r| r.segment).collect();
+        let segs: Vec<Segment3> = out.segments();
         let e = eligible_intervals_with(&obs, 20.0, Some(10.0));
         let s = score(&segs, &obs.ground_truth, &e, rig_centre(&rig));
         n += s.n_segments;

@@ -92,6 +92,11 @@ pub fn match_images_until(
         second.stats.total_ms,
         third.stats.total_ms,
     ]);
+    output.stats.smoothing_sigma_px = Some([
+        first.stats.smoothing_sigma_px,
+        second.stats.smoothing_sigma_px,
+        third.stats.smoothing_sigma_px,
+    ]);
     output.stats.total_ms = ms(start);
     Ok(ImageMatch {
         extracted: [first, second, third],
@@ -174,6 +179,8 @@ pub struct MatchStats {
     pub epipolar_angle_deg: f64,
     /// Image input: extraction time of each image, milliseconds.
     pub extract_ms: Option<[f64; 3]>,
+    /// Image input: the smoothing each image was extracted at, pixels (asked for or chosen).
+    pub smoothing_sigma_px: Option<[f64; 3]>,
 }
 
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -806,6 +806,7 @@ pub fn match_response(
             low_contrast_dropped: s.low_contrast_dropped.to_vec(),
             epipolar_angle_deg: s.epipolar_angle_deg,
             extract_ms: s.extract_ms.map_or_else(Vec::new, |m| m.to_vec()),
+            smoothing_sigma_px: s.smoothing_sigma_px.map_or_else(Vec::new, |m| m.to_vec()),
             uncertain: s.uncertain,
             inconsistent: s.inconsistent,
             noise_scale: s.noise_scale,

@@ -321,7 +321,14 @@ fn valid_images_are_matched_and_extracted_lists_returned_on_request() {
     let mut r = image_request(vec![good.clone(), raw, good]);
     let resp = run(&r).expect("accepted");
     assert!(resp.extracted.is_empty(), "not asked for");
-    assert_eq!(resp.stats.unwrap().extract_ms.len(), 3);
+    let stats = resp.stats.unwrap();
+    assert_eq!(stats.extract_ms.len(), 3);
+    // The flat raw image needs no smoothing against noise; an asked-for smoothing is used as is.
+    assert_eq!(stats.smoothing_sigma_px.len(), 3);
+    assert_eq!(stats.smoothing_sigma_px[1], 0.0);
+    r["options"] = json!({"extract": {"smoothingSigmaPx": 1.5}});
+    let stats = run(&r).expect("accepted").stats.unwrap();
+    assert_eq!(stats.smoothing_sigma_px, vec![1.5; 3]);
     r["options"] = json!({"returnExtracted": true});
     let resp = run(&r).expect("accepted");
     assert_eq!(resp.extracted.len(), 3);

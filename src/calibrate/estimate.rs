@@ -1013,13 +1013,15 @@ mod tests {
             let mut rng = Rng::new(seed);
             let truth = random_camera(&mut rng, distorted);
             let (fit, held_out) = fit(&truth, &mut rng, distorted);
+            // Per camera, not per study: the 50-camera study above holds the accuracy bounds
+            // (pinhole: median 0.2, max 0.3 px over the image); one random camera can land
+            // past the study's maximum (distorted: 0.63 px inside the pattern's footprint,
+            // 0.87 px over the image; pinhole: 0.301 px, the seed saved in
+            // proptest-regressions). Here: no gross failure.
             if distorted {
-                // Per camera, not per study: one random camera in a CI run reached 0.63 px
-                // inside the pattern's footprint and 0.87 px over the image (the 50-camera
-                // study bounds the typical case). Here: no gross failure.
                 prop_assert!(held_out.pattern <= 1.0 && held_out.image <= 2.0, "{:?}", held_out);
             } else {
-                prop_assert!(held_out.image <= 0.3, "held-out RMS {:?}", held_out);
+                prop_assert!(held_out.image <= 0.5, "held-out RMS {:?}", held_out);
             }
             prop_assert!(fit.rms_px < 0.35);
         }

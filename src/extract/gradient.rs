@@ -177,6 +177,9 @@ const BACKGROUND_STEP: usize = 4;
 /// median that high means an image that is all edges).
 const BACKGROUND_BINS_PER_LEVEL: f32 = 16.0;
 const BACKGROUND_BINS: usize = 64 * 16;
+/// The width of one bin of [`background_magnitude`], grey levels per pixel: a median within it
+/// is no gradient at all (a flat image reports the first bin's centre).
+pub const BACKGROUND_RESOLUTION: f64 = 1.0 / BACKGROUND_BINS_PER_LEVEL as f64;
 
 /// The median gradient magnitude over the image, sampled on a grid, grey levels per pixel:
 /// what a typical pixel looks like. On a clean image of surfaces that is the smoothed sensor

@@ -18,7 +18,7 @@
 //!
 //! A client that sets `smoothing_sigma_px` gets exactly that instead.
 
-use super::gradient::gaussian_kernel;
+use super::gradient::{background_magnitude, gaussian_kernel, BACKGROUND_RESOLUTION};
 use super::GreyImage;
 
 /// How many times the noise gradient's σ (per Sobel component) stays under `gradient_high`.
@@ -26,8 +26,8 @@ use super::GreyImage;
 pub const NOISE_MARGIN: f64 = 5.0;
 /// The typical gradient over the one noise alone gives, below which the image counts as
 /// flat surfaces and above which ([`TEXTURED_RATIO`]) as textured; in between the smoothing
-/// for texture rises linearly. Measured: 1.05–1.06 on every rendered image of the shared
-/// rooms, 1.19 on the library's own renders, 5.3–5.6 on the `herzjesu_p25` photographs.
+/// for texture rises linearly. Measured: 1.05–1.10 on the rendered images of the shared
+/// rooms, 1.24 on the library's own renders, 8.1–8.5 on the `herzjesu_p25` photographs.
 pub const FLAT_RATIO: f64 = 1.5;
 pub const TEXTURED_RATIO: f64 = 3.0;
 /// Smoothing for textured images, pixels: the scale line detectors smooth at, and ours before
@@ -42,7 +42,8 @@ const MAX_NOISE_SMOOTHING_PX: f64 = 3.0;
 pub struct ImageScale {
     /// Sensor noise σ, grey levels (Immerkær's estimate).
     pub noise: f64,
-    /// Median gradient magnitude (central differences) over the one noise alone would give.
+    /// The image's median gradient magnitude (`gradient::background_magnitude` of the raw
+    /// image) over the one its noise alone would give.
     pub texture_ratio: f64,
     /// The smoothing chosen, pixels.
     pub smoothing_sigma_px: f64,
@@ -50,16 +51,18 @@ pub struct ImageScale {
 
 /// Measures `image` and chooses its smoothing for hysteresis at `gradient_high`.
 pub fn choose(image: &GreyImage, gradient_high: f64) -> ImageScale {
-    let (noise, median_gradient) = noise_and_median_gradient(image);
-    // Central differences of white noise: each component has σ = noise/√2, the magnitude is
-    // Rayleigh with median σ·√(2 ln 2) = noise·√(ln 2).
-    let noise_median = noise * std::f64::consts::LN_2.sqrt();
+    let noise = noise_sigma(image);
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let median_gradient = f64::from(background_magnitude(image.pixels(), w, h));
+    // Sobel of white noise (as `gradient` scales it): each component has σ = noise ·
+    // noise_gain(0), the magnitude is Rayleigh with median σ·√(2 ln 2).
+    let noise_median = noise * noise_gain(0.0) * (2.0 * std::f64::consts::LN_2).sqrt();
     let texture_ratio = if noise_median > 1e-6 {
         median_gradient / noise_median
-    } else if median_gradient > 0.0 {
-        f64::INFINITY
+    } else if median_gradient > BACKGROUND_RESOLUTION {
+        f64::INFINITY // texture without noise
     } else {
-        1.0
+        1.0 // flat: the median is the first bin's centre
     };
     let texture = TEXTURE_SMOOTHING_PX
         * ((texture_ratio - FLAT_RATIO) / (TEXTURED_RATIO - FLAT_RATIO)).clamp(0.0, 1.0);
@@ -100,66 +103,41 @@ fn convolve(a: &[f64], b: &[f64]) -> Vec<f64> {
     out
 }
 
-/// Histogram bins of the gradient magnitude, grey levels per pixel, and their count: the
-/// median needs no sort and no image-sized buffer.
-const BIN: f64 = 0.05;
-const BINS: usize = 4096;
-/// Pixels looked at, in evenly spaced whole rows: enough to know the noise to about 1% and the
-/// median gradient to a bin, and a small part of the extraction's cost (every pixel of a
-/// 512 × 512 image took 2.5 ms, more than the extraction itself).
+/// Pixels looked at for the noise, in evenly spaced whole rows: enough to know it to about 1%,
+/// and a small part of the extraction's cost (every pixel of a 512 × 512 image took 2.5 ms,
+/// more than the extraction itself).
 const SAMPLE_PIXELS: usize = 16_384;
 
-/// Immerkær's noise estimate (the mean absolute response to the difference of two Laplacians,
-/// which cancels smooth intensity) and the median central-difference gradient magnitude, over
-/// the interior rows sampled.
-fn noise_and_median_gradient(image: &GreyImage) -> (f64, f64) {
+/// Immerkær's noise estimate: the mean absolute response to the difference of two Laplacians,
+/// which cancels smooth intensity, over the interior rows sampled.
+fn noise_sigma(image: &GreyImage) -> f64 {
     let (w, h) = (image.width() as usize, image.height() as usize);
     if w < 3 || h < 3 {
-        return (0.0, 0.0);
+        return 0.0;
     }
     let p = image.pixels();
     let interior = h - 2;
     let rows = (SAMPLE_PIXELS / (w - 2)).clamp(1, interior);
     let stride = interior.div_ceil(rows).max(1);
-    let mut histogram = vec![0u32; BINS];
-    let (mut laplacian_sum, mut count) = (0.0f64, 0usize);
+    let (mut sum, mut count) = (0.0f64, 0usize);
     for v in (1..h - 1).step_by(stride) {
         let (up, row, down) = (
             &p[(v - 1) * w..v * w],
             &p[v * w..(v + 1) * w],
             &p[(v + 1) * w..],
         );
-        let mut row_sum = 0.0f32;
-        for u in 1..w - 1 {
-            let response = (up[u - 1] + up[u + 1] + down[u - 1] + down[u + 1])
-                - 2.0 * (up[u] + down[u] + row[u - 1] + row[u + 1])
-                + 4.0 * row[u];
-            row_sum += response.abs();
-            let gu = 0.5 * (row[u + 1] - row[u - 1]);
-            let gv = 0.5 * (down[u] - up[u]);
-            let bin = ((gu * gu + gv * gv).sqrt() / BIN as f32) as usize;
-            histogram[bin.min(BINS - 1)] += 1;
-        }
-        laplacian_sum += f64::from(row_sum);
+        let row_sum: f32 = (1..w - 1)
+            .map(|u| {
+                ((up[u - 1] + up[u + 1] + down[u - 1] + down[u + 1])
+                    - 2.0 * (up[u] + down[u] + row[u - 1] + row[u + 1])
+                    + 4.0 * row[u])
+                    .abs()
+            })
+            .sum();
+        sum += f64::from(row_sum);
         count += w - 2;
     }
-    let noise = (std::f64::consts::FRAC_PI_2).sqrt() / 6.0 * laplacian_sum / count as f64;
-    let half = count.div_ceil(2) as u64;
-    let mut seen = 0u64;
-    let median_bin = histogram
-        .iter()
-        .position(|&c| {
-            seen += u64::from(c);
-            seen >= half
-        })
-        .unwrap_or(0);
-    // A bin's middle, but an image whose typical pixel is flat has no gradient at all.
-    let median = if median_bin == 0 {
-        0.0
-    } else {
-        (median_bin as f64 + 0.5) * BIN
-    };
-    (noise, median)
+    (std::f64::consts::FRAC_PI_2).sqrt() / 6.0 * sum / count as f64
 }
 
 #[cfg(test)]

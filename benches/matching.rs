@@ -7,8 +7,10 @@
 //!   (≈ 600 px) is wider than the 600-segment image and clipped by it, so part of the growth of
 //!   `match/10000` over `match/600` is the larger window searched, not the number of segments;
 //! - `threads/N`: the 10,000-segment triplet on a rayon pool of N threads;
-//! - `room`: the standard synthetic room (realistic defects) on one thread;
-//! - per stage on the 600-segment triplet: `stage/rectify+prepare`, `stage/predict`.
+//! - `room`: the standard synthetic room (realistic defects) on one thread.
+//!
+//! Per-stage times of one match are in its `MatchStats` (`rectify_ms`, `predict_ms`,
+//! `validate_ms`, `reconstruct_ms`).
 //!
 //!     cargo bench --bench matching
 

@@ -9,7 +9,7 @@
 //! Input problems are errors that name the list, the segment and the coordinate; zero-length
 //! segments are dropped and counted; empty lists give an empty result.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::time::Instant;
 
 use nalgebra::Point2;
@@ -308,36 +308,47 @@ pub const DUPLICATE_PX: f64 = 0.5;
 const DUPLICATE_SCAN: usize = 32;
 
 /// Finds near-copies among the segments kept so far ([`DUPLICATE_PX`]), by their midpoints
-/// on a grid of `DUPLICATE_PX` cells.
+/// on a grid of cells `2·DUPLICATE_PX` wide: a copy's midpoint is within `DUPLICATE_PX` of
+/// the segment's, so it lies in one of the 2×2 cells nearest to it. Each cell holds a chain
+/// through one flat list of the kept ends, so no cell allocates.
 #[derive(Default)]
 struct Copies {
-    /// The ends of the segments kept, by grid cell of their midpoint.
-    cells: HashMap<(i64, i64), Vec<[Point2<f64>; 2]>>,
+    /// Per cell, the newest kept segment whose midpoint falls in it.
+    heads: FxHashMap<(i64, i64), u32>,
+    /// The ends of the segments kept, each with the previous one of its cell.
+    kept: Vec<([Point2<f64>; 2], u32)>,
 }
+
+const NO_SEGMENT: u32 = u32::MAX;
 
 impl Copies {
     /// True when `a`–`b` (or `b`–`a`, for an unoriented list) copies a segment seen before;
     /// otherwise remembers it.
     fn seen(&mut self, a: Point2<f64>, b: Point2<f64>, oriented: bool) -> bool {
-        let cell = |p: Point2<f64>| {
-            let m = p / DUPLICATE_PX;
-            (m.x.floor() as i64, m.y.floor() as i64)
-        };
-        let (cx, cy) = cell(nalgebra::center(&a, &b));
+        const CELL_PX: f64 = 2.0 * DUPLICATE_PX;
+        let m = nalgebra::center(&a, &b) / CELL_PX;
+        let (cx, cy) = (m.x.floor(), m.y.floor());
+        // The neighbour cells on the side of the cell the midpoint is nearer to.
+        let step = |f: f64| if f < 0.5 { -1 } else { 1 };
+        let (sx, sy) = (step(m.x - cx), step(m.y - cy));
+        let (cx, cy) = (cx as i64, cy as i64);
         let near = |p: Point2<f64>, q: Point2<f64>| (p - q).norm_squared() <= DUPLICATE_PX.powi(2);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                let Some(kept) = self.cells.get(&(cx + dx, cy + dy)) else {
-                    continue;
-                };
-                if kept.iter().take(DUPLICATE_SCAN).any(|&[p, q]| {
-                    (near(a, p) && near(b, q)) || (!oriented && near(a, q) && near(b, p))
-                }) {
+        for cell in [(cx, cy), (cx + sx, cy), (cx, cy + sy), (cx + sx, cy + sy)] {
+            let mut at = self.heads.get(&cell).copied().unwrap_or(NO_SEGMENT);
+            for _ in 0..DUPLICATE_SCAN {
+                if at == NO_SEGMENT {
+                    break;
+                }
+                let ([p, q], previous) = self.kept[at as usize];
+                if (near(a, p) && near(b, q)) || (!oriented && near(a, q) && near(b, p)) {
                     return true;
                 }
+                at = previous;
             }
         }
-        self.cells.entry((cx, cy)).or_default().push([a, b]);
+        let head = self.heads.entry((cx, cy)).or_insert(NO_SEGMENT);
+        self.kept.push(([a, b], *head));
+        *head = (self.kept.len() - 1) as u32;
         false
     }
 }
@@ -698,6 +709,30 @@ fn within_radius(variances: (f64, f64), radius: f64, confidence: f64) -> bool {
     if major_sigma <= 0.0 || erf(radius / (major_sigma * std::f64::consts::SQRT_2)) < confidence {
         return false;
     }
+    // Inside often enough even counting only a rectangle inscribed in the disc (half sides a
+    // along the major axis, b along the minor, a² + b² = radius²): a bound from below, which
+    // settles most cases without the integral. Tried at b = a few minor σ (best for an
+    // elongated error) and with the sides in the ratio of the two σ (best for a round one).
+    let minor_sigma = minor.max(0.0).sqrt();
+    let inside = |a: f64, sigma: f64| {
+        if sigma > 0.0 {
+            erf(a / (sigma * std::f64::consts::SQRT_2))
+        } else {
+            1.0
+        }
+    };
+    let in_rectangle = |b: f64| {
+        let a = (radius * radius - b * b).max(0.0).sqrt();
+        inside(a, major_sigma) * inside(b, minor_sigma)
+    };
+    let proportional = radius * minor_sigma / major_sigma.hypot(minor_sigma);
+    let settled = [proportional, 2.5 * minor_sigma, 3.5 * minor_sigma]
+        .into_iter()
+        .filter(|&b| b < radius)
+        .any(|b| in_rectangle(b) >= confidence);
+    if settled {
+        return true;
+    }
     within_radius_probability(major, minor, radius) >= confidence
 }
 
@@ -1034,19 +1069,27 @@ fn flag_ambiguous(
         return;
     }
     // Which hypotheses use each segment, for the segments of the certain winners only.
-    let mut users: [HashMap<u32, Vec<u32>>; 3] = Default::default();
+    // Per view, each segment's slot in `users` (NO_SEGMENT: not a certain winner's).
+    let mut slot: [Vec<u32>; 3] =
+        std::array::from_fn(|v| vec![NO_SEGMENT; observations.rect[v].len()]);
+    let mut users: Vec<Vec<u32>> = Vec::new();
     for &h in &certain {
-        for (v, map) in users.iter_mut().enumerate() {
-            map.entry(hypotheses[h].segments[v]).or_default();
+        for (v, slots) in slot.iter_mut().enumerate() {
+            let s = &mut slots[hypotheses[h].segments[v] as usize];
+            if *s == NO_SEGMENT {
+                *s = users.len() as u32;
+                users.push(Vec::new());
+            }
         }
     }
     for (r, hyp) in hypotheses.iter().enumerate() {
         if !alive[r] {
             continue;
         }
-        for (v, map) in users.iter_mut().enumerate() {
-            if let Some(list) = map.get_mut(&hyp.segments[v]) {
-                list.push(r as u32);
+        for (v, slots) in slot.iter().enumerate() {
+            let s = slots[hyp.segments[v] as usize];
+            if s != NO_SEGMENT {
+                users[s as usize].push(r as u32);
             }
         }
     }
@@ -1054,8 +1097,8 @@ fn flag_ambiguous(
     let mut todo: Vec<usize> = Vec::new();
     for &h in &certain {
         let mut rivals: Vec<usize> = Vec::new();
-        for (v, map) in users.iter().enumerate() {
-            for &r in &map[&hypotheses[h].segments[v]] {
+        for (v, slots) in slot.iter().enumerate() {
+            for &r in &users[slots[hypotheses[h].segments[v] as usize] as usize] {
                 let r = r as usize;
                 if r != h && !rivals.contains(&r) && rivals.len() < MAX_RIVALS {
                     rivals.push(r);
@@ -1125,15 +1168,14 @@ fn add_graph(
     rect: &Rectification,
     segments: &[RectSegment],
 ) {
-    use std::collections::HashSet;
     if graph.is_empty() {
         return;
     }
-    let mut prepared_index: std::collections::HashMap<u32, u32> = HashMap::new();
+    let mut prepared_index: FxHashMap<u32, u32> = FxHashMap::default();
     for (i, s) in segments.iter().enumerate() {
         prepared_index.insert(s.index, i as u32);
     }
-    let mut known: HashSet<(u32, u32)> = adjacency
+    let mut known: rustc_hash::FxHashSet<(u32, u32)> = adjacency
         .iter()
         .map(|&(a, b, _)| (a.min(b), a.max(b)))
         .collect();
@@ -1241,28 +1283,29 @@ fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>>
         }
         i
     }
-    let mut owner: HashMap<(usize, u32), usize> = HashMap::new();
+    let mut owner: [FxHashMap<u32, usize>; 3] = Default::default();
     for (k, &h) in kept.iter().enumerate() {
-        for v in 0..3 {
-            let key = (v, hypotheses[h].segments[v]);
-            if let Some(&other) = owner.get(&key) {
+        for (v, owner) in owner.iter_mut().enumerate() {
+            let segment = hypotheses[h].segments[v];
+            if let Some(&other) = owner.get(&segment) {
                 let (a, b) = (root(&mut parent, k), root(&mut parent, other));
                 let (lo, hi) = (a.min(b), a.max(b));
                 parent[hi] = lo;
             } else {
-                owner.insert(key, k);
+                owner.insert(segment, k);
             }
         }
     }
+    // A root is its group's first member (unions keep the lower index as the root).
     let mut groups: Vec<Vec<usize>> = Vec::new();
-    let mut slot: HashMap<usize, usize> = HashMap::new();
+    let mut group_of_root: Vec<usize> = vec![usize::MAX; kept.len()];
     for k in 0..kept.len() {
         let r = root(&mut parent, k);
-        let g = *slot.entry(r).or_insert_with(|| {
+        if group_of_root[r] == usize::MAX {
+            group_of_root[r] = groups.len();
             groups.push(Vec::new());
-            groups.len() - 1
-        });
-        groups[g].push(k);
+        }
+        groups[group_of_root[r]].push(k);
     }
     groups
 }
@@ -1443,6 +1486,34 @@ mod tests {
             probabilities.windows(2).all(|w| w[1] < w[0]),
             "{probabilities:?}"
         );
+    }
+
+    #[test]
+    fn the_gates_shortcuts_decide_as_the_integral_does() {
+        // The round bound, the major axis alone and the inscribed rectangle settle most cases
+        // before the integral: each must agree with it wherever it is not within its precision.
+        let mut checked = 0;
+        for major in [0.01f64, 0.3, 1.0, 4.0] {
+            for ratio in [0.0, 1e-4, 0.01, 0.1, 0.3, 0.6, 1.0] {
+                let minor = major * ratio;
+                for step in 1..60 {
+                    let radius = major.sqrt() * step as f64 * 0.06;
+                    for confidence in [0.9, 0.95, 0.99] {
+                        let p = within_radius_probability(major, minor, radius);
+                        if (p - confidence).abs() < 1e-5 {
+                            continue;
+                        }
+                        assert_eq!(
+                            within_radius((major, minor), radius, confidence),
+                            p >= confidence,
+                            "major {major} minor {minor} radius {radius} p {p} confidence {confidence}"
+                        );
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked > 4000, "{checked}");
     }
 
     /// The lists with every other segment faint (gradient 4) and the others strong (40).

@@ -291,10 +291,12 @@ impl Crowding {
         let radius = CROWDING_RADIUS_PX;
         let (shapes, bins) = (&self.shapes, &self.bins);
         let normal_of_bin = |b: usize| self.normals[b];
-        // A neighbour's midpoint is within `radius` across and the segment's half length along
-        // of this one's; measured across a bin direction up to 15° off, its position moves by at
-        // most sin(15°)·that distance more (2·sin(7.5°) ≈ 0.26 bounds the normals' difference).
-        const NORMAL_SLACK: f64 = 0.27;
+        // A neighbour's midpoint is within `radius` across this segment and its half length
+        // along it from its midpoint; measured across bin b's direction, which is off the
+        // segment's by an angle θ, that is within radius·|cos θ| + ½·length·|sin θ| — and
+        // |sin θ| is the segment's direction dotted with the bin's normal. A bin nearly
+        // parallel to the segment is searched in a narrow window, the next ones wider.
+        const ROUNDING_PX: f64 = 1e-6;
         queries
             .iter()
             .map(|&i| {
@@ -303,31 +305,31 @@ impl Crowding {
                 };
                 let s = &segments[i];
                 let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
-                let window =
-                    radius + NORMAL_SLACK * (0.25 * sh.len * sh.len + radius * radius).sqrt();
                 let mut best = f64::INFINITY;
                 for db in [CROWDING_BINS - 1, 0, 1] {
                     let b = (sh.bin + db) % CROWDING_BINS;
-                    let rho = sh.mid.coords.dot(&normal_of_bin(b));
+                    let normal = normal_of_bin(b);
+                    let window = radius + 0.5 * sh.len * sh.dir.dot(&normal).abs() + ROUNDING_PX;
+                    let rho = sh.mid.coords.dot(&normal);
                     let list = &bins[b];
                     let from = list.partition_point(|e| e.rho < rho - window);
                     // A client's list may pile thousands of copies onto one line: the scan
                     // is bounded, and a segment with that many candidates is crowded anyway.
-                    for other in list[from..].iter().take(MAX_CROWDING_CANDIDATES) {
-                        if other.rho > rho + window {
-                            break;
-                        }
-                        let j = other.index as usize;
-                        if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
-                            continue;
-                        }
-                        let along = (other.mid - s.start).dot(&sh.dir);
-                        let across = (other.mid - s.start).dot(&n).abs();
-                        if along > 0.0
-                            && along < sh.len
-                            && across > COLLINEAR_PX
-                            && across <= radius
-                        {
+                    let to = (from + list[from..].partition_point(|e| e.rho <= rho + window))
+                        .min(from + MAX_CROWDING_CANDIDATES);
+                    for other in &list[from..to] {
+                        // Every test evaluated, none short-circuited: which candidate passes
+                        // which test follows no pattern, and branches on them mispredict.
+                        let rel = other.mid - s.start;
+                        let (along, across) = (rel.dot(&sh.dir), rel.dot(&n).abs());
+                        let neighbour = (other.index as usize != i)
+                            & (other.dir.dot(&sh.dir).abs() >= PARALLEL_COS)
+                            & (along > 0.0)
+                            & (along < sh.len)
+                            & (across > COLLINEAR_PX)
+                            & (across <= radius);
+                        if neighbour {
+                            let j = other.index as usize;
                             // A weaker neighbour pulls less: as if it were farther.
                             let pull = match (s.gradient, segments[j].gradient) {
                                 (Some(mine), Some(theirs)) if mine > 0.0 => {

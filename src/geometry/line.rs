@@ -98,9 +98,11 @@ fn across_projector(u: &Vector3<f64>) -> Matrix3<f64> {
 
 /// Largest Gauss–Newton steps; the linear start is close, two or three suffice.
 const MAX_ML_ITERATIONS: usize = 4;
-/// Converged when no parameter moves by more than this (metres, radians): far below what
-/// the image noise allows.
-const ML_STEP_TOLERANCE: f64 = 1e-8;
+/// Converged when the step, measured in the estimate's own standard deviations (its squared
+/// Mahalanobis length under the normal matrix), is below this: a hundredth of a σ, which
+/// nothing downstream can tell from the optimum. An absolute bound (metres, radians) was
+/// almost never met within the iterations, so every estimate paid for all of them.
+const ML_STEP_SIGMA2: f64 = 1e-4;
 
 /// Two pixels on an observed line, each with its σ across the line.
 type VirtualPoints = [(Point2<f64>, f64); 2];
@@ -120,32 +122,67 @@ fn virtual_points(o: &LineObservation) -> Option<VirtualPoints> {
     Some([(mid - u * h, sigma), (mid + u * h, sigma)])
 }
 
-/// Signed distance of pixel `q` from the image of the 3D line through `x0` along `d`, and
-/// its gradient with respect to `x0` and `d`; `None` when the line's image degenerates.
-fn distance_and_gradient(
-    p: &nalgebra::Matrix3x4<f64>,
-    x0: &Vector3<f64>,
-    d: &Vector3<f64>,
-    q: Point2<f64>,
-) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
-    let m = p.fixed_view::<3, 3>(0, 0);
-    let a = m * x0 + p.column(3);
-    let b = m * d;
-    let l = a.cross(&b);
-    let n2 = l.x * l.x + l.y * l.y;
-    if n2 < 1e-24 {
-        return None;
+/// The image of the 3D line through `x0` along `d` in the camera of projection `p`, with
+/// what the distance of a pixel from it and its gradient need: computed once per
+/// observation, used for each of its virtual points.
+struct ImageOfLine {
+    a: Vector3<f64>,
+    b: Vector3<f64>,
+    l: Vector3<f64>,
+    n: f64,
+    n2: f64,
+    /// The image motions (homogeneous) of moving a point of the line along `e1` and `e2`.
+    m_e1: Vector3<f64>,
+    m_e2: Vector3<f64>,
+}
+
+impl ImageOfLine {
+    /// `None` when the line's image degenerates (the line passes through the centre).
+    fn new(
+        p: &nalgebra::Matrix3x4<f64>,
+        x0: &Vector3<f64>,
+        d: &Vector3<f64>,
+        (e1, e2): (&Vector3<f64>, &Vector3<f64>),
+    ) -> Option<ImageOfLine> {
+        let m = p.fixed_view::<3, 3>(0, 0);
+        let a = m * x0 + p.column(3);
+        let b = m * d;
+        let l = a.cross(&b);
+        let n2 = l.x * l.x + l.y * l.y;
+        if n2 < 1e-24 {
+            return None;
+        }
+        Some(ImageOfLine {
+            a,
+            b,
+            l,
+            n: n2.sqrt(),
+            n2,
+            m_e1: m * e1,
+            m_e2: m * e2,
+        })
     }
-    let n = n2.sqrt();
-    let qh = Vector3::new(q.x, q.y, 1.0);
-    let dot = l.dot(&qh);
-    let r = dot / n;
-    // dr/dl = q̃/n − dot·(l₀, l₁, 0)/n³; l = a × b, so dl·g = g·(a × b) variations:
-    // d(a×b)/da applied as (δa × b), d/db as (a × δb): gᵀ(δa × b) = δaᵀ(b × g), gᵀ(a × δb) = δbᵀ(g × a).
-    let g = qh / n - Vector3::new(l.x, l.y, 0.0) * (dot / (n2 * n));
-    let grad_a = b.cross(&g);
-    let grad_b = g.cross(&a);
-    Some((r, m.transpose() * grad_a, m.transpose() * grad_b))
+
+    /// Signed distance of pixel `q` from the line's image, and its gradient with respect to
+    /// the line's four parameters: the point moved along `e1`, `e2`, the direction turned
+    /// towards `e1`, `e2`.
+    fn distance_and_gradient(&self, q: Point2<f64>) -> (f64, Vector4<f64>) {
+        let (l, n, n2) = (&self.l, self.n, self.n2);
+        let qh = Vector3::new(q.x, q.y, 1.0);
+        let dot = l.dot(&qh);
+        // dr/dl = q̃/n − dot·(l₀, l₁, 0)/n³; l = a × b, so gᵀ(δa × b) = δaᵀ(b × g) and
+        // gᵀ(a × δb) = δbᵀ(g × a), with δa = M·δx0 and δb = M·δd.
+        let g = qh / n - Vector3::new(l.x, l.y, 0.0) * (dot / (n2 * n));
+        let grad_a = self.b.cross(&g);
+        let grad_b = g.cross(&self.a);
+        let j = Vector4::new(
+            grad_a.dot(&self.m_e1),
+            grad_a.dot(&self.m_e2),
+            grad_b.dot(&self.m_e1),
+            grad_b.dot(&self.m_e2),
+        );
+        (dot / n, j)
+    }
 }
 
 /// Two unit vectors across `d`, forming a right-handed frame with it.
@@ -250,9 +287,10 @@ pub fn estimate_line(
         let mut chi2 = 0.0;
         let mut sum_px = 0.0;
         for (view, pts) in &points {
+            let image = ImageOfLine::new(cameras[*view].projection(), x0, d, (&e1, &e2))?;
             for &(q, sigma) in pts {
-                let (r, ga, gb) = distance_and_gradient(cameras[*view].projection(), x0, d, q)?;
-                let j = Vector4::new(ga.dot(&e1), ga.dot(&e2), gb.dot(&e1), gb.dot(&e2)) / sigma;
+                let (r, j) = image.distance_and_gradient(q);
+                let j = j / sigma;
                 let rn = r / sigma;
                 h += j * j.transpose();
                 g += j * rn;
@@ -268,7 +306,8 @@ pub fn estimate_line(
     for _ in 0..MAX_ML_ITERATIONS {
         let (h, g, chi2, sum_px, e1, e2) = normal(&x0, &d)?;
         let step = h.cholesky()?.solve(&(-g));
-        if step.amax() < ML_STEP_TOLERANCE {
+        // stepᵀ·H·step = −stepᵀ·g, since H·step = −g.
+        if -step.dot(&g) < ML_STEP_SIGMA2 {
             at_optimum = Some((h, chi2, sum_px, e1, e2));
             break;
         }
@@ -374,25 +413,25 @@ pub fn estimate_line(
     // views' ends around it.
     let measured = |t: f64| {
         let p = x0 + d * t;
-        let mut per_view: Vec<f64> = cameras
-            .iter()
-            .map(|c| {
-                let ray = p - c.centre().coords;
-                let range = ray.norm();
-                let sin = (1.0 - (ray.dot(&d) / range).powi(2)).max(0.0).sqrt();
-                end_sigma_px * range / c.focal_px() / sin.max(MIN_RAY_LINE_SIN)
-            })
-            .collect();
+        let mut per_view: [f64; 3] = std::array::from_fn(|v| {
+            let c = cameras[v];
+            let ray = p - c.centre().coords;
+            let range = ray.norm();
+            let sin = (1.0 - (ray.dot(&d) / range).powi(2)).max(0.0).sqrt();
+            end_sigma_px * range / c.focal_px() / sin.max(MIN_RAY_LINE_SIN)
+        });
         per_view.sort_by(f64::total_cmp);
-        per_view[per_view.len() / 2]
+        per_view[1]
     };
-    let along = |t: f64, pick: fn(&(f64, f64)) -> f64| {
-        let floor = measured(t);
+    let (measured_lo, measured_hi) = (measured(lo), measured(hi));
+    let along = |t: f64, floor: f64, pick: fn(&(f64, f64)) -> f64| {
         let spread = ends.iter().map(|e| (pick(e) - t).powi(2)).sum::<f64>() / ends.len() as f64;
         (spread + floor * floor).max(1e-12)
     };
-    let (var_lo, var_hi) = (along(lo, |e| e.0), along(hi, |e| e.1));
-    let (measured_lo, measured_hi) = (measured(lo), measured(hi));
+    let (var_lo, var_hi) = (
+        along(lo, measured_lo, |e| e.0),
+        along(hi, measured_hi, |e| e.1),
+    );
     let end_along_sigma_m = if first_sign >= 0.0 {
         [measured_lo, measured_hi]
     } else {

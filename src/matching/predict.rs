@@ -110,6 +110,8 @@ struct Scratch {
     generation: u32,
     candidates: Vec<u32>,
     found: Vec<u32>,
+    /// One segment's hypotheses while they are searched and thinned.
+    hypotheses: Vec<Hypothesis>,
 }
 
 impl Scratch {
@@ -119,6 +121,7 @@ impl Scratch {
             generation: 0,
             candidates: Vec::new(),
             found: Vec::new(),
+            hypotheses: Vec::new(),
         }
     }
     fn next(&mut self) -> u32 {
@@ -211,6 +214,7 @@ pub fn predict_in_frames_until(
         d_min,
         d_max,
         pairs: &pairs,
+        verify_angle: params.verify_angle_tolerance_deg.to_radians().sin_cos(),
     };
     let s1 = views.segments[0];
     let total = AtomicUsize::new(0);
@@ -221,14 +225,18 @@ pub fn predict_in_frames_until(
         .map_init(
             || Scratch::new(views),
             |scratch, i| {
-                let mut out = Vec::new();
                 if given_up.load(Ordering::Relaxed) || checkpoint.stopped() {
                     given_up.store(true, Ordering::Relaxed);
-                    return out;
+                    return Vec::new();
                 }
-                search.one(i as u32, scratch, &mut out);
-                keep_best(&mut out, MAX_HYPOTHESES_PER_SEGMENT);
-                out.shrink_to_fit();
+                // Searched in the task's buffer and copied out at its final size: one
+                // allocation per segment that has hypotheses, none for one that has none.
+                let mut found = std::mem::take(&mut scratch.hypotheses);
+                found.clear();
+                search.one(i as u32, scratch, &mut found);
+                keep_best(&mut found, MAX_HYPOTHESES_PER_SEGMENT);
+                let out = found.to_vec();
+                scratch.hypotheses = found;
                 if total.fetch_add(out.len(), Ordering::Relaxed) + out.len() > MAX_HYPOTHESES {
                     given_up.store(true, Ordering::Relaxed);
                 }
@@ -318,6 +326,8 @@ struct Search<'a> {
     d_min: f64,
     d_max: f64,
     pairs: &'a [Pair<'a>; 2],
+    /// Sine and cosine of `params.verify_angle_tolerance_deg`.
+    verify_angle: (f64, f64),
 }
 
 impl Search<'_> {
@@ -450,8 +460,17 @@ impl Search<'_> {
         }
         let q_dir = q / q_len;
         let key_q = angle_key(q_dir, self.period);
-        let verify_tol =
-            params.verify_angle_tolerance_deg.to_radians() + (2.0 * tol / q_len).atan();
+        // The angle tolerance widens by the angle `tol` subtends at either end of the
+        // prediction; its cosine, cos(a + atan x) = (cos a − x·sin a) / √(1 + x²), without
+        // a second trigonometric call per prediction.
+        let widen = 2.0 * tol / q_len;
+        let verify_tol = params.verify_angle_tolerance_deg.to_radians() + widen.atan();
+        let (sin_a, cos_a) = self.verify_angle;
+        let cos_tol = if verify_tol < std::f64::consts::PI {
+            (cos_a - widen * sin_a) / (1.0 + widen * widen).sqrt()
+        } else {
+            -1.0
+        };
         // 4. Verify along the predicted segment.
         let generation = scratch.next();
         let grid_k = pair.grid_k;
@@ -468,7 +487,6 @@ impl Search<'_> {
         });
         // Candidates come out in window order: sort so the output does not depend on the grid.
         found.sort_unstable();
-        let cos_tol = verify_tol.cos();
         let verified_before = out.len();
         for &ik in found.iter() {
             if out.len() - verified_before == MAX_VERIFIED_PER_PAIR {

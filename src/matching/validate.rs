@@ -12,6 +12,7 @@
 //!    rival is dropped, and one with no rival is kept.
 
 use nalgebra::Point2;
+use rustc_hash::FxHashMap;
 
 use super::{predict::Hypothesis, MatchParams, RectSegment, Views};
 use crate::checkpoint::{Checkpoint, Stopped};
@@ -262,14 +263,25 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
         .flat_map(|(i, s)| [(cell(s.a), i as u32, s.a), (cell(s.b), i as u32, s.b)])
         .collect();
     ends.sort_unstable_by_key(|e| (e.0, e.1));
+    // Each occupied cell's run of endpoints, so a search looks cells up instead of
+    // bisecting the whole list for each.
+    let mut runs: FxHashMap<(i64, i64), (usize, usize)> = FxHashMap::default();
+    for (k, e) in ends.iter().enumerate() {
+        runs.entry(e.0).or_insert((k, k)).1 = k + 1;
+    }
     let mut found: Vec<(u32, u32, f64, Point2<f64>)> = Vec::new();
     let mut near: Vec<(f64, u32, Point2<f64>)> = Vec::new();
     for &((cx, cy), i, p) in &ends {
         near.clear();
         for dx in -1..=1 {
-            // Endpoints of one column of three cells are contiguous in (x, y) order.
-            let lo = ends.partition_point(|e| e.0 < (cx + dx, cy - 1));
-            let hi = ends.partition_point(|e| e.0 <= (cx + dx, cy + 1));
+            // Endpoints of one column of three cells are contiguous in (x, y) order: nothing
+            // sorts between (x, y − 1), (x, y) and (x, y + 1).
+            let column = (-1..=1).filter_map(|dy| runs.get(&(cx + dx, cy + dy)));
+            let (Some(lo), Some(hi)) =
+                (column.clone().map(|r| r.0).min(), column.map(|r| r.1).max())
+            else {
+                continue;
+            };
             for &(_, j, q) in ends[lo..hi].iter().take(MAX_ENDS_SCANNED_PER_COLUMN) {
                 if j <= i {
                     continue;

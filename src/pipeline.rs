@@ -9,7 +9,7 @@
 //! Input problems are errors that name the list, the segment and the coordinate; zero-length
 //! segments are dropped and counted; empty lists give an empty result.
 
-use rustc_hash::FxHashMap;
+use rustc_hash::{FxHashMap, FxHashSet};
 use std::time::Instant;
 
 use nalgebra::Point2;
@@ -1069,14 +1069,15 @@ fn flag_ambiguous(
         return;
     }
     // Which hypotheses use each segment, for the segments of the certain winners only.
-    // Per view, each segment's slot in `users` (NO_SEGMENT: not a certain winner's).
+    // Per view, each segment's slot in `users` (NO_SLOT: not a certain winner's).
+    const NO_SLOT: u32 = u32::MAX;
     let mut slot: [Vec<u32>; 3] =
-        std::array::from_fn(|v| vec![NO_SEGMENT; observations.rect[v].len()]);
+        std::array::from_fn(|v| vec![NO_SLOT; observations.rect[v].len()]);
     let mut users: Vec<Vec<u32>> = Vec::new();
     for &h in &certain {
         for (v, slots) in slot.iter_mut().enumerate() {
             let s = &mut slots[hypotheses[h].segments[v] as usize];
-            if *s == NO_SEGMENT {
+            if *s == NO_SLOT {
                 *s = users.len() as u32;
                 users.push(Vec::new());
             }
@@ -1088,7 +1089,7 @@ fn flag_ambiguous(
         }
         for (v, slots) in slot.iter().enumerate() {
             let s = slots[hyp.segments[v] as usize];
-            if s != NO_SEGMENT {
+            if s != NO_SLOT {
                 users[s as usize].push(r as u32);
             }
         }
@@ -1175,7 +1176,7 @@ fn add_graph(
     for (i, s) in segments.iter().enumerate() {
         prepared_index.insert(s.index, i as u32);
     }
-    let mut known: rustc_hash::FxHashSet<(u32, u32)> = adjacency
+    let mut known: FxHashSet<(u32, u32)> = adjacency
         .iter()
         .map(|&(a, b, _)| (a.min(b), a.max(b)))
         .collect();

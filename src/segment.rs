@@ -315,21 +315,21 @@ impl Crowding {
                     let from = list.partition_point(|e| e.rho < rho - window);
                     // A client's list may pile thousands of copies onto one line: the scan
                     // is bounded, and a segment with that many candidates is crowded anyway.
-                    let to = (from + list[from..].partition_point(|e| e.rho <= rho + window))
-                        .min(from + MAX_CROWDING_CANDIDATES);
-                    for other in &list[from..to] {
-                        // Every test evaluated, none short-circuited: which candidate passes
-                        // which test follows no pattern, and branches on them mispredict.
-                        let rel = other.mid - s.start;
-                        let (along, across) = (rel.dot(&sh.dir), rel.dot(&n).abs());
-                        let neighbour = (other.index as usize != i)
-                            & (other.dir.dot(&sh.dir).abs() >= PARALLEL_COS)
-                            & (along > 0.0)
-                            & (along < sh.len)
-                            & (across > COLLINEAR_PX)
-                            & (across <= radius);
-                        if neighbour {
-                            let j = other.index as usize;
+                    for other in list[from..].iter().take(MAX_CROWDING_CANDIDATES) {
+                        if other.rho > rho + window {
+                            break;
+                        }
+                        let j = other.index as usize;
+                        if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
+                            continue;
+                        }
+                        let along = (other.mid - s.start).dot(&sh.dir);
+                        let across = (other.mid - s.start).dot(&n).abs();
+                        if along > 0.0
+                            && along < sh.len
+                            && across > COLLINEAR_PX
+                            && across <= radius
+                        {
                             // A weaker neighbour pulls less: as if it were farther.
                             let pull = match (s.gradient, segments[j].gradient) {
                                 (Some(mine), Some(theirs)) if mine > 0.0 => {

@@ -22,6 +22,7 @@ pub mod edges;
 pub mod ends;
 pub mod gradient;
 pub mod image;
+pub mod join;
 pub mod polygon;
 pub mod scale;
 
@@ -224,6 +225,107 @@ fn loop_corner(chain: &[u32], map: &edges::EdgeMap) -> usize {
         .unwrap_or(0)
 }
 
+/// How far apart two pieces of one edge may lie to be joined into one segment
+/// ([`join`]): the gap a junction leaves, and the offset of any piece's end from the joined
+/// line. Measured on the rendered office and lab (docs/ACCURACY.md): gaps of 1, 2, 3, 4 and 8
+/// px gave completeness +0.2/+1.3, +0.6/+1.4, −0.6/+0.8, −0.6/+1.6 and −2.4/0.0 points;
+/// wider gaps join pieces of different edges that one view happens to line up.
+const JOIN_LIMITS: join::Limits = join::Limits {
+    max_gap_px: 2.0,
+    max_offset_px: 0.5,
+};
+
+/// A piece kept from a chain, in undistorted pixels, before pieces of one line are joined.
+struct Pending {
+    part: join::Part,
+    fit: polygon::FitSpread,
+    /// How far the piece's midpoint lies from its fitted points' centroid, along it.
+    centre_offset: f64,
+    /// Gradient magnitude summed over the piece's chain points, and how many they are.
+    magnitude_sum: f64,
+    points: usize,
+}
+
+/// Joins the pieces of one line ([`join`]), then places each segment in the image: its ends
+/// distorted back and clipped to the frame, too short ones dropped. Returns the segments, per
+/// segment its fit and centre offset (for [`measure_noise`]), and per pending piece the
+/// segment it became.
+fn join_and_place(
+    pending: &[Pending],
+    params: &Params,
+    distort: impl Fn(Point2<f64>) -> Point2<f64>,
+    width: u32,
+    height: u32,
+) -> (
+    Vec<Segment2>,
+    Vec<(polygon::FitSpread, f64)>,
+    Vec<Option<u32>>,
+) {
+    let parts: Vec<join::Part> = pending.iter().map(|p| p.part).collect();
+    let mut renumber = vec![None; pending.len()];
+    let mut segments = Vec::with_capacity(pending.len());
+    let mut fits = Vec::with_capacity(pending.len());
+    for group in join::join(&parts, JOIN_LIMITS) {
+        let joined = if group.len() > 1 {
+            join::refit(&parts, &group)
+        } else {
+            None
+        };
+        // A group the refit cannot serve (degenerate points) stays in its pieces.
+        let singles: Vec<Vec<u32>> = if group.len() > 1 && joined.is_none() {
+            group.iter().map(|&k| vec![k]).collect()
+        } else {
+            vec![group]
+        };
+        for members in singles {
+            let (start, end, fit, centre_offset) = match joined {
+                Some(j) => {
+                    let fitted = j.fit;
+                    let spread = polygon::FitSpread {
+                        points: members
+                            .iter()
+                            .map(|&k| pending[k as usize].fit.points)
+                            .sum(),
+                        rms_px: fitted.across_px2.sqrt(),
+                        // The length of evenly spread points with the same second moment:
+                        // what sets the direction's precision.
+                        span_px: (12.0 * fitted.along_px2).sqrt(),
+                    };
+                    let mid = nalgebra::center(&j.start, &j.end);
+                    let offset = (mid - fitted.line.centroid).dot(&fitted.line.direction);
+                    (j.start, j.end, spread, offset)
+                }
+                None => {
+                    let p = &pending[members[0] as usize];
+                    (p.part.start, p.part.end, p.fit, p.centre_offset)
+                }
+            };
+            let Some((a, b)) = clip_to_frame(distort(start), distort(end), width, height) else {
+                continue;
+            };
+            if (b - a).norm() < params.min_segment_px {
+                continue;
+            }
+            let (magnitude, count) = members.iter().fold((0.0, 0usize), |(m, c), &k| {
+                let p = &pending[k as usize];
+                (m + p.magnitude_sum, c + p.points)
+            });
+            let id = segments.len() as u32;
+            for &k in &members {
+                renumber[k as usize] = Some(id);
+            }
+            segments.push(Segment2 {
+                start: a,
+                end: b,
+                gradient: Some(magnitude / count.max(1) as f64),
+                noise: None,
+            });
+            fits.push((fit, centre_offset));
+        }
+    }
+    (segments, fits, renumber)
+}
+
 /// Edge points closer than this along a chain share their noise (the smoothing and the
 /// gradient stencil span a few pixels at σ = 1): the fit has one independent point per this
 /// many pixels of chain. With the two constants below, measured on the rendered office and
@@ -335,9 +437,8 @@ pub fn extract_until(
     };
     let distort = |p: Point2<f64>| camera.map_or(p, |c| c.distort(p));
     let trim = corner_trim(smoothing);
-    let mut segments = Vec::new();
-    // Per segment: its fit, and how far its midpoint lies from the fitted points' centroid.
-    let mut fits: Vec<(polygon::FitSpread, f64)> = Vec::new();
+    // Every piece kept, in undistorted pixels, before pieces of one line are joined.
+    let mut pending: Vec<Pending> = Vec::new();
     let mut graph = Vec::new();
     // Per chain: (first point position, last point position, segment index) of its kept pieces.
     let mut kept: Vec<Vec<(usize, usize, u32)>> = Vec::with_capacity(chains.chains.len());
@@ -411,7 +512,6 @@ pub fn extract_until(
                 gv += f64::from(p.gv);
                 magnitude += f64::from(p.magnitude);
             }
-            let count = (last - piece.first + 1) as f64;
             let (mut a, mut b) = (piece.start, piece.end);
             // Chains walk with the bright side on the left; check against the mean gradient
             // in case a piece straddles a weak flip.
@@ -419,25 +519,18 @@ pub fn extract_until(
             if gu * d.y - gv * d.x < 0.0 {
                 std::mem::swap(&mut a, &mut b);
             }
-            // A corner intersection near the border can fall just outside the image.
-            let Some((a, b)) = clip_to_frame(distort(a), distort(b), image.width(), image.height())
-            else {
-                continue;
-            };
-            if (b - a).norm() < params.min_segment_px {
-                continue;
-            }
-            let id = segments.len() as u32;
+            let id = pending.len() as u32;
             let mid = nalgebra::center(&piece.start, &piece.end);
-            fits.push((
-                piece.fit,
-                (mid - piece.line.centroid).dot(&piece.line.direction),
-            ));
-            segments.push(Segment2 {
-                start: a,
-                end: b,
-                gradient: Some(magnitude / count),
-                noise: None,
+            pending.push(Pending {
+                part: join::Part {
+                    start: a,
+                    end: b,
+                    moments: piece.moments,
+                },
+                fit: piece.fit,
+                centre_offset: (mid - piece.line.centroid).dot(&piece.line.direction),
+                magnitude_sum: magnitude,
+                points: last - piece.first + 1,
             });
             // Positions in the chain's own order (undo the loop's rotation).
             let to_chain = |k: usize| (k + rotation) % ids.len();
@@ -448,7 +541,7 @@ pub fn extract_until(
         }
         if c.closed && mine.len() > 2 {
             let (first, last) = (mine[0].2, mine[mine.len() - 1].2);
-            graph.push((first, last, segments[first as usize].start));
+            graph.push((first, last, distort(pending[first as usize].part.start)));
         }
         kept.push(mine);
     }
@@ -476,8 +569,12 @@ pub fn extract_until(
         let p = &map.points[other.points[at] as usize];
         graph.push((a, b, Point2::new(f64::from(p.u), f64::from(p.v))));
     }
+    checkpoint.before("extract")?;
+    let (segments, fits, renumber) =
+        join_and_place(&pending, params, distort, image.width(), image.height());
     let mut graph: Vec<Adjacent> = graph
         .into_iter()
+        .filter_map(|(a, b, vertex)| Some((renumber[a as usize]?, renumber[b as usize]?, vertex)))
         .filter(|(a, b, _)| a != b)
         .map(|(a, b, vertex)| Adjacent {
             a: a.min(b),
@@ -487,6 +584,7 @@ pub fn extract_until(
         .collect();
     graph.sort_by_key(|e| (e.a, e.b));
     graph.dedup_by_key(|e| (e.a, e.b));
+    let mut segments = segments;
     measure_noise(&mut segments, &fits);
     let crowding_model = CrowdingModel::for_smoothing(smoothing);
     let distances = crate::segment::crowding(&segments, crowding_model);

@@ -182,6 +182,83 @@ pub struct Piece {
     /// The points the line was fitted to: how many, their RMS distance from it, and the
     /// length they span along it (pixels). The segment's precision is measured from these.
     pub fit: FitSpread,
+    /// The same points' sums, so that pieces of one line can be refitted together.
+    pub moments: Moments,
+}
+
+/// Sums over a set of points, enough to refit their total-least-squares line exactly after
+/// sets are combined ([`Moments::add`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Moments {
+    pub count: f64,
+    pub sum: Vector2<f64>,
+    pub sum_xx: f64,
+    pub sum_xy: f64,
+    pub sum_yy: f64,
+}
+
+/// A line fitted from [`Moments`], with the points' second moments along and across it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MomentFit {
+    /// Directed like the caller's `towards`.
+    pub line: Line,
+    /// Mean squared distance of the points from the line, pixels².
+    pub across_px2: f64,
+    /// Mean squared distance along the line from the centroid, pixels².
+    pub along_px2: f64,
+}
+
+impl Moments {
+    pub fn of(points: &[Point2<f64>]) -> Moments {
+        points.iter().fold(Moments::default(), |m, p| Moments {
+            count: m.count + 1.0,
+            sum: m.sum + p.coords,
+            sum_xx: m.sum_xx + p.x * p.x,
+            sum_xy: m.sum_xy + p.x * p.y,
+            sum_yy: m.sum_yy + p.y * p.y,
+        })
+    }
+
+    pub fn add(&self, other: &Moments) -> Moments {
+        Moments {
+            count: self.count + other.count,
+            sum: self.sum + other.sum,
+            sum_xx: self.sum_xx + other.sum_xx,
+            sum_xy: self.sum_xy + other.sum_xy,
+            sum_yy: self.sum_yy + other.sum_yy,
+        }
+    }
+
+    /// The total-least-squares line, directed along `towards`; `None` for fewer than two
+    /// distinct points.
+    pub fn fit(&self, towards: Vector2<f64>) -> Option<MomentFit> {
+        if self.count < 2.0 {
+            return None;
+        }
+        let c = self.sum / self.count;
+        // Central second moments, per point.
+        let xx = self.sum_xx / self.count - c.x * c.x;
+        let xy = self.sum_xy / self.count - c.x * c.y;
+        let yy = self.sum_yy / self.count - c.y * c.y;
+        if xx + yy <= 1e-18 {
+            return None;
+        }
+        let angle = 0.5 * (2.0 * xy).atan2(xx - yy);
+        let mut direction = Vector2::new(angle.cos(), angle.sin());
+        if direction.dot(&towards) < 0.0 {
+            direction = -direction;
+        }
+        let (dx, dy) = (direction.x, direction.y);
+        let along = xx * dx * dx + 2.0 * xy * dx * dy + yy * dy * dy;
+        Some(MomentFit {
+            line: Line {
+                centroid: Point2::from(c),
+                direction,
+            },
+            across_px2: (xx + yy - along).max(0.0),
+            along_px2: along,
+        })
+    }
 }
 
 /// What a line fit saw of its points.
@@ -259,6 +336,7 @@ pub fn approximate(
             end: line.project(all[all.len() - 1]),
             joined: (false, false),
             fit: fit_spread(fitted, &line),
+            moments: Moments::of(fitted),
         });
     }
     // Corners: neighbours in the chain share the intersection of their lines.
@@ -299,6 +377,35 @@ mod tests {
 
     fn p(x: f64, y: f64) -> Point2<f64> {
         Point2::new(x, y)
+    }
+
+    #[test]
+    fn moments_refit_the_union_of_two_point_sets() {
+        let pts: Vec<_> = (0..30)
+            .map(|i| {
+                p(
+                    i as f64,
+                    0.5 * i as f64 + if i % 3 == 0 { 0.2 } else { -0.1 },
+                )
+            })
+            .collect();
+        let direct = fit_line(&pts).unwrap();
+        let joined = Moments::of(&pts[..12]).add(&Moments::of(&pts[12..]));
+        let fit = joined.fit(Vector2::new(1.0, 0.0)).unwrap();
+        assert!((fit.line.centroid - direct.centroid).norm() < 1e-9);
+        assert!((fit.line.direction - direct.direction).norm() < 1e-9);
+        let spread = fit_spread(&pts, &direct);
+        assert!((fit.across_px2 - spread.rms_px.powi(2)).abs() < 1e-9);
+        let along = pts
+            .iter()
+            .map(|q| (q - direct.centroid).dot(&direct.direction).powi(2))
+            .sum::<f64>()
+            / 30.0;
+        assert!((fit.along_px2 - along).abs() < 1e-6);
+        // Directed as asked.
+        let back = joined.fit(Vector2::new(-1.0, 0.0)).unwrap();
+        assert!((back.line.direction + direct.direction).norm() < 1e-9);
+        assert!(Moments::of(&[p(1.0, 1.0)]).fit(Vector2::x()).is_none());
     }
 
     #[test]

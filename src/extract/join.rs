@@ -80,8 +80,8 @@ pub fn join(parts: &[Part], limits: Limits) -> Vec<Vec<u32>> {
         sums[gi] = joined;
     }
     let mut groups = Vec::new();
-    for head in 0..n {
-        if prev[head] != u32::MAX {
+    for (head, &before) in prev.iter().enumerate() {
+        if before != u32::MAX {
             continue;
         }
         let mut run = vec![head as u32];

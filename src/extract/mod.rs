@@ -246,21 +246,23 @@ struct Pending {
     points: usize,
 }
 
+/// The segments of an image after joining, with per segment its fit and centre offset (for
+/// [`measure_noise`]), and per pending piece the segment it became (`None`: clipped away).
+struct Placed {
+    segments: Vec<Segment2>,
+    fits: Vec<(polygon::FitSpread, f64)>,
+    renumber: Vec<Option<u32>>,
+}
+
 /// Joins the pieces of one line ([`join`]), then places each segment in the image: its ends
-/// distorted back and clipped to the frame, too short ones dropped. Returns the segments, per
-/// segment its fit and centre offset (for [`measure_noise`]), and per pending piece the
-/// segment it became.
+/// distorted back and clipped to the frame, too short ones dropped.
 fn join_and_place(
     pending: &[Pending],
     params: &Params,
     distort: impl Fn(Point2<f64>) -> Point2<f64>,
     width: u32,
     height: u32,
-) -> (
-    Vec<Segment2>,
-    Vec<(polygon::FitSpread, f64)>,
-    Vec<Option<u32>>,
-) {
+) -> Placed {
     let parts: Vec<join::Part> = pending.iter().map(|p| p.part).collect();
     let mut renumber = vec![None; pending.len()];
     let mut segments = Vec::with_capacity(pending.len());
@@ -323,7 +325,11 @@ fn join_and_place(
             fits.push((fit, centre_offset));
         }
     }
-    (segments, fits, renumber)
+    Placed {
+        segments,
+        fits,
+        renumber,
+    }
 }
 
 /// Edge points closer than this along a chain share their noise (the smoothing and the
@@ -570,8 +576,11 @@ pub fn extract_until(
         graph.push((a, b, Point2::new(f64::from(p.u), f64::from(p.v))));
     }
     checkpoint.before("extract")?;
-    let (segments, fits, renumber) =
-        join_and_place(&pending, params, distort, image.width(), image.height());
+    let Placed {
+        segments,
+        fits,
+        renumber,
+    } = join_and_place(&pending, params, distort, image.width(), image.height());
     let mut graph: Vec<Adjacent> = graph
         .into_iter()
         .filter_map(|(a, b, vertex)| Some((renumber[a as usize]?, renumber[b as usize]?, vertex)))

@@ -23,6 +23,7 @@
 //! The vision core (`geometry`, `matching`, `reconstruct`, `pipeline`) knows nothing of
 //! transports; `api` depends on it, never the reverse.
 
+pub mod angle;
 pub mod api;
 pub mod calibrate;
 pub mod checkpoint;

@@ -225,6 +225,24 @@ struct Entry {
     index: u32,
 }
 
+/// The orientation bin of a unit direction: by the fast approximate angle, and by the exact
+/// one only where the two could disagree (within the approximation's error of a border).
+fn orientation_bin(dir: nalgebra::Vector2<f64>, bin_width: f64) -> usize {
+    use crate::angle::{approx_angle_key, APPROX_ANGLE_KEY_ERROR};
+    let bin_of = |theta: f64| ((theta / bin_width) as usize).min(CROWDING_BINS - 1);
+    let approx = approx_angle_key(dir, std::f64::consts::PI);
+    let lo = bin_of((approx - APPROX_ANGLE_KEY_ERROR).max(0.0));
+    let hi = bin_of(approx + APPROX_ANGLE_KEY_ERROR);
+    if lo == hi
+        && approx > APPROX_ANGLE_KEY_ERROR
+        && approx < std::f64::consts::PI - APPROX_ANGLE_KEY_ERROR
+    {
+        lo
+    } else {
+        bin_of(dir.y.atan2(dir.x).rem_euclid(std::f64::consts::PI))
+    }
+}
+
 /// The index behind [`crowding`]: built once per list, asked as often as needed.
 pub struct Crowding {
     normals: [nalgebra::Vector2<f64>; CROWDING_BINS],
@@ -248,8 +266,7 @@ impl Crowding {
                     return None;
                 }
                 let dir = (s.end - s.start) / len;
-                let theta = dir.y.atan2(dir.x).rem_euclid(std::f64::consts::PI);
-                let bin = ((theta / bin_width) as usize).min(CROWDING_BINS - 1);
+                let bin = orientation_bin(dir, bin_width);
                 Some(Shape {
                     dir,
                     mid: nalgebra::center(&s.start, &s.end),

@@ -30,25 +30,7 @@ struct Entry {
     segment: u32,
 }
 
-/// The angle key of a direction: `[0, 2π)` for oriented segments, `[0, π)` otherwise.
-pub fn angle_key(dir: Vector2<f64>, period: f64) -> f64 {
-    let a = dir.y.atan2(dir.x).rem_euclid(period);
-    if a >= period {
-        0.0
-    } else {
-        a
-    }
-}
-
-/// Signed difference of two angle keys, folded into `(-period/2, period/2]`.
-pub fn angle_diff(a: f64, b: f64, period: f64) -> f64 {
-    let d = (a - b).rem_euclid(period);
-    if d > period / 2.0 {
-        d - period
-    } else {
-        d
-    }
-}
+pub use crate::angle::{angle_diff, angle_key, approx_angle_key, APPROX_ANGLE_KEY_ERROR};
 
 #[derive(Debug, Clone)]
 pub struct Buckets {

@@ -25,7 +25,7 @@
 use nalgebra::{Point2, Vector2};
 use rayon::prelude::*;
 
-use super::bucket::{angle_key, period, Buckets};
+use super::bucket::{angle_key, approx_angle_key, period, Buckets, APPROX_ANGLE_KEY_ERROR};
 use super::{gradients_compatible, MatchParams, RectSegment, Views};
 use crate::checkpoint::{Checkpoint, Stopped};
 use crate::geometry::{Rectification, RigFrames};
@@ -459,17 +459,23 @@ impl Search<'_> {
             return;
         }
         let q_dir = q / q_len;
-        let key_q = angle_key(q_dir, self.period);
-        // The angle tolerance widens by the angle `tol` subtends at either end of the
-        // prediction; its cosine, cos(a + atan x) = (cos a − x·sin a) / √(1 + x²), without
-        // a second trigonometric call per prediction.
+        // The angle tolerance a widens by the angle `tol` subtends at either end of the
+        // prediction, atan x. The exact test is on its cosine, cos(a + atan x) =
+        // (cos a − x·sin a) / √(1 + x²); the windows are only a prefilter, searched around an
+        // approximate key within a wider range (atan x ≤ min(x, π/2)), so no trigonometric
+        // call is made per prediction and nothing the exact test accepts is missed.
+        let key_q = approx_angle_key(q_dir, self.period);
         let widen = 2.0 * tol / q_len;
-        let verify_tol = params.verify_angle_tolerance_deg.to_radians() + widen.atan();
+        let a = params.verify_angle_tolerance_deg.to_radians();
+        let window_tol = a + widen.min(std::f64::consts::FRAC_PI_2) + APPROX_ANGLE_KEY_ERROR;
         let (sin_a, cos_a) = self.verify_angle;
-        let cos_tol = if verify_tol < std::f64::consts::PI {
-            (cos_a - widen * sin_a) / (1.0 + widen * widen).sqrt()
-        } else {
+        // a + atan x ≥ π: every direction passes.
+        let opens_fully =
+            a > std::f64::consts::FRAC_PI_2 && widen >= (std::f64::consts::PI - a).tan();
+        let cos_tol = if opens_fully {
             -1.0
+        } else {
+            (cos_a - widen * sin_a) / (1.0 + widen * widen).sqrt()
         };
         // 4. Verify along the predicted segment.
         let generation = scratch.next();
@@ -479,7 +485,7 @@ impl Search<'_> {
         found.clear();
         let stamp = &mut stamp[k];
         grid_k.for_each_cell_on_path(q0, q1, tol, |cx, cy| {
-            grid_k.for_each_in_cell(cx, cy, key_q, verify_tol, |ik| {
+            grid_k.for_each_in_cell(cx, cy, key_q, window_tol, |ik| {
                 if first_visit(stamp, ik, generation) {
                     found.push(ik);
                 }

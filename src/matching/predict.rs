@@ -491,13 +491,11 @@ impl Search<'_> {
                 }
             });
         });
-        // Candidates come out in window order: sort so the output does not depend on the grid.
-        found.sort_unstable();
+        // Candidates come out in window order; the verified ones are sorted below so that the
+        // output does not depend on the grid (and the cap keeps the lowest indices). Sorting
+        // after the tests sorts the few that pass, not every candidate.
         let verified_before = out.len();
         for &ik in found.iter() {
-            if out.len() - verified_before == MAX_VERIFIED_PER_PAIR {
-                break;
-            }
             let sk = &self.views.segments[k][ik as usize];
             let cos = sk.dir.dot(&q_dir);
             let aligned = if self.views.oriented { cos } else { cos.abs() };
@@ -535,5 +533,11 @@ impl Search<'_> {
                 frame: pair.frame as u8,
             });
         }
+        let verified = &mut out[verified_before..];
+        if verified.len() > 1 {
+            let slot = if pair.j == 1 { 2 } else { 1 };
+            verified.sort_unstable_by_key(|h| h.segments[slot]);
+        }
+        out.truncate(verified_before + MAX_VERIFIED_PER_PAIR);
     }
 }

@@ -127,6 +127,13 @@ proptest! {
         let in_frame = |frame: &Rectification, i: usize| {
             frame.to_rect(i, rig.camera(i).undistort(rig.camera(i).project(&x).unwrap()))
         };
+        // A rig whose centres are within COLLINEAR_SPREAD of one line is the documented
+        // collinear case: one frame whose plane holds the longest baseline, the others' small
+        // offsets off that line neglected, so no pair is exact there (its own tests:
+        // `collinear_rig_is_detected`). Found by this test: a third centre 2 mm off the line.
+        if frames.shared && frames.pair_frames[0].collinear() {
+            return Ok(());
+        }
         for (f, (j, k)) in [(1usize, 2usize), (2, 1)].into_iter().enumerate() {
             let frame = &frames.pair_frames[f];
             let (Some(a1), Some(aj)) = (in_frame(frame, 0), in_frame(frame, j)) else {

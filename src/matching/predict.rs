@@ -30,16 +30,25 @@ use super::{gradients_compatible, MatchParams, RectSegment, Views};
 use crate::checkpoint::{Checkpoint, Stopped};
 use crate::geometry::{Rectification, RigFrames};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::Instant;
 
 /// Shortest common part of two segments along the epipolar lines, and of a predicted segment
 /// with the verifying one, pixels: below it the overlap is an accident of noise.
 pub const MIN_OVERLAP_PX: f64 = 3.0;
 /// S1 per rayon task: enough to amortise the scratch buffers.
 const SEGMENTS_PER_TASK: usize = 32;
+/// Work per round of the search ([`predict_in_frames_until`]): what another request may
+/// wait for a thread while this one searches.
+const ROUND_TIME: std::time::Duration = std::time::Duration::from_millis(2);
+/// Most S1 per round, however fast they go.
+const MAX_ROUND: usize = 1 << 14;
 /// Most segments of the searched view paired with one S1 (the first, in index order).
 pub const MAX_CANDIDATES_PER_SEGMENT: usize = 256;
 /// Most hypotheses verified for one pair (the first, in index order).
 pub const MAX_VERIFIED_PER_PAIR: usize = 32;
+/// Up to this many candidates in the verifying view, all are tested and the verified sorted;
+/// beyond, they are sorted first and tested up to [`MAX_VERIFIED_PER_PAIR`] verified.
+const SORT_AFTER_AT_MOST: usize = 2 * MAX_VERIFIED_PER_PAIR;
 /// Most hypotheses kept for one S1: those of smallest residual among the first
 /// [`MAX_VERIFIED_PER_SEGMENT`] verified.
 pub const MAX_HYPOTHESES_PER_SEGMENT: usize = 64;
@@ -219,31 +228,49 @@ pub fn predict_in_frames_until(
     let s1 = views.segments[0];
     let total = AtomicUsize::new(0);
     let given_up = AtomicBool::new(false);
-    let per_s1: Vec<Vec<Hypothesis>> = (0..s1.len())
-        .into_par_iter()
-        .with_min_len(SEGMENTS_PER_TASK)
-        .map_init(
-            || Scratch::new(views),
-            |scratch, i| {
-                if given_up.load(Ordering::Relaxed) || checkpoint.stopped() {
-                    given_up.store(true, Ordering::Relaxed);
-                    return Vec::new();
-                }
-                // Searched in the task's buffer and copied out at its final size: one
-                // allocation per segment that has hypotheses, none for one that has none.
-                let mut found = std::mem::take(&mut scratch.hypotheses);
-                found.clear();
-                search.one(i as u32, scratch, &mut found);
-                keep_best(&mut found, MAX_HYPOTHESES_PER_SEGMENT);
-                let out = found.to_vec();
-                scratch.hypotheses = found;
-                if total.fetch_add(out.len(), Ordering::Relaxed) + out.len() > MAX_HYPOTHESES {
-                    given_up.store(true, Ordering::Relaxed);
-                }
-                out
-            },
-        )
-        .collect();
+    let search_one = |scratch: &mut Scratch, i: usize| {
+        if given_up.load(Ordering::Relaxed) || checkpoint.stopped() {
+            given_up.store(true, Ordering::Relaxed);
+            return Vec::new();
+        }
+        // Searched in the task's buffer and copied out at its final size: one
+        // allocation per segment that has hypotheses, none for one that has none.
+        let mut found = std::mem::take(&mut scratch.hypotheses);
+        found.clear();
+        search.one(i as u32, scratch, &mut found);
+        keep_best(&mut found, MAX_HYPOTHESES_PER_SEGMENT);
+        let out = found.to_vec();
+        scratch.hypotheses = found;
+        if total.fetch_add(out.len(), Ordering::Relaxed) + out.len() > MAX_HYPOTHESES {
+            given_up.store(true, Ordering::Relaxed);
+        }
+        out
+    };
+    // In rounds: within one, the pool's threads work on this request alone (rayon's threads
+    // take their own pending work first); between two, a thread that runs out of it takes
+    // another request's job. Each round is sized from the last to take about ROUND_TIME, so a
+    // request whose segments are slow to search (a crowd of them) holds the pool for that
+    // long at a time, not for its whole search, and a quick one runs in one or two rounds.
+    // The rounds only partition the S1 indices: the hypotheses are the same however they fall.
+    let mut per_s1: Vec<Vec<Hypothesis>> = Vec::with_capacity(s1.len());
+    let mut round_size = SEGMENTS_PER_TASK;
+    let mut next = 0;
+    while next < s1.len() && !given_up.load(Ordering::Relaxed) {
+        let round = next..(next + round_size).min(s1.len());
+        let count = round.len();
+        let started = Instant::now();
+        let found: Vec<Vec<Hypothesis>> = round
+            .into_par_iter()
+            .with_min_len(SEGMENTS_PER_TASK)
+            .map_init(|| Scratch::new(views), &search_one)
+            .collect();
+        per_s1.extend(found);
+        next += count;
+        let per_segment = started.elapsed().as_secs_f64() / count as f64;
+        round_size = (ROUND_TIME.as_secs_f64() / per_segment.max(1e-9)).clamp(1.0, MAX_ROUND as f64)
+            as usize;
+    }
+
     checkpoint.before("predict")?;
     if total.into_inner() > MAX_HYPOTHESES {
         return Err(PredictError::TooManyHypotheses {
@@ -467,7 +494,7 @@ impl Search<'_> {
         let key_q = approx_angle_key(q_dir, self.period);
         let widen = 2.0 * tol / q_len;
         let a = params.verify_angle_tolerance_deg.to_radians();
-        let window_tol = a + widen.min(std::f64::consts::FRAC_PI_2) + APPROX_ANGLE_KEY_ERROR;
+        let window_tol = a + widen.atan() + APPROX_ANGLE_KEY_ERROR;
         let (sin_a, cos_a) = self.verify_angle;
         // a + atan x ≥ π: every direction passes.
         let opens_fully =
@@ -491,11 +518,21 @@ impl Search<'_> {
                 }
             });
         });
-        // Candidates come out in window order; the verified ones are sorted below so that the
-        // output does not depend on the grid (and the cap keeps the lowest indices). Sorting
-        // after the tests sorts the few that pass, not every candidate.
+        // Candidates come out in window order; the output must not depend on the grid, and
+        // the cap keeps the lowest indices. Usually the few that pass are sorted after the
+        // tests (sorting every candidate first was 7% of a match); in a crowd, where the cap
+        // binds, the candidates are sorted first and the tests stop at the cap, so a request
+        // that piles segments up pays for the cap's worth, not for all it piled. Both give
+        // the same hypotheses.
         let verified_before = out.len();
+        let sort_first = found.len() > SORT_AFTER_AT_MOST;
+        if sort_first {
+            found.sort_unstable();
+        }
         for &ik in found.iter() {
+            if sort_first && out.len() - verified_before == MAX_VERIFIED_PER_PAIR {
+                break;
+            }
             let sk = &self.views.segments[k][ik as usize];
             let cos = sk.dir.dot(&q_dir);
             let aligned = if self.views.oriented { cos } else { cos.abs() };

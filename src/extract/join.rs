@@ -13,7 +13,7 @@
 use nalgebra::{Point2, Vector2};
 use rustc_hash::FxHashMap;
 
-use super::polygon::{Line, MomentFit, Moments};
+use super::polygon::{MomentFit, Moments};
 
 /// A piece to join: its ends, oriented by contrast (DESIGN §1), and its fitted points' sums.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -39,9 +39,30 @@ const MAX_OVERLAP_PX: f64 = 1.0;
 /// before the joint fit decides.
 const MIN_DIRECTION_COS: f64 = 0.996_194_698;
 
+/// A run of parts that are one line, in order along it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Group {
+    pub members: Vec<u32>,
+    /// The line fitted to all the members' points: `Some` for two or more members.
+    pub fit: Option<MomentFit>,
+}
+
+impl Group {
+    /// The joined segment's ends: the outer ends of its first and last parts projected onto
+    /// its line (a single part's own ends).
+    pub fn ends(&self, parts: &[Part]) -> (Point2<f64>, Point2<f64>) {
+        let first = &parts[self.members[0] as usize];
+        let last = &parts[self.members[self.members.len() - 1] as usize];
+        match &self.fit {
+            Some(fit) => (fit.line.project(first.start), fit.line.project(last.end)),
+            None => (first.start, first.end),
+        }
+    }
+}
+
 /// The groups of `parts` that are one line, each in order along it; every part is in exactly
 /// one group, groups in the order of their lowest part.
-pub fn join(parts: &[Part], limits: Limits) -> Vec<Vec<u32>> {
+pub fn join(parts: &[Part], limits: Limits) -> Vec<Group> {
     let candidates = follow_ons(parts, limits);
     let n = parts.len();
     let mut next = vec![u32::MAX; n];
@@ -50,6 +71,7 @@ pub fn join(parts: &[Part], limits: Limits) -> Vec<Vec<u32>> {
     let mut group_of: Vec<u32> = (0..n as u32).collect();
     let mut members: Vec<Vec<u32>> = (0..n as u32).map(|i| vec![i]).collect();
     let mut sums: Vec<Moments> = parts.iter().map(|p| p.moments).collect();
+    let mut fits: Vec<Option<MomentFit>> = vec![None; n];
     for (_, i, j) in candidates {
         let (i, j) = (i as usize, j as usize);
         let (gi, gj) = (group_of[i] as usize, group_of[j] as usize);
@@ -78,6 +100,7 @@ pub fn join(parts: &[Part], limits: Limits) -> Vec<Vec<u32>> {
         }
         members[gi].extend(moved);
         sums[gi] = joined;
+        fits[gi] = Some(fit);
     }
     let mut groups = Vec::new();
     for (head, &before) in prev.iter().enumerate() {
@@ -90,9 +113,12 @@ pub fn join(parts: &[Part], limits: Limits) -> Vec<Vec<u32>> {
             k = next[k] as usize;
             run.push(k as u32);
         }
-        groups.push(run);
+        groups.push(Group {
+            members: run,
+            fit: fits[group_of[head] as usize],
+        });
     }
-    groups.sort_by_key(|g| g.iter().copied().min());
+    groups.sort_by_key(|g| g.members.iter().copied().min());
     groups
 }
 
@@ -155,32 +181,6 @@ fn unit(v: Vector2<f64>) -> Option<Vector2<f64>> {
     (n > 1e-9).then(|| v / n)
 }
 
-/// The joined segment of a group: its line from all the points, its ends the outer ends of
-/// its first and last pieces projected onto that line, and the fit's spread.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Joined {
-    pub start: Point2<f64>,
-    pub end: Point2<f64>,
-    pub fit: MomentFit,
-}
-
-/// Refits `group` (in order along its line) as one segment; `None` if its points are
-/// degenerate (then the caller keeps the pieces as they were).
-pub fn refit(parts: &[Part], group: &[u32]) -> Option<Joined> {
-    let first = &parts[*group.first()? as usize];
-    let last = &parts[*group.last()? as usize];
-    let sums = group.iter().fold(Moments::default(), |m, &k| {
-        m.add(&parts[k as usize].moments)
-    });
-    let fit = sums.fit(last.end - first.start)?;
-    let line: Line = fit.line;
-    Some(Joined {
-        start: line.project(first.start),
-        end: line.project(last.end),
-        fit,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -206,6 +206,10 @@ mod tests {
         part(&pts)
     }
 
+    fn members(groups: &[Group]) -> Vec<Vec<u32>> {
+        groups.iter().map(|g| g.members.clone()).collect()
+    }
+
     const LIMITS: Limits = Limits {
         max_gap_px: 4.0,
         max_offset_px: 0.5,
@@ -221,11 +225,11 @@ mod tests {
             run(13.0, 20.0, 0.1, 5.0),
         ];
         let groups = join(&parts, LIMITS);
-        assert_eq!(groups, vec![vec![1, 3, 0], vec![2]]);
-        let joined = refit(&parts, &groups[0]).unwrap();
-        assert!((joined.start - Point2::new(0.0, 5.0)).norm() < 1e-9);
-        assert!((joined.end - Point2::new(40.0, 9.0)).norm() < 1e-9);
-        assert!(joined.fit.across_px2 < 1e-18);
+        assert_eq!(members(&groups), vec![vec![1, 3, 0], vec![2]]);
+        let (start, end) = groups[0].ends(&parts);
+        assert!((start - Point2::new(0.0, 5.0)).norm() < 1e-9);
+        assert!((end - Point2::new(40.0, 9.0)).norm() < 1e-9);
+        assert!(groups[0].fit.unwrap().across_px2 < 1e-18);
     }
 
     #[test]
@@ -259,6 +263,6 @@ mod tests {
             run(21.0, 30.0, 0.0, 0.0),
         ];
         let groups = join(&parts, LIMITS);
-        assert_eq!(groups, vec![vec![0, 2], vec![1]]);
+        assert_eq!(members(&groups), vec![vec![0, 2], vec![1]]);
     }
 }

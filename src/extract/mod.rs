@@ -268,62 +268,50 @@ fn join_and_place(
     let mut segments = Vec::with_capacity(pending.len());
     let mut fits = Vec::with_capacity(pending.len());
     for group in join::join(&parts, JOIN_LIMITS) {
-        let joined = if group.len() > 1 {
-            join::refit(&parts, &group)
-        } else {
-            None
-        };
-        // A group the refit cannot serve (degenerate points) stays in its pieces.
-        let singles: Vec<Vec<u32>> = if group.len() > 1 && joined.is_none() {
-            group.iter().map(|&k| vec![k]).collect()
-        } else {
-            vec![group]
-        };
-        for members in singles {
-            let (start, end, fit, centre_offset) = match joined {
-                Some(j) => {
-                    let fitted = j.fit;
-                    let spread = polygon::FitSpread {
-                        points: members
-                            .iter()
-                            .map(|&k| pending[k as usize].fit.points)
-                            .sum(),
-                        rms_px: fitted.across_px2.sqrt(),
-                        // The length of evenly spread points with the same second moment:
-                        // what sets the direction's precision.
-                        span_px: (12.0 * fitted.along_px2).sqrt(),
-                    };
-                    let mid = nalgebra::center(&j.start, &j.end);
-                    let offset = (mid - fitted.line.centroid).dot(&fitted.line.direction);
-                    (j.start, j.end, spread, offset)
-                }
-                None => {
-                    let p = &pending[members[0] as usize];
-                    (p.part.start, p.part.end, p.fit, p.centre_offset)
-                }
-            };
-            let Some((a, b)) = clip_to_frame(distort(start), distort(end), width, height) else {
-                continue;
-            };
-            if (b - a).norm() < params.min_segment_px {
-                continue;
+        let members = &group.members;
+        let (start, end) = group.ends(&parts);
+        let (fit, centre_offset) = match &group.fit {
+            Some(joined) => {
+                let spread = polygon::FitSpread {
+                    points: members
+                        .iter()
+                        .map(|&k| pending[k as usize].fit.points)
+                        .sum(),
+                    rms_px: joined.across_px2.sqrt(),
+                    // The length of evenly spread points with the same second moment: what
+                    // sets the direction's precision.
+                    span_px: (12.0 * joined.along_px2).sqrt(),
+                };
+                let mid = nalgebra::center(&start, &end);
+                let offset = (mid - joined.line.centroid).dot(&joined.line.direction);
+                (spread, offset)
             }
-            let (magnitude, count) = members.iter().fold((0.0, 0usize), |(m, c), &k| {
-                let p = &pending[k as usize];
-                (m + p.magnitude_sum, c + p.points)
-            });
-            let id = segments.len() as u32;
-            for &k in &members {
-                renumber[k as usize] = Some(id);
+            None => {
+                let p = &pending[members[0] as usize];
+                (p.fit, p.centre_offset)
             }
-            segments.push(Segment2 {
-                start: a,
-                end: b,
-                gradient: Some(magnitude / count.max(1) as f64),
-                noise: None,
-            });
-            fits.push((fit, centre_offset));
+        };
+        let Some((a, b)) = clip_to_frame(distort(start), distort(end), width, height) else {
+            continue;
+        };
+        if (b - a).norm() < params.min_segment_px {
+            continue;
         }
+        let (magnitude, count) = members.iter().fold((0.0, 0usize), |(m, c), &k| {
+            let p = &pending[k as usize];
+            (m + p.magnitude_sum, c + p.points)
+        });
+        let id = segments.len() as u32;
+        for &k in members {
+            renumber[k as usize] = Some(id);
+        }
+        segments.push(Segment2 {
+            start: a,
+            end: b,
+            gradient: Some(magnitude / count.max(1) as f64),
+            noise: None,
+        });
+        fits.push((fit, centre_offset));
     }
     Placed {
         segments,
@@ -580,7 +568,7 @@ pub fn extract_until(
     }
     checkpoint.before("extract")?;
     let Placed {
-        segments,
+        mut segments,
         fits,
         renumber,
     } = join_and_place(&pending, params, distort, image.width(), image.height());
@@ -596,7 +584,6 @@ pub fn extract_until(
         .collect();
     graph.sort_by_key(|e| (e.a, e.b));
     graph.dedup_by_key(|e| (e.a, e.b));
-    let mut segments = segments;
     measure_noise(&mut segments, &fits);
     let crowding_model = CrowdingModel::for_smoothing(smoothing);
     let distances = crate::segment::crowding(&segments, crowding_model);

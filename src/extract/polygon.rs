@@ -64,17 +64,24 @@ pub fn fit_line(points: &[Point2<f64>]) -> Option<Line> {
         sxy += d.x * d.y;
         syy += d.y * d.y;
     }
-    if sxx + syy <= 1e-18 {
-        return None;
-    }
-    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
-    let mut direction = Vector2::new(angle.cos(), angle.sin());
-    if direction.dot(&(points[n - 1] - points[0])) < 0.0 {
-        direction = -direction;
-    }
     Some(Line {
         centroid: Point2::from(centroid),
-        direction,
+        direction: principal_direction(sxx, sxy, syy, points[n - 1] - points[0])?,
+    })
+}
+
+/// The unit direction of largest spread of points with central second moments `xx`, `xy`,
+/// `yy`, directed along `towards`; `None` when they do not spread at all.
+fn principal_direction(xx: f64, xy: f64, yy: f64, towards: Vector2<f64>) -> Option<Vector2<f64>> {
+    if xx + yy <= 1e-18 {
+        return None;
+    }
+    let angle = 0.5 * (2.0 * xy).atan2(xx - yy);
+    let direction = Vector2::new(angle.cos(), angle.sin());
+    Some(if direction.dot(&towards) < 0.0 {
+        -direction
+    } else {
+        direction
     })
 }
 
@@ -240,14 +247,7 @@ impl Moments {
         let xx = self.sum_xx / self.count - c.x * c.x;
         let xy = self.sum_xy / self.count - c.x * c.y;
         let yy = self.sum_yy / self.count - c.y * c.y;
-        if xx + yy <= 1e-18 {
-            return None;
-        }
-        let angle = 0.5 * (2.0 * xy).atan2(xx - yy);
-        let mut direction = Vector2::new(angle.cos(), angle.sin());
-        if direction.dot(&towards) < 0.0 {
-            direction = -direction;
-        }
+        let direction = principal_direction(xx, xy, yy, towards)?;
         let (dx, dy) = (direction.x, direction.y);
         let along = xx * dx * dx + 2.0 * xy * dx * dy + yy * dy * dy;
         Some(MomentFit {

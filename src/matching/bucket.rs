@@ -30,7 +30,9 @@ struct Entry {
     segment: u32,
 }
 
-pub use crate::angle::{angle_diff, angle_key, approx_angle_key, APPROX_ANGLE_KEY_ERROR};
+pub use crate::angle::{
+    angle_diff, angle_key, approx_angle_key, approx_atan, APPROX_ANGLE_KEY_ERROR,
+};
 
 #[derive(Debug, Clone)]
 pub struct Buckets {

@@ -25,7 +25,9 @@
 use nalgebra::{Point2, Vector2};
 use rayon::prelude::*;
 
-use super::bucket::{angle_key, approx_angle_key, period, Buckets, APPROX_ANGLE_KEY_ERROR};
+use super::bucket::{
+    angle_key, approx_angle_key, approx_atan, period, Buckets, APPROX_ANGLE_KEY_ERROR,
+};
 use super::{gradients_compatible, MatchParams, RectSegment, Views};
 use crate::checkpoint::{Checkpoint, Stopped};
 use crate::geometry::{Rectification, RigFrames};
@@ -489,12 +491,13 @@ impl Search<'_> {
         // The angle tolerance a widens by the angle `tol` subtends at either end of the
         // prediction, atan x. The exact test is on its cosine, cos(a + atan x) =
         // (cos a − x·sin a) / √(1 + x²); the windows are only a prefilter, searched around an
-        // approximate key within a wider range (atan x ≤ min(x, π/2)), so no trigonometric
-        // call is made per prediction and nothing the exact test accepts is missed.
+        // approximate key with an approximate atan, widened by both their error bounds, so no
+        // library trigonometry is called per prediction and nothing the exact test accepts
+        // is missed.
         let key_q = approx_angle_key(q_dir, self.period);
         let widen = 2.0 * tol / q_len;
         let a = params.verify_angle_tolerance_deg.to_radians();
-        let window_tol = a + widen.atan() + APPROX_ANGLE_KEY_ERROR;
+        let window_tol = a + approx_atan(widen) + 2.0 * APPROX_ANGLE_KEY_ERROR;
         let (sin_a, cos_a) = self.verify_angle;
         // a + atan x ≥ π: every direction passes.
         let opens_fully =

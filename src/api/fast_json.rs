@@ -11,6 +11,9 @@
 //! makes it give up, and the request is read by pbjson alone, which accepts every proto3 JSON
 //! form and words every error. So the result is pbjson's, only sooner: a test compares them.
 
+use std::marker::PhantomData;
+
+use serde::de::value::MapAccessDeserializer;
 use serde::de::{self, Deserializer, IgnoredAny, MapAccess, Visitor};
 use serde::Deserialize;
 
@@ -41,6 +44,28 @@ impl<'de> Deserialize<'de> for Plain {
     }
 }
 
+/// A message read from a JSON object only. serde's derived structs also take the array form
+/// (their fields in order, `[1, 2, 3, 4]` for a segment), which proto3 JSON does not have:
+/// pbjson refuses it, and so must the fast reader (found by `fuzz/json_body`: `"segments": []`
+/// read as an empty triplet).
+struct Object<T>(T);
+
+impl<'de, T: Deserialize<'de>> Deserialize<'de> for Object<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Object<T>, D::Error> {
+        struct V<T>(PhantomData<T>);
+        impl<'de, T: Deserialize<'de>> Visitor<'de> for V<T> {
+            type Value = T;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a JSON object")
+            }
+            fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<T, A::Error> {
+                T::deserialize(MapAccessDeserializer::new(map))
+            }
+        }
+        d.deserialize_map(V(PhantomData)).map(Object)
+    }
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Segment {
@@ -60,7 +85,7 @@ struct Segment {
 #[serde(deny_unknown_fields)]
 struct SegmentList {
     #[serde(default)]
-    segments: Vec<Segment>,
+    segments: Vec<Object<Segment>>,
     #[serde(default)]
     oriented: bool,
     #[serde(default, rename = "backgroundGradient")]
@@ -71,7 +96,7 @@ struct SegmentList {
 #[serde(deny_unknown_fields)]
 struct SegmentTriplet {
     #[serde(default)]
-    lists: Vec<SegmentList>,
+    lists: Vec<Object<SegmentList>>,
 }
 
 /// The request with its segments read here and its other parts by pbjson.
@@ -97,7 +122,7 @@ impl<'de> Deserialize<'de> for Fast {
                             request.options = Some(map.next_value()?)
                         }
                         "segments" if !taken => {
-                            let t: SegmentTriplet = map.next_value()?;
+                            let Object(t): Object<SegmentTriplet> = map.next_value()?;
                             request.input =
                                 Some(pb::match_request::Input::Segments(triplet_to_pb(t)));
                         }
@@ -124,13 +149,13 @@ fn triplet_to_pb(t: SegmentTriplet) -> pb::SegmentTriplet {
         lists: t
             .lists
             .into_iter()
-            .map(|l| pb::SegmentList {
+            .map(|Object(l)| pb::SegmentList {
                 oriented: l.oriented,
                 background_gradient: l.background_gradient.map(|g| g.0),
                 segments: l
                     .segments
                     .into_iter()
-                    .map(|s| pb::Segment {
+                    .map(|Object(s)| pb::Segment {
                         u1: s.u1.0,
                         v1: s.v1.0,
                         u2: s.u2.0,
@@ -200,6 +225,10 @@ mod tests {
             "{".to_string(),
             "[]".to_string(),
             "{}".to_string(),
+            // Arrays where proto3 JSON has objects (serde's derived structs would take them).
+            format!(r#"{{{cal}, "segments": []}}"#),
+            format!(r#"{{{cal}, "segments": {{"lists": [[]]}}}}"#),
+            format!(r#"{{{cal}, "segments": {{"lists": [{{"segments": [[1, 2, 3, 4]]}}]}}}}"#),
         ]
         .iter()
         .enumerate()

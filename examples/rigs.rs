@@ -8,7 +8,8 @@ use trinocular::extract::Params;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{match_images, match_segments};
 use trinocular::synth::{
-    render_triplet, score_capture, shaped_capture, Defects, RenderParams, RigShape,
+    error_classes, render_triplet, rig_centre, score_capture, shaped_capture, Defects,
+    RenderParams, RigShape,
 };
 
 fn main() {
@@ -21,11 +22,12 @@ fn main() {
     // `all`: every match of the images, not only what meets the accuracy gate.
     let all = std::env::args().any(|a| a == "all");
     println!(
-        "| rig | segments | 3D error | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|"
+        "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );
     for shape in RigShape::ALL {
         let (mut n, mut correct, mut eligible, mut covered) = (0usize, 0usize, 0.0, 0.0);
         let (mut per_pair, mut angle) = (false, 0.0);
+        let mut classes = [0usize; 3];
         for seed in 1..=seeds {
             let (scene, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
             let out = if lists {
@@ -48,7 +50,12 @@ fn main() {
                 .expect("match")
                 .output
             };
-            let s = score_capture(&out.segments(), &obs, &rig);
+            let segments = out.segments();
+            let s = score_capture(&segments, &obs, &rig);
+            let c = error_classes(&segments, &s.matches, &obs.ground_truth, rig_centre(&rig));
+            classes[0] += c.direction_only;
+            classes[1] += c.near;
+            classes[2] += c.far;
             n += s.n_segments;
             correct += s.n_correct;
             eligible += s.eligible_length_m;
@@ -57,9 +64,12 @@ fn main() {
             angle = out.stats.epipolar_angle_deg;
         }
         println!(
-            "| {} | {n} | {:.1}% | {:.1}% | {per_pair} | {angle:.0}° |",
+            "| {} | {n} | {:.1}% | {} / {} / {} | {:.1}% | {per_pair} | {angle:.0}° |",
             shape.name(),
             100.0 * (1.0 - correct as f64 / n.max(1) as f64),
+            classes[0],
+            classes[1],
+            classes[2],
             100.0 * covered / eligible,
         );
     }

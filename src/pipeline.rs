@@ -1040,6 +1040,11 @@ const AMBIGUITY_CHI2_MARGIN: f64 = 4.0;
 /// are as good as ends can agree: a rival that does that is as likely as a winner that does
 /// better.
 const AMBIGUITY_ENDS_AGREE: f64 = 3.0;
+/// A rival that does not meet the gate itself counts when its midpoint is this many σ (of
+/// the two lines' joint position noise) off the winner's line: beyond the noise, a second
+/// place the images fit as well. 2 and 3 measured alike except for one ghost in the office
+/// (docs/ACCURACY.md, item 6).
+const APART_SIGMAS: f64 = 2.0;
 /// Most rivals reconstructed to test one winner's uniqueness.
 const MAX_RIVALS: usize = 16;
 
@@ -1048,7 +1053,12 @@ const MAX_RIVALS: usize = 16;
 /// position or direction tolerance) is ambiguous — the images cannot tell the two apart, as
 /// with the fins of a radiator seen along the direction the third camera cannot check — and
 /// it is flagged uncertain, whatever its covariance says. Validation chose by neighbour
-/// support, which a repetitive structure gives every shifted copy of itself alike.
+/// support, which a repetitive structure gives every shifted copy of itself alike. The rival
+/// must be a place of its own: one that meets the gate, or one whose midpoint is
+/// [`APART_SIGMAS`] off the winner's line under both covariances (a short rival, too
+/// imprecise for the gate, is still proof of a second fit when it lies well away — the lab's
+/// radiator fins from LSD lists). An imprecise rival within its noise of the winner proves
+/// nothing.
 #[allow(clippy::too_many_arguments)]
 fn flag_ambiguous(
     rig: &Rig,
@@ -1124,7 +1134,8 @@ fn flag_ambiguous(
         };
         let ambiguous = rivals.iter().any(|&r| {
             matches!(&fits[r], Some(Some((rival, q)))
-                if q.certain && as_likely_elsewhere(winner, rival, &centre, params))
+                if as_likely_elsewhere(winner, rival, &centre, params)
+                    && (q.certain || significantly_apart(winner, rival)))
         });
         if ambiguous {
             if let Some(Some((_, quality))) = &mut fits[h] {
@@ -1158,6 +1169,32 @@ fn as_likely_elsewhere(
     let across = (w - u * w.dot(&u)).norm();
     across > tolerance
         || rival.direction().dot(&u).abs() < params.gate_direction_deg.to_radians().cos()
+}
+
+/// Whether two 3D lines' midpoints are apart by more than [`APART_SIGMAS`] standard
+/// deviations of their joint position noise, across `winner`'s line in the direction that
+/// separates them: an uncertain rival somewhere else is then a different line, not the
+/// winner's own seen less precisely.
+fn significantly_apart(winner: &Line3Estimate, rival: &Line3Estimate) -> bool {
+    let midpoint_covariance = |e: &Line3Estimate| {
+        let c = &e.covariance;
+        (c.fixed_view::<3, 3>(0, 0)
+            + c.fixed_view::<3, 3>(0, 3)
+            + c.fixed_view::<3, 3>(3, 0)
+            + c.fixed_view::<3, 3>(3, 3))
+            * 0.25
+    };
+    let u = winner.direction();
+    let w =
+        nalgebra::center(&rival.start, &rival.end) - nalgebra::center(&winner.start, &winner.end);
+    let across = w - u * w.dot(&u);
+    let Some(n) = across.try_normalize(0.0) else {
+        return false;
+    };
+    let variance = (midpoint_covariance(winner) + midpoint_covariance(rival))
+        .dot(&(n * n.transpose()))
+        .max(0.0);
+    across.norm() > APART_SIGMAS * variance.sqrt()
 }
 
 /// Adds the pairs of `graph` (indices into the caller's list of view 1) that `adjacency`
@@ -1351,6 +1388,26 @@ mod tests {
         // A winner whose own ends disagree (one hidden) has no edge there over the rival.
         let hidden = line_at(0.0, 2.0, 0.5, 8.0);
         assert!(ambiguous(&hidden, line_at(0.05, 2.7, 0.8, 7.0)));
+    }
+
+    #[test]
+    fn an_imprecise_rival_counts_only_when_it_lies_beyond_the_noise() {
+        let winner = line_at(0.0, 2.0, 0.5, 1.0);
+        let imprecise = |x: f64, sigma_m: f64| Line3Estimate {
+            covariance: nalgebra::Matrix6::identity() * sigma_m * sigma_m,
+            ..line_at(x, 2.0, 0.5, 1.0)
+        };
+        // 5 cm off with σ 1 cm at each end (0.71 cm at the midpoint): a second place.
+        assert!(significantly_apart(&winner, &imprecise(0.05, 0.01)));
+        // The same 5 cm with σ 4 cm: the winner's own line, seen less precisely.
+        assert!(!significantly_apart(&winner, &imprecise(0.05, 0.04)));
+        // Along the winner's line is not apart, however precise.
+        let along = Line3Estimate {
+            start: nalgebra::Point3::new(0.0, 0.3, 2.0),
+            end: nalgebra::Point3::new(0.0, 0.7, 2.0),
+            ..line_at(0.0, 2.0, 0.5, 1.0)
+        };
+        assert!(!significantly_apart(&winner, &along));
     }
 
     #[test]

@@ -228,7 +228,7 @@ struct Entry {
 /// The orientation bin of a unit direction: by the fast approximate angle, and by the exact
 /// one only where the two could disagree (within the approximation's error of a border).
 fn orientation_bin(dir: nalgebra::Vector2<f64>, bin_width: f64) -> usize {
-    use crate::angle::{approx_angle_key, APPROX_ANGLE_KEY_ERROR};
+    use crate::angle::{angle_key, approx_angle_key, APPROX_ANGLE_KEY_ERROR};
     let bin_of = |theta: f64| ((theta / bin_width) as usize).min(CROWDING_BINS - 1);
     let approx = approx_angle_key(dir, std::f64::consts::PI);
     let lo = bin_of((approx - APPROX_ANGLE_KEY_ERROR).max(0.0));
@@ -239,7 +239,7 @@ fn orientation_bin(dir: nalgebra::Vector2<f64>, bin_width: f64) -> usize {
     {
         lo
     } else {
-        bin_of(dir.y.atan2(dir.x).rem_euclid(std::f64::consts::PI))
+        bin_of(angle_key(dir, std::f64::consts::PI))
     }
 }
 

@@ -10,7 +10,7 @@
 //! pieces' ends rather than on every point). Greedy, smallest gap first; each piece has at
 //! most one successor and one predecessor, so a group is a run along one line.
 
-use nalgebra::{Point2, Vector2};
+use nalgebra::Point2;
 use rustc_hash::FxHashMap;
 
 use super::polygon::{MomentFit, Moments};
@@ -38,6 +38,8 @@ const MAX_OVERLAP_PX: f64 = 1.0;
 /// Pieces whose directions differ by more than this are not one line (cos 5°): a cheap test
 /// before the joint fit decides.
 const MIN_DIRECTION_COS: f64 = 0.996_194_698;
+/// A part shorter than this has no direction to follow.
+const MIN_LENGTH_PX: f64 = 1e-9;
 
 /// A run of parts that are one line, in order along it.
 #[derive(Debug, Clone, PartialEq)]
@@ -139,7 +141,7 @@ fn follow_ons(parts: &[Part], limits: Limits) -> Vec<(f64, u32, u32)> {
     }
     let mut pairs = Vec::new();
     for (i, part) in parts.iter().enumerate() {
-        let Some(u) = unit(part.end - part.start) else {
+        let Some(u) = (part.end - part.start).try_normalize(MIN_LENGTH_PX) else {
             continue;
         };
         let (cx, cy) = cell(part.end);
@@ -153,7 +155,7 @@ fn follow_ons(parts: &[Part], limits: Limits) -> Vec<(f64, u32, u32)> {
                         continue;
                     }
                     let other = &parts[j as usize];
-                    let Some(v) = unit(other.end - other.start) else {
+                    let Some(v) = (other.end - other.start).try_normalize(MIN_LENGTH_PX) else {
                         continue;
                     };
                     if u.dot(&v) < MIN_DIRECTION_COS {
@@ -174,11 +176,6 @@ fn follow_ons(parts: &[Part], limits: Limits) -> Vec<(f64, u32, u32)> {
     }
     pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
     pairs
-}
-
-fn unit(v: Vector2<f64>) -> Option<Vector2<f64>> {
-    let n = v.norm();
-    (n > 1e-9).then(|| v / n)
 }
 
 #[cfg(test)]

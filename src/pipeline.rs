@@ -505,6 +505,8 @@ struct Observations<'a> {
     lists: &'a [SegmentList; 3],
     crowded: [Vec<bool>; 3],
     crowding: [Option<crate::segment::Crowding>; 3],
+    /// Per view, each list segment's index among the rectified ones (built when first asked).
+    rect_index: [Option<Vec<u32>>; 3],
 }
 
 impl<'a> Observations<'a> {
@@ -520,7 +522,22 @@ impl<'a> Observations<'a> {
             lists,
             crowded,
             crowding: [None, None, None],
+            rect_index: [None, None, None],
         }
+    }
+
+    /// The rectified index of view `v`'s list segment `j`, `None` for one not prepared
+    /// (zero length).
+    fn rect_of(&mut self, v: usize, j: u32) -> Option<u32> {
+        let (rect, len) = (self.rect[v], self.lists[v].segments.len());
+        let index = self.rect_index[v].get_or_insert_with(|| {
+            let mut index = vec![NO_SEGMENT; len];
+            for (r, s) in rect.iter().enumerate() {
+                index[s.index as usize] = r as u32;
+            }
+            index
+        });
+        index.get(j as usize).copied().filter(|&r| r != NO_SEGMENT)
     }
 
     /// The maximum-likelihood 3D line of each triplet (indices into the rectified views).
@@ -1058,7 +1075,9 @@ const MAX_RIVALS: usize = 16;
 /// [`APART_SIGMAS`] off the winner's line under both covariances (a short rival, too
 /// imprecise for the gate, is still proof of a second fit when it lies well away — the lab's
 /// radiator fins from LSD lists). An imprecise rival within its noise of the winner proves
-/// nothing.
+/// nothing. Rivals are the hypotheses sharing a segment with the winner, and the triplets
+/// that take one of its segments for one of opposite contrast ([`flipped_rivals`]), which
+/// oriented matching never forms.
 #[allow(clippy::too_many_arguments)]
 fn flag_ambiguous(
     rig: &Rig,
@@ -1128,15 +1147,27 @@ fn flag_ambiguous(
         fits[r] = Some(accept(est.map(|e| rescaled(e, factor)), rig, params));
     }
     let centre = rig.centroid();
+    let counts = |winner: &Line3Estimate, fit: &Fit| {
+        matches!(fit, Some((rival, q))
+            if as_likely_elsewhere(winner, rival, &centre, params)
+                && (q.certain || significantly_apart(winner, rival)))
+    };
     for (h, rivals) in rivals_of {
         let Some(Some((winner, _))) = &fits[h] else {
             continue;
         };
-        let ambiguous = rivals.iter().any(|&r| {
-            matches!(&fits[r], Some(Some((rival, q)))
-                if as_likely_elsewhere(winner, rival, &centre, params)
-                    && (q.certain || significantly_apart(winner, rival)))
-        });
+        let ambiguous = rivals
+            .iter()
+            .any(|&r| fits[r].as_ref().is_some_and(|fit| counts(winner, fit)))
+            || flipped_rivals(
+                rig,
+                observations,
+                hypotheses[h].segments,
+                stats.noise_scale,
+                params,
+            )
+            .iter()
+            .any(|fit| counts(winner, fit));
         if ambiguous {
             if let Some(Some((_, quality))) = &mut fits[h] {
                 quality.certain = false;
@@ -1144,6 +1175,89 @@ fn flag_ambiguous(
             }
         }
     }
+}
+
+/// How far across a segment an opposite-contrast segment may lie to be tried in its place,
+/// pixels.
+const FLIP_REACH_PX: f64 = 16.0;
+
+/// The fits of the triplets that take one of `segments` (rectified indices) for a segment of
+/// opposite contrast alongside it, reversed. Matching is oriented, so these are never
+/// hypotheses; but an edge whose contrast flips between the views (a cabinet's front edge,
+/// seen against the wall from below and against its own top from above) cannot form its
+/// true triplet, and where one view alone fixes the depth the other two meet a neighbouring
+/// edge of that view in a ghost that fits as well as any true line. The flipped triplet
+/// is the ghost's rival — when its contrast's strength agrees with the other two views at
+/// least as well as the winner's own segment does: the flipped sign is evidence for the
+/// winner, and only the magnitude can weigh against it (the office's ghosts: 36 grey levels
+/// per pixel in the third view against 21 in the others, the flipped edge 14). Without the
+/// gradients the sign alone speaks, for the winner.
+fn flipped_rivals(
+    rig: &Rig,
+    observations: &mut Observations,
+    segments: [u32; 3],
+    noise_scale: f64,
+    params: &MatchParams,
+) -> Vec<Fit> {
+    let gradient = |observations: &Observations, v: usize, r: u32| {
+        Some(observations.rect[v][r as usize].gradient).filter(|g| *g > 0.0 && g.is_finite())
+    };
+    let mut triplets: Vec<(usize, u32)> = Vec::new();
+    for (v, &i) in segments.iter().enumerate() {
+        if !observations.lists[v].oriented {
+            continue;
+        }
+        // How far the winner's contrast in view v is from the other two views' (log ratio).
+        let others = [(v + 1) % 3, (v + 2) % 3].map(|w| gradient(observations, w, segments[w]));
+        let (Some(mine), [Some(a), Some(b)]) = (gradient(observations, v, i), others) else {
+            continue;
+        };
+        let reference = (a * b).sqrt();
+        let mismatch = |g: f64| (g / reference).ln().abs();
+        let list = &observations.lists[v].segments;
+        let at = observations.rect[v][i as usize].index as usize;
+        let index =
+            observations.crowding[v].get_or_insert_with(|| crate::segment::Crowding::new(list));
+        let d = list[at].end - list[at].start;
+        for j in index.alongside(list, at, FLIP_REACH_PX) {
+            let other = &list[j as usize];
+            if (other.end - other.start).dot(&d) >= 0.0 {
+                continue;
+            }
+            if let Some(r) = observations.rect_of(v, j) {
+                if gradient(observations, v, r).is_some_and(|g| mismatch(g) <= mismatch(mine)) {
+                    triplets.push((v, r));
+                }
+            }
+        }
+    }
+    if triplets.is_empty() {
+        return Vec::new();
+    }
+    let asked: Vec<[u32; 3]> = triplets
+        .iter()
+        .map(|&(v, r)| {
+            let mut t = segments;
+            t[v] = r;
+            t
+        })
+        .collect();
+    observations.add_crowding(&asked);
+    let factor = noise_scale.powi(2);
+    asked
+        .iter()
+        .zip(&triplets)
+        .map(|(t, &(v, _))| {
+            let mut obs: [LineObservation; 3] =
+                std::array::from_fn(|w| observations.lines[w][t[w] as usize]);
+            std::mem::swap(&mut obs[v].start, &mut obs[v].end);
+            accept(
+                reconstruct_pieces(rig, &obs).map(|e| rescaled(e, factor)),
+                rig,
+                params,
+            )
+        })
+        .collect()
 }
 
 /// Whether `rival` explains its images about as well as `winner` (χ² at most
@@ -1411,6 +1525,67 @@ mod tests {
             ..line_at(0.0, 2.0, 0.5, 1.0)
         };
         assert!(!significantly_apart(&winner, &along));
+    }
+
+    #[test]
+    fn a_ghost_is_ambiguous_when_the_true_edge_flips_contrast_in_the_view_that_fixes_depth() {
+        let rig = RigSpec::non_collinear(1)
+            .build(&Pose::identity())
+            .expect("preset rig");
+        let (c1, c2) = (rig.camera(0).centre(), rig.camera(1).centre());
+        let along = (c2 - c1).normalize();
+        // A 60 cm edge parallel to the baseline of cameras 1 and 2, and its ghost in the same
+        // epipolar plane 25% farther from camera 1: the two look alike in views 1 and 2 and
+        // only view 3 tells their depths apart.
+        let near = nalgebra::Point3::new(-0.1, 2.0, -0.15);
+        let edge = [near - along * 0.3, near + along * 0.3];
+        let ghost = edge.map(|p| c1 + (p - c1) * 1.25);
+        // Each segment as seen, with its contrast (grey levels per pixel).
+        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], reversed: bool, gradient| {
+            let cam = rig.camera(view);
+            let (a, b) = (
+                cam.project(&line[0]).unwrap(),
+                cam.project(&line[1]).unwrap(),
+            );
+            let (a, b) = if reversed { (b, a) } else { (a, b) };
+            Segment2 {
+                gradient: Some(gradient),
+                ..Segment2::new(a, b)
+            }
+        };
+        let list = |segments: Vec<Segment2>| SegmentList {
+            segments,
+            oriented: true,
+            background_gradient: None,
+        };
+        let params = MatchParams {
+            include_uncertain: true,
+            ..MatchParams::default()
+        };
+        // Views 1 and 2 see the edge at 20 grey levels per pixel; the ghost's segment in view 3
+        // is a stronger edge (36).
+        let answer = |third: Vec<Segment2>| {
+            let lists = [
+                list(vec![seen(0, &edge, false, 20.0)]),
+                list(vec![seen(1, &edge, false, 21.0)]),
+                list(third),
+            ];
+            let out = match_segments(&rig, &lists, &params).unwrap();
+            assert_eq!(out.segments_3d.len(), 1, "{:?}", out.stats);
+            (out.segments_3d[0].uncertain, out.stats.ambiguous)
+        };
+        let ghost_in_three = seen(2, &ghost, false, 36.0);
+        // View 3 sees only the ghost's line: nothing else fits, the answer vouches for it.
+        assert_eq!(answer(vec![ghost_in_three]), (false, 0));
+        // View 3 also sees the true edge, its contrast flipped (seen against another
+        // background from above) and nearer the other views' in strength: oriented matching
+        // cannot form that triplet, but it fits views 1 and 2 as well as the ghost does, so
+        // the ghost is not vouched for.
+        let flipped = |gradient| seen(2, &edge, true, gradient);
+        assert_eq!(answer(vec![ghost_in_three, flipped(14.0)]), (true, 1));
+        // A flipped edge whose strength agrees with views 1 and 2 worse than the winner's
+        // does: both the sign and the strength speak for the winner.
+        assert_eq!(answer(vec![ghost_in_three, flipped(70.0)]), (false, 0));
     }
 
     #[test]

@@ -209,6 +209,7 @@ pub fn crowding(segments: &[Segment2], model: CrowdingModel) -> Vec<f64> {
 
 /// What a crowding query asks of a segment, computed once.
 struct Shape {
+    start: Point2<f64>,
     dir: nalgebra::Vector2<f64>,
     mid: Point2<f64>,
     len: f64,
@@ -248,6 +249,9 @@ pub struct Crowding {
     normals: [nalgebra::Vector2<f64>; CROWDING_BINS],
     shapes: Vec<Option<Shape>>,
     bins: Vec<Vec<Entry>>,
+    /// The longest segment's length, pixels: how far a midpoint can be from the segments it
+    /// overlaps.
+    longest: f64,
 }
 
 impl Crowding {
@@ -268,6 +272,7 @@ impl Crowding {
                 let dir = (s.end - s.start) / len;
                 let bin = orientation_bin(dir, bin_width);
                 Some(Shape {
+                    start: s.start,
                     dir,
                     mid: nalgebra::center(&s.start, &s.end),
                     len,
@@ -289,10 +294,12 @@ impl Crowding {
         for b in &mut bins {
             b.sort_unstable_by(|x, y| x.rho.total_cmp(&y.rho));
         }
+        let longest = shapes.iter().flatten().map(|sh| sh.len).fold(0.0, f64::max);
         Crowding {
             normals,
             shapes,
             bins,
+            longest,
         }
     }
 
@@ -306,58 +313,24 @@ impl Crowding {
         model: CrowdingModel,
     ) -> Vec<f64> {
         let radius = CROWDING_RADIUS_PX;
-        let (shapes, bins) = (&self.shapes, &self.bins);
-        let normal_of_bin = |b: usize| self.normals[b];
-        // A neighbour's midpoint is within `radius` across this segment and its half length
-        // along it from its midpoint; measured across bin b's direction, which is off the
-        // segment's by an angle θ, that is within radius·|cos θ| + ½·length·|sin θ| — and
-        // |sin θ| is the segment's direction dotted with the bin's normal. A bin nearly
-        // parallel to the segment is searched in a narrow window, the next ones wider.
-        const ROUNDING_PX: f64 = 1e-6;
         queries
             .iter()
             .map(|&i| {
-                let Some(sh) = &shapes[i] else {
-                    return f64::INFINITY;
-                };
                 let s = &segments[i];
-                let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
                 let mut best = f64::INFINITY;
-                for db in [CROWDING_BINS - 1, 0, 1] {
-                    let b = (sh.bin + db) % CROWDING_BINS;
-                    let normal = normal_of_bin(b);
-                    let window = radius + 0.5 * sh.len * sh.dir.dot(&normal).abs() + ROUNDING_PX;
-                    let rho = sh.mid.coords.dot(&normal);
-                    let list = &bins[b];
-                    let from = list.partition_point(|e| e.rho < rho - window);
-                    // A client's list may pile thousands of copies onto one line: the scan
-                    // is bounded, and a segment with that many candidates is crowded anyway.
-                    for other in list[from..].iter().take(MAX_CROWDING_CANDIDATES) {
-                        if other.rho > rho + window {
-                            break;
-                        }
-                        let j = other.index as usize;
-                        if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
-                            continue;
-                        }
-                        let along = (other.mid - s.start).dot(&sh.dir);
-                        let across = (other.mid - s.start).dot(&n).abs();
-                        if along > 0.0
-                            && along < sh.len
-                            && across > COLLINEAR_PX
-                            && across <= radius
-                        {
-                            // A weaker neighbour pulls less: as if it were farther.
-                            let pull = match (s.gradient, segments[j].gradient) {
-                                (Some(mine), Some(theirs)) if mine > 0.0 => {
-                                    (theirs / mine).clamp(1e-3, 1.0)
-                                }
-                                _ => 1.0,
-                            };
-                            best = best.min(model.equivalent_distance(across, pull));
-                        }
+                let len = self.shapes[i].as_ref().map_or(0.0, |sh| sh.len);
+                self.for_each_near(i, radius, 0.0, |j, along, across| {
+                    if along > 0.0 && along < len && across > COLLINEAR_PX {
+                        // A weaker neighbour pulls less: as if it were farther.
+                        let pull = match (s.gradient, segments[j].gradient) {
+                            (Some(mine), Some(theirs)) if mine > 0.0 => {
+                                (theirs / mine).clamp(1e-3, 1.0)
+                            }
+                            _ => 1.0,
+                        };
+                        best = best.min(model.equivalent_distance(across, pull));
                     }
-                }
+                });
                 if best <= radius {
                     best
                 } else {
@@ -365,6 +338,69 @@ impl Crowding {
                 }
             })
             .collect()
+    }
+
+    /// The segments within 10° of segment `i`'s line, either way round, that lie alongside
+    /// it: their midpoint within `reach_px` across it, and the two overlapping along it.
+    pub fn alongside(&self, segments: &[Segment2], i: usize, reach_px: f64) -> Vec<u32> {
+        let len = self.shapes[i].as_ref().map_or(0.0, |sh| sh.len);
+        let mut found = Vec::new();
+        self.for_each_near(i, reach_px, 0.5 * self.longest, |j, along, _| {
+            let half = 0.5 * segments[j].length();
+            if along > -half && along < len + half {
+                found.push(j as u32);
+            }
+        });
+        found
+    }
+
+    /// Calls `visit(j, along, across)` for each segment j ≠ i within 10° of segment i's line
+    /// (either way round) whose midpoint lies at most `reach_px` across it and from
+    /// `beyond_px` before its start to `beyond_px` past its end along it (`along` from its
+    /// start).
+    fn for_each_near(
+        &self,
+        i: usize,
+        reach_px: f64,
+        beyond_px: f64,
+        mut visit: impl FnMut(usize, f64, f64),
+    ) {
+        let Some(sh) = &self.shapes[i] else {
+            return;
+        };
+        // A neighbour's midpoint is within `reach_px` across this segment and its half length
+        // (plus `beyond_px`) along it from its midpoint; measured across bin b's direction,
+        // which is off the segment's by an angle θ, that is within
+        // reach·|cos θ| + (½·length + beyond)·|sin θ| — and
+        // |sin θ| is the segment's direction dotted with the bin's normal. A bin nearly
+        // parallel to the segment is searched in a narrow window, the next ones wider.
+        const ROUNDING_PX: f64 = 1e-6;
+        let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
+        for db in [CROWDING_BINS - 1, 0, 1] {
+            let b = (sh.bin + db) % CROWDING_BINS;
+            let normal = self.normals[b];
+            let window =
+                reach_px + (0.5 * sh.len + beyond_px) * sh.dir.dot(&normal).abs() + ROUNDING_PX;
+            let rho = sh.mid.coords.dot(&normal);
+            let list = &self.bins[b];
+            let from = list.partition_point(|e| e.rho < rho - window);
+            // A client's list may pile thousands of copies onto one line: the scan is
+            // bounded, and a segment with that many candidates is crowded anyway.
+            for other in list[from..].iter().take(MAX_CROWDING_CANDIDATES) {
+                if other.rho > rho + window {
+                    break;
+                }
+                let j = other.index as usize;
+                if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
+                    continue;
+                }
+                let along = (other.mid - sh.start).dot(&sh.dir);
+                let across = (other.mid - sh.start).dot(&n).abs();
+                if along > -beyond_px && along < sh.len + beyond_px && across <= reach_px {
+                    visit(j, along, across);
+                }
+            }
+        }
     }
 }
 
@@ -398,6 +434,22 @@ mod tests {
         weak[1].gradient = Some(4.0);
         let d = crowding(&weak, CrowdingModel::LISTS);
         assert!(d[0] > 5.0 && (d[1] - 3.4).abs() < 0.01, "{d:?}");
+    }
+
+    #[test]
+    fn segments_alongside_overlap_either_way_round_within_reach() {
+        let segments = [
+            seg((0.0, 0.0), (100.0, 0.0)),
+            seg((90.0, 6.0), (-30.0, 6.0)), // reversed, longer, midpoint before 0's middle
+            seg((150.0, 5.0), (120.0, 5.0)), // in reach across but past the end
+            seg((180.0, 10.0), (60.0, 10.5)), // midpoint past 0's end, still overlapping
+            seg((20.0, 40.0), (80.0, 40.0)), // beyond reach
+            seg((50.0, -10.0), (50.0, 10.0)), // across
+        ];
+        let index = Crowding::new(&segments);
+        let mut found = index.alongside(&segments, 0, 16.0);
+        found.sort_unstable();
+        assert_eq!(found, vec![1, 3]);
     }
 
     #[test]

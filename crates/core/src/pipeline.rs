@@ -1219,7 +1219,10 @@ fn flipped_rivals(
         let index =
             observations.crowding[v].get_or_insert_with(|| crate::segment::Crowding::new(list));
         let d = list[at].end - list[at].start;
-        for j in index.alongside(list, at, FLIP_REACH_PX) {
+        let mut tried = 0;
+        // Nearest first, and at most MAX_RIVALS per view: a list may crowd a segment with
+        // reversed copies, and each one tried is a reconstruction.
+        for (j, _) in index.alongside(list, at, FLIP_REACH_PX) {
             let other = &list[j as usize];
             if (other.end - other.start).dot(&d) >= 0.0 {
                 continue;
@@ -1227,6 +1230,10 @@ fn flipped_rivals(
             if let Some(r) = observations.rect_of(v, j) {
                 if gradient(observations, v, r).is_some_and(|g| mismatch(g) <= mismatch(mine)) {
                     triplets.push((v, r));
+                    tried += 1;
+                    if tried == MAX_RIVALS {
+                        break;
+                    }
                 }
             }
         }

@@ -341,16 +341,18 @@ impl Crowding {
     }
 
     /// The segments within 10° of segment `i`'s line, either way round, that lie alongside
-    /// it: their midpoint within `reach_px` across it, and the two overlapping along it.
-    pub fn alongside(&self, segments: &[Segment2], i: usize, reach_px: f64) -> Vec<u32> {
+    /// it: their midpoint within `reach_px` across it, and the two overlapping along it; each
+    /// with that distance across, nearest first.
+    pub fn alongside(&self, segments: &[Segment2], i: usize, reach_px: f64) -> Vec<(u32, f64)> {
         let len = self.shapes[i].as_ref().map_or(0.0, |sh| sh.len);
         let mut found = Vec::new();
-        self.for_each_near(i, reach_px, 0.5 * self.longest, |j, along, _| {
+        self.for_each_near(i, reach_px, 0.5 * self.longest, |j, along, across| {
             let half = 0.5 * segments[j].length();
             if along > -half && along < len + half {
-                found.push(j as u32);
+                found.push((j as u32, across));
             }
         });
+        found.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
         found
     }
 
@@ -447,9 +449,12 @@ mod tests {
             seg((50.0, -10.0), (50.0, 10.0)), // across
         ];
         let index = Crowding::new(&segments);
-        let mut found = index.alongside(&segments, 0, 16.0);
-        found.sort_unstable();
-        assert_eq!(found, vec![1, 3]);
+        let found: Vec<u32> = index
+            .alongside(&segments, 0, 16.0)
+            .iter()
+            .map(|&(j, _)| j)
+            .collect();
+        assert_eq!(found, vec![1, 3], "nearest first");
     }
 
     #[test]

@@ -195,6 +195,70 @@ mod tests {
         )
     }
 
+    /// One segment as a JSON object: the four coordinates (any finite number, extremes and
+    /// subnormals included), each optional field present or not.
+    fn segment_json() -> impl proptest::strategy::Strategy<Value = serde_json::Value> {
+        use proptest::prelude::*;
+        let finite = || any::<f64>().prop_filter("finite", |x| x.is_finite());
+        (
+            [finite(), finite(), finite(), finite()],
+            proptest::option::of(0.0..1e6f64),
+            proptest::option::of(1e-9..1e3f64),
+            proptest::option::of(1e-9..90.0f64),
+        )
+            .prop_map(|([u1, v1, u2, v2], gradient, offset, angle)| {
+                let mut s = serde_json::json!({"u1": u1, "v1": v1, "u2": u2, "v2": v2});
+                for (name, value) in [
+                    ("gradient", gradient),
+                    ("offsetSigmaPx", offset),
+                    ("angleSigmaDeg", angle),
+                ] {
+                    if let Some(v) = value {
+                        s[name] = serde_json::json!(v);
+                    }
+                }
+                s
+            })
+    }
+
+    proptest::proptest! {
+        /// Whatever lists a client sends in the plain form, the fast reader takes them itself
+        /// and reads exactly what pbjson reads.
+        #[test]
+        fn reads_arbitrary_plain_lists_exactly_as_pbjson(
+            lists in proptest::collection::vec(
+                (proptest::collection::vec(segment_json(), 0..12), proptest::option::of(proptest::bool::ANY)),
+                0..4,
+            ),
+        ) {
+            let lists: Vec<serde_json::Value> = lists
+                .into_iter()
+                .map(|(segments, oriented)| {
+                    let mut list = serde_json::json!({"segments": segments});
+                    if let Some(o) = oriented {
+                        list["oriented"] = serde_json::json!(o);
+                    }
+                    list
+                })
+                .collect();
+            let text = serde_json::json!({
+                "calibration": {"cameras": [{"name": "c", "width": 10, "height": 10,
+                    "projection": [1,0,0,0, 0,1,0,0, 0,0,1,0]}]},
+                "segments": {"lists": lists},
+            })
+            .to_string();
+            proptest::prop_assert!(serde_json::from_str::<Fast>(&text).is_ok(), "{}", text);
+            let (fast, reference) = both(&text);
+            use prost::Message;
+            proptest::prop_assert_eq!(
+                fast.map(|r| r.encode_to_vec()),
+                reference.map(|r| r.encode_to_vec()),
+                "{}",
+                text
+            );
+        }
+    }
+
     #[test]
     fn gives_what_pbjson_gives_in_every_form() {
         let cal = r#""calibration": {"cameras": [{"name": "c", "width": 10, "height": 10,

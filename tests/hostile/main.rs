@@ -271,11 +271,15 @@ fn copies_of_segments_stay_bounded_and_a_crowd_stops_at_its_deadline() {
         tokio::time::sleep(Duration::from_millis(300)).await;
         let meanwhile = normal_match(&server, &example).await;
         let (status, took) = hostile.await.unwrap();
+        // The server answers a tenth of the timeout early; on a loaded machine its answer can
+        // still reach the client after the client's own timer, which tonic reports as
+        // CANCELLED "Timeout expired" (tests/integration/service.rs). Either way the call
+        // ends at its deadline; that the server's work ended too is checked below.
         assert!(
             matches!(
                 status.code(),
                 Code::DeadlineExceeded | Code::InvalidArgument
-            ),
+            ) || (status.code() == Code::Cancelled && status.message() == "Timeout expired"),
             "{status:?}"
         );
         assert!(took <= timeout + DEADLINE_SLACK, "answered after {took:?}");

@@ -5,6 +5,7 @@ mod accuracy;
 mod bad_input;
 mod calibration;
 mod common;
+mod golden;
 mod images;
 mod rigs;
 mod service;

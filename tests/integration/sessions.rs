@@ -20,16 +20,16 @@ fn limits() -> Limits {
     }
 }
 
-async fn start() -> server::Running {
+pub(crate) async fn start() -> server::Running {
     let any = "127.0.0.1:0".parse().unwrap();
     server::start(embedded_service(limits()).await, any, any)
         .await
         .expect("listen")
 }
 
-type Client = pb::trinocular_client::TrinocularClient<tonic::transport::Channel>;
+pub(crate) type Client = pb::trinocular_client::TrinocularClient<tonic::transport::Channel>;
 
-async fn connect(addr: std::net::SocketAddr) -> Client {
+pub(crate) async fn connect(addr: std::net::SocketAddr) -> Client {
     Client::connect(format!("http://{addr}"))
         .await
         .expect("connect")
@@ -38,7 +38,7 @@ async fn connect(addr: std::net::SocketAddr) -> Client {
 
 /// A panoramic session of the synthetic room (clean observations): the rig's calibration and,
 /// per pose, the capture to add.
-fn panorama(poses: usize) -> (pb::Calibration, Vec<pb::AddCaptureRequest>) {
+pub(crate) fn panorama(poses: usize) -> (pb::Calibration, Vec<pb::AddCaptureRequest>) {
     let (_, rig, captures) = panoramic_session(3, poses, &Defects::clean());
     let requests = captures
         .iter()
@@ -83,7 +83,7 @@ fn same_geometry(a: &pb::Map, b: &pb::Map) {
 }
 
 /// The map of a new session given `captures` one after the other.
-async fn map_of(
+pub(crate) async fn map_of(
     client: &mut Client,
     calibration: &pb::Calibration,
     captures: &[pb::AddCaptureRequest],

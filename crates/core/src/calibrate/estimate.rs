@@ -457,6 +457,25 @@ impl State {
     }
 }
 
+/// The damping Levenberg–Marquardt starts from: small, a nearly Gauss–Newton first step,
+/// since the DLT's start is usually close.
+const DAMPING_START: f64 = 1e-3;
+/// Each refused step multiplies the damping by this, each accepted one divides it.
+const DAMPING_FACTOR: f64 = 10.0;
+/// The damping's range: below the floor it no longer changes the step; past the ceiling
+/// every step is a vanishing gradient step, and the fit has converged as far as it can.
+const DAMPING_FLOOR: f64 = 1e-12;
+const DAMPING_CEILING: f64 = 1e12;
+/// A parameter the normal equations say nothing about keeps this much of the diagonal, so
+/// that Marquardt's scaling never divides by zero.
+const DIAGONAL_FLOOR: f64 = 1e-12;
+/// Converged when a step lowers the cost by less than `COST_TOLERANCE` of it, or moves every
+/// parameter by less than `STEP_TOLERANCE` of the residual's scale (the root of the cost,
+/// floored for an exact fit).
+const COST_TOLERANCE: f64 = 1e-12;
+const STEP_TOLERANCE: f64 = 1e-10;
+const RESIDUAL_SCALE_FLOOR: f64 = 1e-12;
+
 /// Levenberg–Marquardt with Marquardt's diagonal scaling (the parameters' units differ by
 /// orders of magnitude: pixels, radians, metres). Returns the iterations run.
 fn refine(
@@ -466,7 +485,7 @@ fn refine(
     options: &EstimateOptions,
 ) -> u32 {
     let free = |i: usize| options.distortion || i < 10;
-    let mut lambda = 1e-3;
+    let mut lambda = DAMPING_START;
     let mut iterations = 0;
     while iterations < options.max_iterations {
         let Some((mut jtj, mut jtr, cost)) = state.normal(points_3d, points_2d) else {
@@ -481,15 +500,15 @@ fn refine(
             jtj[(i, i)] = 1.0;
             jtr[i] = 0.0;
         }
-        let diag = jtj.diagonal().map(|d| d.max(1e-12));
+        let diag = jtj.diagonal().map(|d| d.max(DIAGONAL_FLOOR));
         let mut improved = false;
-        while lambda < 1e12 {
+        while lambda < DAMPING_CEILING {
             let mut a = jtj;
             for i in 0..NP {
                 a[(i, i)] += lambda * diag[i];
             }
             let Some(chol) = a.cholesky() else {
-                lambda *= 10.0;
+                lambda *= DAMPING_FACTOR;
                 continue;
             };
             let delta = -chol.solve(&jtr);
@@ -497,18 +516,20 @@ fn refine(
             match next.cost(points_3d, points_2d) {
                 Some(c) if c < cost => {
                     *state = next;
-                    lambda = (lambda * 0.1).max(1e-12);
+                    lambda = (lambda * (1.0 / DAMPING_FACTOR)).max(DAMPING_FLOOR);
                     improved = true;
                     // Converged: the cost no longer moves (relative), or the step is
                     // negligible against every parameter's scale.
-                    let small_step = (0..NP)
-                        .all(|i| delta[i].abs() * diag[i].sqrt() <= 1e-10 * cost.sqrt().max(1e-12));
-                    if cost - c <= 1e-12 * cost || small_step {
+                    let small_step = (0..NP).all(|i| {
+                        delta[i].abs() * diag[i].sqrt()
+                            <= STEP_TOLERANCE * cost.sqrt().max(RESIDUAL_SCALE_FLOOR)
+                    });
+                    if cost - c <= COST_TOLERANCE * cost || small_step {
                         return iterations;
                     }
                     break;
                 }
-                _ => lambda *= 10.0,
+                _ => lambda *= DAMPING_FACTOR,
             }
         }
         if !improved {

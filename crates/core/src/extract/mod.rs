@@ -246,12 +246,236 @@ struct Pending {
     points: usize,
 }
 
-/// The segments of an image after joining, with per segment its fit and centre offset (for
-/// [`measure_noise`]), and per pending piece the segment it became (`None`: clipped away).
+/// What a segment's noise is measured from ([`measure_noise`]): the spread of the points its
+/// line was fitted to, and how far its midpoint lies from their centroid, along it.
+#[derive(Debug, Clone, Copy)]
+struct LineFit {
+    spread: polygon::FitSpread,
+    centre_offset: f64,
+}
+
+/// The segments of an image after joining, with per segment its line fit, and per pending
+/// piece the segment it became (`None`: clipped away).
 struct Placed {
     segments: Vec<Segment2>,
-    fits: Vec<(polygon::FitSpread, f64)>,
+    fits: Vec<LineFit>,
     renumber: Vec<Option<u32>>,
+}
+
+/// A piece's place in its chain: its first and last points' positions in the chain's own
+/// order, and the pending piece it became.
+#[derive(Debug, Clone, Copy)]
+struct ChainPiece {
+    first: usize,
+    last: usize,
+    id: u32,
+}
+
+/// Every chain cut into straight pieces: the pieces kept (long enough), the vertices where
+/// consecutive pieces of a chain meet (as [`Adjacent`] over pending pieces), and per chain
+/// where its pieces lie in it (for the junctions).
+struct ChainPieces {
+    pending: Vec<Pending>,
+    meetings: Vec<Adjacent>,
+    per_chain: Vec<Vec<ChainPiece>>,
+}
+
+/// The polygonal approximation of each chain (in undistorted pixels), each piece's free ends
+/// refined on the smoothed image, oriented by its mean gradient (bright side on the left)
+/// and summarised for joining and for its noise. Asks `checkpoint` every few hundred chains.
+#[allow(clippy::too_many_arguments)]
+fn fit_pieces(
+    chains: &chain::Chains,
+    map: &edges::EdgeMap,
+    smoothed: &ends::Smoothed,
+    camera: Option<&Camera>,
+    trim: usize,
+    params: &Params,
+    checkpoint: Checkpoint,
+) -> Result<ChainPieces, Stopped> {
+    let undistort = |u: f32, v: f32| {
+        let p = Point2::new(f64::from(u), f64::from(v));
+        camera.map_or(p, |c| c.undistort(p))
+    };
+    let distort = |p: Point2<f64>| camera.map_or(p, |c| c.distort(p));
+    let mut pending: Vec<Pending> = Vec::new();
+    let mut meetings = Vec::new();
+    let mut per_chain: Vec<Vec<ChainPiece>> = Vec::with_capacity(chains.chains.len());
+    for (n, c) in chains.chains.iter().enumerate() {
+        if n % CHAINS_PER_CHECK == 0 {
+            checkpoint.before("extract")?;
+        }
+        // Start a loop at a corner, so no side is cut in two at an arbitrary start.
+        let rotation = if c.closed {
+            loop_corner(&c.points, map)
+        } else {
+            0
+        };
+        let mut ids = c.points.clone();
+        ids.rotate_left(rotation);
+        let points: Vec<Point2<f64>> = ids
+            .iter()
+            .map(|&i| {
+                let p = &map.points[i as usize];
+                undistort(p.u, p.v)
+            })
+            .collect();
+        let mut mine = Vec::new();
+        let pieces = polygon::approximate(&points, c.closed, params.max_deviation_px, trim);
+        // An end is free unless it is a vertex shared with a neighbouring piece kept.
+        let long =
+            |k: usize| (pieces[k].end - pieces[k].start).norm() >= params.min_segment_px.max(1e-9);
+        let count = pieces.len();
+        for (k, piece) in pieces.iter().enumerate() {
+            if !long(k) {
+                continue;
+            }
+            // A corner shared with a kept neighbour stays; any other end is free to slide.
+            let shares_start = piece.joined.0
+                && if c.closed {
+                    long((k + count - 1) % count)
+                } else {
+                    k > 0 && long(k - 1)
+                };
+            let shares_end = piece.joined.1
+                && if c.closed {
+                    long((k + 1) % count)
+                } else {
+                    k + 1 < count && long(k + 1)
+                };
+            let (start, end) = ends::refine_ends(
+                smoothed,
+                distort,
+                piece.start,
+                piece.end,
+                (!shares_start, !shares_end),
+            );
+            let piece = polygon::Piece {
+                start,
+                end,
+                ..*piece
+            };
+            let last = if piece.last < piece.first {
+                ids.len() - 1
+            } else {
+                piece.last
+            };
+            let (mut gu, mut gv, mut magnitude) = (0.0f64, 0.0f64, 0.0f64);
+            for &i in &ids[piece.first..=last] {
+                let p = &map.points[i as usize];
+                gu += f64::from(p.gu);
+                gv += f64::from(p.gv);
+                magnitude += f64::from(p.magnitude);
+            }
+            let (mut a, mut b) = (piece.start, piece.end);
+            // Chains walk with the bright side on the left; check against the mean gradient
+            // in case a piece straddles a weak flip.
+            let d = b - a;
+            if gu * d.y - gv * d.x < 0.0 {
+                std::mem::swap(&mut a, &mut b);
+            }
+            let id = pending.len() as u32;
+            let mid = nalgebra::center(&piece.start, &piece.end);
+            pending.push(Pending {
+                part: join::Part {
+                    start: a,
+                    end: b,
+                    moments: piece.moments,
+                },
+                fit: piece.fit,
+                centre_offset: (mid - piece.line.centroid).dot(&piece.line.direction),
+                magnitude_sum: magnitude,
+                points: last - piece.first + 1,
+            });
+            // Positions in the chain's own order (undo the loop's rotation).
+            let to_chain = |k: usize| (k + rotation) % ids.len();
+            mine.push(ChainPiece {
+                first: to_chain(piece.first),
+                last: to_chain(last),
+                id,
+            });
+            if let Some(previous) = mine.iter().rev().nth(1) {
+                meetings.push(Adjacent {
+                    a: previous.id,
+                    b: id,
+                    vertex: distort(piece.start),
+                });
+            }
+        }
+        if c.closed && mine.len() > 2 {
+            let (first, last) = (mine[0].id, mine[mine.len() - 1].id);
+            meetings.push(Adjacent {
+                a: first,
+                b: last,
+                vertex: distort(pending[first as usize].part.start),
+            });
+        }
+        per_chain.push(mine);
+    }
+    Ok(ChainPieces {
+        pending,
+        meetings,
+        per_chain,
+    })
+}
+
+/// Where a chain ends on another chain (a T-junction), the piece at that end meets the
+/// other chain's piece that holds the junction point.
+fn junction_meetings(
+    chains: &chain::Chains,
+    map: &edges::EdgeMap,
+    per_chain: &[Vec<ChainPiece>],
+) -> Vec<Adjacent> {
+    let mut meetings = Vec::new();
+    for j in &chains.junctions {
+        let pieces = &per_chain[j.chain as usize];
+        let end_piece = if j.at_start {
+            pieces.first()
+        } else {
+            pieces.last()
+        };
+        let Some(&ChainPiece { id: a, .. }) = end_piece else {
+            continue;
+        };
+        let at = j.other_position as usize;
+        let Some(&ChainPiece { id: b, .. }) = per_chain[j.other as usize].iter().find(|piece| {
+            let (first, last) = (piece.first, piece.last);
+            if first <= last {
+                (first..=last).contains(&at)
+            } else {
+                at >= first || at <= last // a loop's piece across its start
+            }
+        }) else {
+            continue;
+        };
+        let other = &chains.chains[j.other as usize];
+        let p = &map.points[other.points[at] as usize];
+        meetings.push(Adjacent {
+            a,
+            b,
+            vertex: Point2::new(f64::from(p.u), f64::from(p.v)),
+        });
+    }
+    meetings
+}
+
+/// The adjacency of the final segments: each meeting of two pending pieces carried to the
+/// segments they became (dropped where one was clipped away or both joined into one),
+/// ordered and without repeats.
+fn renumbered(meetings: Vec<Adjacent>, renumber: &[Option<u32>]) -> Vec<Adjacent> {
+    let mut graph: Vec<Adjacent> = meetings
+        .into_iter()
+        .filter_map(|m| Some((renumber[m.a as usize]?, renumber[m.b as usize]?, m.vertex)))
+        .filter(|(a, b, _)| a != b)
+        .map(|(a, b, vertex)| Adjacent {
+            a: a.min(b),
+            b: a.max(b),
+            vertex,
+        })
+        .collect();
+    graph.sort_by_key(|e| (e.a, e.b));
+    graph.dedup_by_key(|e| (e.a, e.b));
+    graph
 }
 
 /// Joins the pieces of one line ([`join`]), then places each segment in the image: its ends
@@ -270,7 +494,7 @@ fn join_and_place(
     for group in join::join(&parts, JOIN_LIMITS) {
         let members = &group.members;
         let (start, end) = group.ends(&parts);
-        let (fit, centre_offset) = match &group.fit {
+        let fit = match &group.fit {
             Some(joined) => {
                 let spread = polygon::FitSpread {
                     points: members
@@ -283,12 +507,17 @@ fn join_and_place(
                     span_px: (12.0 * joined.along_px2).sqrt(),
                 };
                 let mid = nalgebra::center(&start, &end);
-                let offset = (mid - joined.line.centroid).dot(&joined.line.direction);
-                (spread, offset)
+                LineFit {
+                    spread,
+                    centre_offset: (mid - joined.line.centroid).dot(&joined.line.direction),
+                }
             }
             None => {
                 let p = &pending[members[0] as usize];
-                (p.fit, p.centre_offset)
+                LineFit {
+                    spread: p.fit,
+                    centre_offset: p.centre_offset,
+                }
             }
         };
         let Some((a, b)) = clip_to_frame(distort(start), distort(end), width, height) else {
@@ -311,7 +540,7 @@ fn join_and_place(
             gradient: Some(magnitude / count.max(1) as f64),
             noise: None,
         });
-        fits.push((fit, centre_offset));
+        fits.push(fit);
     }
     Placed {
         segments,
@@ -343,17 +572,24 @@ const SYSTEMATIC_ANGLE_PX: f64 = 0.1;
 /// Sets each segment's [`LineNoise`] from its own edge points: their spread about the line,
 /// pooled with the image's typical spread at that contrast when they are few (the spread of
 /// an edge point is inversely proportional to the gradient across it).
-fn measure_noise(segments: &mut [Segment2], fits: &[(polygon::FitSpread, f64)]) {
+fn measure_noise(segments: &mut [Segment2], fits: &[LineFit]) {
     // The image's edge-point spread times gradient, over the segments with enough points.
     let mut scaled: Vec<f64> = segments
         .iter()
         .zip(fits)
-        .filter(|(_, (fit, _))| fit.points >= 20)
-        .filter_map(|(s, (fit, _))| Some(fit.rms_px * s.gradient?))
+        .filter(|(_, fit)| fit.spread.points >= 20)
+        .filter_map(|(s, fit)| Some(fit.spread.rms_px * s.gradient?))
         .collect();
     scaled.sort_by(f64::total_cmp);
     let typical = scaled.get(scaled.len() / 2).copied();
-    for (segment, &(fit, centre_offset)) in segments.iter_mut().zip(fits) {
+    for (
+        segment,
+        &LineFit {
+            spread: fit,
+            centre_offset,
+        },
+    ) in segments.iter_mut().zip(fits)
+    {
         let dof = fit.points.saturating_sub(2) as f64;
         let own = if dof > 0.0 {
             fit.rms_px.powi(2) * fit.points as f64 / dof
@@ -376,6 +612,16 @@ fn measure_noise(segments: &mut [Segment2], fits: &[(polygon::FitSpread, f64)]) 
             offset_px: offset.hypot(SYSTEMATIC_OFFSET_PX),
             angle_rad: fitted.angle_rad.hypot(SYSTEMATIC_ANGLE_PX / length),
         });
+    }
+}
+
+/// Widens each segment's noise by the pull of its nearest parallel neighbour
+/// ([`LineNoise::crowded`]).
+fn add_crowding(segments: &mut [Segment2], model: CrowdingModel) {
+    let distances = crate::segment::crowding(segments, model);
+    for (segment, distance) in segments.iter_mut().zip(distances) {
+        let length = segment.length();
+        segment.noise = segment.noise.map(|n| n.crowded(distance, length, model));
     }
 }
 
@@ -428,171 +674,34 @@ pub fn extract_until(
     stats.junctions = chains.junctions.len() as u32;
 
     let t = Instant::now();
-    let undistort = |u: f32, v: f32| {
-        let p = Point2::new(f64::from(u), f64::from(v));
-        camera.map_or(p, |c| c.undistort(p))
-    };
     let distort = |p: Point2<f64>| camera.map_or(p, |c| c.distort(p));
-    let trim = corner_trim(smoothing);
-    // Every piece kept, in undistorted pixels, before pieces of one line are joined.
-    let mut pending: Vec<Pending> = Vec::new();
-    let mut graph = Vec::new();
-    // Per chain: (first point position, last point position, segment index) of its kept pieces.
-    let mut kept: Vec<Vec<(usize, usize, u32)>> = Vec::with_capacity(chains.chains.len());
-    for (n, c) in chains.chains.iter().enumerate() {
-        if n % CHAINS_PER_CHECK == 0 {
-            checkpoint.before("extract")?;
-        }
-        // Start a loop at a corner, so no side is cut in two at an arbitrary start.
-        let rotation = if c.closed {
-            loop_corner(&c.points, &map)
-        } else {
-            0
-        };
-        let mut ids = c.points.clone();
-        ids.rotate_left(rotation);
-        let points: Vec<Point2<f64>> = ids
-            .iter()
-            .map(|&i| {
-                let p = &map.points[i as usize];
-                undistort(p.u, p.v)
-            })
-            .collect();
-        let mut mine = Vec::new();
-        let pieces = polygon::approximate(&points, c.closed, params.max_deviation_px, trim);
-        // An end is free unless it is a vertex shared with a neighbouring piece kept.
-        let long =
-            |k: usize| (pieces[k].end - pieces[k].start).norm() >= params.min_segment_px.max(1e-9);
-        let count = pieces.len();
-        for (k, piece) in pieces.iter().enumerate() {
-            if !long(k) {
-                continue;
-            }
-            // A corner shared with a kept neighbour stays; any other end is free to slide.
-            let shares_start = piece.joined.0
-                && if c.closed {
-                    long((k + count - 1) % count)
-                } else {
-                    k > 0 && long(k - 1)
-                };
-            let shares_end = piece.joined.1
-                && if c.closed {
-                    long((k + 1) % count)
-                } else {
-                    k + 1 < count && long(k + 1)
-                };
-            let (start, end) = ends::refine_ends(
-                &ends::Smoothed {
-                    pixels: &smoothed,
-                    width: w,
-                    height: h,
-                },
-                distort,
-                piece.start,
-                piece.end,
-                (!shares_start, !shares_end),
-            );
-            let piece = polygon::Piece {
-                start,
-                end,
-                ..*piece
-            };
-            let last = if piece.last < piece.first {
-                ids.len() - 1
-            } else {
-                piece.last
-            };
-            let (mut gu, mut gv, mut magnitude) = (0.0f64, 0.0f64, 0.0f64);
-            for &i in &ids[piece.first..=last] {
-                let p = &map.points[i as usize];
-                gu += f64::from(p.gu);
-                gv += f64::from(p.gv);
-                magnitude += f64::from(p.magnitude);
-            }
-            let (mut a, mut b) = (piece.start, piece.end);
-            // Chains walk with the bright side on the left; check against the mean gradient
-            // in case a piece straddles a weak flip.
-            let d = b - a;
-            if gu * d.y - gv * d.x < 0.0 {
-                std::mem::swap(&mut a, &mut b);
-            }
-            let id = pending.len() as u32;
-            let mid = nalgebra::center(&piece.start, &piece.end);
-            pending.push(Pending {
-                part: join::Part {
-                    start: a,
-                    end: b,
-                    moments: piece.moments,
-                },
-                fit: piece.fit,
-                centre_offset: (mid - piece.line.centroid).dot(&piece.line.direction),
-                magnitude_sum: magnitude,
-                points: last - piece.first + 1,
-            });
-            // Positions in the chain's own order (undo the loop's rotation).
-            let to_chain = |k: usize| (k + rotation) % ids.len();
-            mine.push((to_chain(piece.first), to_chain(last), id));
-            if let Some(&(_, _, previous)) = mine.iter().rev().nth(1) {
-                graph.push((previous, id, distort(piece.start)));
-            }
-        }
-        if c.closed && mine.len() > 2 {
-            let (first, last) = (mine[0].2, mine[mine.len() - 1].2);
-            graph.push((first, last, distort(pending[first as usize].part.start)));
-        }
-        kept.push(mine);
-    }
-    for j in &chains.junctions {
-        let pieces = &kept[j.chain as usize];
-        let end_piece = if j.at_start {
-            pieces.first()
-        } else {
-            pieces.last()
-        };
-        let Some(&(_, _, a)) = end_piece else {
-            continue;
-        };
-        let at = j.other_position as usize;
-        let Some(&(_, _, b)) = kept[j.other as usize].iter().find(|&&(first, last, _)| {
-            if first <= last {
-                (first..=last).contains(&at)
-            } else {
-                at >= first || at <= last // a loop's piece across its start
-            }
-        }) else {
-            continue;
-        };
-        let other = &chains.chains[j.other as usize];
-        let p = &map.points[other.points[at] as usize];
-        graph.push((a, b, Point2::new(f64::from(p.u), f64::from(p.v))));
-    }
+    let ChainPieces {
+        pending,
+        mut meetings,
+        per_chain,
+    } = fit_pieces(
+        &chains,
+        &map,
+        &ends::Smoothed {
+            pixels: &smoothed,
+            width: w,
+            height: h,
+        },
+        camera,
+        corner_trim(smoothing),
+        params,
+        checkpoint,
+    )?;
+    meetings.extend(junction_meetings(&chains, &map, &per_chain));
     checkpoint.before("extract")?;
     let Placed {
         mut segments,
         fits,
         renumber,
     } = join_and_place(&pending, params, distort, image.width(), image.height());
-    let mut graph: Vec<Adjacent> = graph
-        .into_iter()
-        .filter_map(|(a, b, vertex)| Some((renumber[a as usize]?, renumber[b as usize]?, vertex)))
-        .filter(|(a, b, _)| a != b)
-        .map(|(a, b, vertex)| Adjacent {
-            a: a.min(b),
-            b: a.max(b),
-            vertex,
-        })
-        .collect();
-    graph.sort_by_key(|e| (e.a, e.b));
-    graph.dedup_by_key(|e| (e.a, e.b));
+    let graph = renumbered(meetings, &renumber);
     measure_noise(&mut segments, &fits);
-    let crowding_model = CrowdingModel::for_smoothing(smoothing);
-    let distances = crate::segment::crowding(&segments, crowding_model);
-    for (segment, distance) in segments.iter_mut().zip(distances) {
-        let length = segment.length();
-        segment.noise = segment
-            .noise
-            .map(|n| n.crowded(distance, length, crowding_model));
-    }
+    add_crowding(&mut segments, CrowdingModel::for_smoothing(smoothing));
     stats.polygon_ms = ms(t);
     stats.total_ms = ms(start);
     Ok(Extraction {

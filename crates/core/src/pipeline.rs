@@ -1,7 +1,7 @@
 //! The whole matching pipeline in one call: segment lists in, triplets and 3D segments out.
 //!
 //! ```text
-//! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ validate ⇄ reconstruct ─▶ merge fragments
+//! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ validate ⇄ reconstruct ─▶ merge fragments (reconstruct)
 //! ```
 //!
 //! From images, [`match_images`] runs [`crate::extract`] on the three first (in parallel).
@@ -20,7 +20,7 @@ use crate::geometry::{
     Line3Estimate, LineObservation, Rectification, RectifyError, Rig, RigFrames,
 };
 use crate::matching::{self, Hypothesis, MatchParams, ParamError, RectSegment, Views};
-use crate::reconstruct::{reconstruct, reconstruct_pieces};
+use crate::reconstruct::{fragment_groups, reconstruct, reconstruct_fragments, reconstruct_pieces};
 use crate::segment::{CrowdingModel, LineNoise, Segment3, SegmentList};
 
 /// How far outside the image a segment endpoint may lie, in image sizes: farther is not a
@@ -1371,22 +1371,15 @@ fn assemble(
     stats: &mut MatchStats,
 ) -> MatchOutput {
     let indices: Vec<usize> = kept.iter().map(|k| k.0).collect();
+    let triplets: Vec<[u32; 3]> = indices.iter().map(|&h| hypotheses[h].segments).collect();
+    let views_observed: [&[LineObservation]; 3] = std::array::from_fn(|v| &observed[v][..]);
     let mut output = MatchOutput::default();
-    for group in fragment_groups(hypotheses, &indices) {
+    for group in fragment_groups(&triplets) {
         let merged = (group.len() > 1).then(|| {
-            let mut pieces: Vec<LineObservation> = Vec::new();
-            for (v, view) in observed.iter().enumerate() {
-                let mut ids: Vec<u32> = group
-                    .iter()
-                    .map(|&k| hypotheses[indices[k]].segments[v])
-                    .collect();
-                ids.sort_unstable();
-                ids.dedup();
-                pieces.extend(ids.iter().map(|&i| view[i as usize]));
-            }
             let factor = stats.noise_scale.powi(2);
+            let fragments = group.iter().map(|&k| triplets[k]);
             accept(
-                reconstruct_pieces(rig, &pieces).map(|e| rescaled(e, factor)),
+                reconstruct_fragments(rig, views_observed, fragments).map(|e| rescaled(e, factor)),
                 rig,
                 params,
             )
@@ -1431,45 +1424,6 @@ fn assemble(
         });
     }
     output
-}
-
-/// Groups accepted hypotheses that share a segment in some view (validation accepted them
-/// together only as collinear fragments of one line). Groups hold positions in `kept`, come
-/// in order of their first member, members in input order.
-fn fragment_groups(hypotheses: &[Hypothesis], kept: &[usize]) -> Vec<Vec<usize>> {
-    let mut parent: Vec<usize> = (0..kept.len()).collect();
-    fn root(parent: &mut [usize], mut i: usize) -> usize {
-        while parent[i] != i {
-            parent[i] = parent[parent[i]];
-            i = parent[i];
-        }
-        i
-    }
-    let mut owner: [FxHashMap<u32, usize>; 3] = Default::default();
-    for (k, &h) in kept.iter().enumerate() {
-        for (v, owner) in owner.iter_mut().enumerate() {
-            let segment = hypotheses[h].segments[v];
-            if let Some(&other) = owner.get(&segment) {
-                let (a, b) = (root(&mut parent, k), root(&mut parent, other));
-                let (lo, hi) = (a.min(b), a.max(b));
-                parent[hi] = lo;
-            } else {
-                owner.insert(segment, k);
-            }
-        }
-    }
-    // A root is its group's first member (unions keep the lower index as the root).
-    let mut groups: Vec<Vec<usize>> = Vec::new();
-    let mut group_of_root: Vec<usize> = vec![usize::MAX; kept.len()];
-    for k in 0..kept.len() {
-        let r = root(&mut parent, k);
-        if group_of_root[r] == usize::MAX {
-            group_of_root[r] = groups.len();
-            groups.push(Vec::new());
-        }
-        groups[group_of_root[r]].push(k);
-    }
-    groups
 }
 
 #[cfg(test)]

@@ -662,35 +662,41 @@ pub fn match_segments_until(
     stats.predict_ms = ms(t);
     stats.hypotheses = hypotheses.len() as u32;
 
-    let kept = validate_and_reconstruct(
+    let request = Matching {
         rig,
         rect,
-        &views,
-        &mut observed,
+        views: &views,
         lists,
-        &hypotheses,
         graph,
+        hypotheses: &hypotheses,
         params,
         checkpoint,
-        &mut stats,
-    )?;
+    };
+    let kept = validate_and_reconstruct(&request, &mut observed, &mut stats)?;
 
     checkpoint.before("assemble")?;
     let t = Instant::now();
-    let output = assemble(
-        rig,
-        &views,
-        &observed,
-        &hypotheses,
-        &kept,
-        params,
-        &mut stats,
-    );
+    let output = assemble(&request, &observed, &kept, &mut stats);
     stats.reconstruct_ms += ms(t);
     stats.triplets = output.triplets.len() as u32;
     stats.segments_3d = output.segments_3d.len() as u32;
     stats.total_ms = ms(start);
     Ok(MatchOutput { stats, ..output })
+}
+
+/// One request as every stage after prediction reads it: the rig, the frame validation works
+/// in (views 1 and 2), the prepared views, the lists as given, view 1's segment graph, the
+/// hypotheses, the parameters and the deadline.
+#[derive(Clone, Copy)]
+struct Matching<'a> {
+    rig: &'a Rig,
+    rect: &'a Rectification,
+    views: &'a Views<'a>,
+    lists: &'a [SegmentList; 3],
+    graph: &'a [Adjacent],
+    hypotheses: &'a [Hypothesis],
+    params: &'a MatchParams,
+    checkpoint: Checkpoint<'a>,
 }
 
 /// How a reconstruction measures up, in the units its users think in.
@@ -956,19 +962,21 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
 /// A winner that reconstruction rejects (no overlap, residual or direction uncertainty too
 /// large) leaves the pool and validation runs again, so a rival it displaced gets its turn.
 /// Returns the accepted hypotheses with their reconstructions.
-#[allow(clippy::too_many_arguments)]
 fn validate_and_reconstruct(
-    rig: &Rig,
-    rect: &Rectification,
-    views: &Views,
+    request: &Matching,
     observed: &mut [Vec<LineObservation>],
-    lists: &[SegmentList; 3],
-    hypotheses: &[Hypothesis],
-    graph: &[Adjacent],
-    params: &MatchParams,
-    checkpoint: Checkpoint,
     stats: &mut MatchStats,
 ) -> Result<Vec<(usize, Line3Estimate, Quality)>, MatchError> {
+    let Matching {
+        rig,
+        rect,
+        views,
+        lists,
+        graph,
+        hypotheses,
+        params,
+        checkpoint,
+    } = *request;
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
     let mut observations = Observations::new(views.segments, observed, lists);
@@ -1032,16 +1040,7 @@ fn validate_and_reconstruct(
         // The rivals' reconstructions are more work: a request past its deadline stops here.
         checkpoint.before("reconstruct")?;
         let t = Instant::now();
-        flag_ambiguous(
-            rig,
-            &mut observations,
-            hypotheses,
-            &kept,
-            &alive,
-            &mut fits,
-            params,
-            stats,
-        );
+        flag_ambiguous(request, &mut observations, &kept, &alive, &mut fits, stats);
         stats.reconstruct_ms += ms(t);
     }
     Ok(kept
@@ -1078,17 +1077,20 @@ const MAX_RIVALS: usize = 16;
 /// nothing. Rivals are the hypotheses sharing a segment with the winner, and the triplets
 /// that take one of its segments for one of opposite contrast ([`flipped_rivals`]), which
 /// oriented matching never forms.
-#[allow(clippy::too_many_arguments)]
 fn flag_ambiguous(
-    rig: &Rig,
+    request: &Matching,
     observations: &mut Observations,
-    hypotheses: &[Hypothesis],
     kept: &[usize],
     alive: &[bool],
     fits: &mut [Option<Fit>],
-    params: &MatchParams,
     stats: &mut MatchStats,
 ) {
+    let Matching {
+        rig,
+        hypotheses,
+        params,
+        ..
+    } = *request;
     let certain: Vec<usize> = kept
         .iter()
         .copied()
@@ -1360,16 +1362,19 @@ fn add_graph(
 /// alone; if that joint estimate is rejected, the best-determined piece stands for the
 /// group. Segments that miss the accuracy asked for are left out (and counted) unless
 /// `include_uncertain` asks for them, flagged.
-#[allow(clippy::too_many_arguments)]
 fn assemble(
-    rig: &Rig,
-    views: &Views,
+    request: &Matching,
     observed: &[Vec<LineObservation>],
-    hypotheses: &[Hypothesis],
     kept: &[(usize, Line3Estimate, Quality)],
-    params: &MatchParams,
     stats: &mut MatchStats,
 ) -> MatchOutput {
+    let Matching {
+        rig,
+        views,
+        hypotheses,
+        params,
+        ..
+    } = *request;
     let indices: Vec<usize> = kept.iter().map(|k| k.0).collect();
     let triplets: Vec<[u32; 3]> = indices.iter().map(|&h| hypotheses[h].segments).collect();
     let views_observed: [&[LineObservation]; 3] = std::array::from_fn(|v| &observed[v][..]);

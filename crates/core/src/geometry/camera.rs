@@ -113,7 +113,7 @@ pub struct Camera {
     projection: Matrix3x4<f64>,
     intrinsics: Matrix3<f64>,
     intrinsics_inv: Matrix3<f64>,
-    /// cam_from_rig rotation.
+    /// rig_to_cam rotation.
     rotation: Matrix3<f64>,
     translation: Vector3<f64>,
     centre: Point3<f64>,
@@ -208,7 +208,7 @@ impl Camera {
         )
     }
 
-    /// Builds a camera from `K`, `R` (cam_from_rig) and `t`, with `P = K [R | t]`.
+    /// Builds a camera from `K`, `R` (rig_to_cam) and `t`, with `P = K [R | t]`.
     pub fn from_krt(
         name: impl Into<String>,
         width: u32,
@@ -309,7 +309,7 @@ impl Camera {
     pub fn intrinsics(&self) -> &Matrix3<f64> {
         &self.intrinsics
     }
-    /// cam_from_rig rotation `R`.
+    /// rig_to_cam rotation `R`.
     pub fn rotation(&self) -> &Matrix3<f64> {
         &self.rotation
     }

@@ -48,8 +48,8 @@ pub enum RectifyError {
 /// The shared rectified frame of a rig.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rectification {
-    /// `R*`: rect_from_rig rotation (rows: x*, y*, z*).
-    rect_from_rig: Matrix3<f64>,
+    /// `R*`: rig_to_rect rotation (rows: x*, y*, z*).
+    rig_to_rect: Matrix3<f64>,
     /// Origin of the rect frame: optical centre 1.
     origin: Point3<f64>,
     focal_px: f64,
@@ -106,7 +106,7 @@ impl Rectification {
         let c: Vec<Vector3<f64>> = cams.iter().map(|cam| cam.centre().coords).collect();
         let x = (x_from - z * x_from.dot(&z)).normalize();
         let y = z.cross(&x);
-        let rect_from_rig = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
+        let rig_to_rect = Matrix3::from_rows(&[x.transpose(), y.transpose(), z.transpose()]);
 
         for camera in checked {
             let angle_deg = cams[camera]
@@ -124,7 +124,7 @@ impl Rectification {
         let mut centres = [Vector2::zeros(); 3];
         let mut out_of_plane_m: f64 = 0.0;
         for (i, ci) in c.iter().enumerate() {
-            let r = rect_from_rig * (ci - origin.coords);
+            let r = rig_to_rect * (ci - origin.coords);
             centres[i] = Vector2::new(r.x, r.y);
             if checked.contains(&i) {
                 out_of_plane_m = out_of_plane_m.max(r.z.abs());
@@ -137,10 +137,10 @@ impl Rectification {
                 .intrinsics()
                 .try_inverse()
                 .unwrap_or_else(Matrix3::identity);
-            k_star * rect_from_rig * cams[i].rotation().transpose() * k_inv
+            k_star * rig_to_rect * cams[i].rotation().transpose() * k_inv
         });
         Ok(Rectification {
-            rect_from_rig,
+            rig_to_rect,
             origin,
             focal_px,
             centres,
@@ -177,8 +177,8 @@ impl Rectification {
         self.centres[i] - self.centres[j]
     }
 
-    pub fn rect_from_rig(&self) -> &Matrix3<f64> {
-        &self.rect_from_rig
+    pub fn rig_to_rect(&self) -> &Matrix3<f64> {
+        &self.rig_to_rect
     }
 
     /// Disparity interval `[δmin, δmax]` (pixels per metre of baseline) for a depth range.
@@ -225,12 +225,12 @@ impl Rectification {
             c.y + a_i.y * depth / self.focal_px,
             depth,
         );
-        self.origin + self.rect_from_rig.transpose() * rect
+        self.origin + self.rig_to_rect.transpose() * rect
     }
 
     /// The rectified image of a rig-frame point in view `i`, with its disparity.
     pub fn project(&self, i: usize, point: &Point3<f64>) -> Option<(Point2<f64>, f64)> {
-        let r = self.rect_from_rig * (point - self.origin);
+        let r = self.rig_to_rect * (point - self.origin);
         if r.z <= 1e-12 {
             return None;
         }

@@ -5,7 +5,7 @@
 //! ```text
 //! Scene::room(seed) ──┐
 //! RigSpec ─▶ Rig ─────┼─▶ observe(.., Defects, seed) ─▶ Observation ─▶ (pipeline) ─▶ score()
-//! Pose (world_from_rig)┘      3 oriented segment lists + truth + visibility
+//! Pose (rig_to_world)┘      3 oriented segment lists + truth + visibility
 //! ```
 //!
 //! - [`scene`]: axis-aligned boxes, a point light, ray casting and shading; the standard room.

@@ -195,7 +195,7 @@ struct PixelRays {
     cx: f64,
     cy: f64,
     distortion: Option<Distortion>,
-    /// cam_from_rig rotation `R`, by rows.
+    /// rig_to_cam rotation `R`, by rows.
     rotation: [[f64; 3]; 3],
     centre: Point3<f64>,
 }

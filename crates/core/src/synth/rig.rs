@@ -3,7 +3,7 @@
 //! A [`RigSpec`] describes three cameras by physically meaningful numbers (optical centre in
 //! the rig frame, yaw/pitch/roll, focal lengths, principal point, distortion) and builds a
 //! validated [`Rig`] through [`Camera::from_krt`], placed in the world by a [`Pose`]
-//! (`world_from_rig`).
+//! (`rig_to_world`).
 //!
 //! Orientation convention: with yaw = pitch = roll = 0 a camera looks along rig +y with its
 //! image x along rig +x and image y (down) along rig −z. Then, in this order, it rolls about
@@ -33,7 +33,7 @@ pub enum SynthError {
     Rig(#[from] RigError),
 }
 
-/// A rigid transform `world_from_rig`: `x_world = rotation · x_rig + translation`.
+/// A rigid transform `rig_to_world`: `x_world = rotation · x_rig + translation`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
     pub rotation: Rotation3<f64>,
@@ -94,15 +94,15 @@ pub struct CameraSpec {
     pub distortion: Option<Distortion>,
 }
 
-/// cam_from_rig rotation of a camera with the given yaw, pitch and roll (module doc).
+/// rig_to_cam rotation of a camera with the given yaw, pitch and roll (module doc).
 pub fn cam_from_rig_rotation(yaw_rad: f64, pitch_rad: f64, roll_rad: f64) -> Matrix3<f64> {
-    // rig_from_cam at rest: columns are the camera axes in the rig frame.
+    // cam_to_rig at rest: columns are the camera axes in the rig frame.
     let rest = Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0);
     let yaw = Rotation3::from_axis_angle(&Vector3::z_axis(), yaw_rad);
     let pitch = Rotation3::from_axis_angle(&Vector3::x_axis(), pitch_rad);
     let roll = Rotation3::from_axis_angle(&Vector3::y_axis(), roll_rad);
-    let rig_from_cam = yaw.matrix() * pitch.matrix() * roll.matrix() * rest;
-    rig_from_cam.transpose()
+    let cam_to_rig = yaw.matrix() * pitch.matrix() * roll.matrix() * rest;
+    cam_to_rig.transpose()
 }
 
 impl CameraSpec {
@@ -110,24 +110,24 @@ impl CameraSpec {
         Matrix3::new(self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0)
     }
 
-    /// The camera mapping world points, for a rig at `world_from_rig`.
+    /// The camera mapping world points, for a rig at `rig_to_world`.
     pub fn camera(
         &self,
         name: &str,
         width: u32,
         height: u32,
-        world_from_rig: &Pose,
+        rig_to_world: &Pose,
     ) -> Result<Camera, CameraError> {
-        let cam_from_rig = cam_from_rig_rotation(self.yaw_rad, self.pitch_rad, self.roll_rad);
-        let cam_from_world = cam_from_rig * world_from_rig.rotation.matrix().transpose();
-        let centre_world = world_from_rig.transform_point(&self.centre);
-        let t = -(cam_from_world * centre_world.coords);
+        let rig_to_cam = cam_from_rig_rotation(self.yaw_rad, self.pitch_rad, self.roll_rad);
+        let world_to_cam = rig_to_cam * rig_to_world.rotation.matrix().transpose();
+        let centre_world = rig_to_world.transform_point(&self.centre);
+        let t = -(world_to_cam * centre_world.coords);
         Camera::from_krt(
             name,
             width,
             height,
             self.intrinsics(),
-            cam_from_world,
+            world_to_cam,
             t,
             self.distortion,
         )
@@ -316,15 +316,15 @@ impl RigSpec {
         self
     }
 
-    /// The validated rig, with cameras mapping world points, at `world_from_rig`.
-    pub fn build(&self, world_from_rig: &Pose) -> Result<Rig, SynthError> {
+    /// The validated rig, with cameras mapping world points, at `rig_to_world`.
+    pub fn build(&self, rig_to_world: &Pose) -> Result<Rig, SynthError> {
         let camera = |i: usize| {
             self.cameras[i]
                 .camera(
                     &format!("cam{}", i + 1),
                     self.width,
                     self.height,
-                    world_from_rig,
+                    rig_to_world,
                 )
                 .map_err(|source| SynthError::Camera { camera: i, source })
         };

@@ -328,7 +328,7 @@ pub fn pixel_radiance<T: Tracer>(tracer: &T, camera: &Camera, pixel: Point2<f64>
 /// the run time of unoptimised test builds). Same model as [`Camera`].
 #[derive(Debug, Clone)]
 pub(crate) struct FlatCamera {
-    /// cam_from_rig rotation rows, then translation.
+    /// rig_to_cam rotation rows, then translation.
     r: [[f64; 3]; 3],
     t: [f64; 3],
     fx: f64,

@@ -18,8 +18,7 @@
 use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion, Throughput};
 use trinocular::extract::{self, edges, gradient, GreyImage, Params};
 use trinocular::geometry::Rig;
-use trinocular::matching::MatchParams;
-use trinocular::pipeline::match_images;
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{bench_capture, render_triplet, RenderParams};
 
 fn pool(threads: usize) -> rayon::ThreadPool {
@@ -101,7 +100,7 @@ fn bench_extract(c: &mut Criterion) {
 }
 
 fn bench_images(c: &mut Criterion) {
-    let (extract_params, params) = (Params::default(), MatchParams::default());
+    let options = Options::default();
     let mut group = c.benchmark_group("images");
     group.sample_size(30);
     for (size, rig, images) in captures() {
@@ -110,11 +109,10 @@ fn bench_images(c: &mut Criterion) {
             group.bench_function(format!("{size}/{threads}-threads"), |b| {
                 p.install(|| {
                     b.iter(|| {
-                        match_images(
+                        pipeline::run(
                             &rig,
-                            [&images[0], &images[1], &images[2]],
-                            &extract_params,
-                            &params,
+                            Input::Images([&images[0], &images[1], &images[2]]),
+                            &options,
                         )
                         .expect("valid")
                     })

@@ -16,7 +16,7 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::match_segments;
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{scattered_capture, standard_capture, Defects};
 
 fn pool(threads: usize) -> rayon::ThreadPool {
@@ -36,8 +36,11 @@ fn bench_size_group(c: &mut Criterion, name: &str, params: &MatchParams) {
         if n > 1000 {
             group.sample_size(20);
         }
+        let options = Options::with(params.clone());
         group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
-            one.install(|| b.iter(|| match_segments(&rig, &lists, params).expect("valid")))
+            one.install(|| {
+                b.iter(|| pipeline::run(&rig, Input::lists(&lists), &options).expect("valid"))
+            })
         });
     }
     group.finish();
@@ -56,28 +59,32 @@ fn bench_window(c: &mut Criterion) {
 }
 
 fn bench_threads(c: &mut Criterion) {
-    let params = MatchParams::default();
+    let options = Options::default();
     let (rig, lists) = scattered_capture(10_000, 0.3, 0.2, 1);
     let mut group = c.benchmark_group("threads");
     group.sample_size(20);
     for threads in [1usize, 2] {
         let p = pool(threads);
         group.bench_with_input(BenchmarkId::from_parameter(threads), &threads, |b, _| {
-            p.install(|| b.iter(|| match_segments(&rig, &lists, &params).expect("valid")))
+            p.install(|| {
+                b.iter(|| pipeline::run(&rig, Input::lists(&lists), &options).expect("valid"))
+            })
         });
     }
     group.finish();
 }
 
 fn bench_room(c: &mut Criterion) {
-    let params = MatchParams::default();
+    let options = Options::default();
     let (_, rig, obs) = standard_capture(1, Defects::realistic(), false);
     let one = pool(1);
     let n = obs.lists[0].segments.len() as u64;
     let mut group = c.benchmark_group("room");
     group.throughput(Throughput::Elements(n));
     group.bench_function("realistic", |b| {
-        one.install(|| b.iter(|| match_segments(&rig, &obs.lists, &params).expect("valid")))
+        one.install(|| {
+            b.iter(|| pipeline::run(&rig, Input::lists(&obs.lists), &options).expect("valid"))
+        })
     });
     group.finish();
 }

@@ -17,7 +17,7 @@
 //! least 20 px in each, and (`c10`) that also has at least 10 grey levels of contrast in each.
 
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::match_segments;
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
     eligible_intervals, eligible_intervals_with, match_labels, rig_centre, score, score_labelled,
@@ -88,7 +88,13 @@ fn main() {
         let mut ms = Vec::new();
         for seed in 1..=seeds {
             let (_, rig, obs) = standard_capture(seed, defects, collinear);
-            let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
+            let out = pipeline::run(
+                &rig,
+                Input::lists(&obs.lists),
+                &Options::with(params.clone()),
+            )
+            .map(|m| m.output)
+            .expect("valid input");
             let segs: Vec<Segment3> = out.segments();
             let labels = match_labels(&out, &obs);
             let (elig, elig_c10) = (

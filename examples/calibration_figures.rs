@@ -14,7 +14,7 @@ use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
 use trinocular::api::{self, pb};
 use trinocular::geometry::{Camera, Rig};
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::match_segments;
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
     eligible_intervals, observe, pattern_views, render_triplet, rig_centre, score, Defects,
     RenderParams, Rng, Scene, STANDARD_RIG_POSITION,
@@ -39,7 +39,13 @@ fn composed(rig: &Rig, g: &Matrix4<f64>) -> Result<Rig, Box<dyn std::error::Erro
 fn room_error_mm(truth: &Rig, with: &Rig, seed: u64) -> f64 {
     let scene = Scene::room(seed);
     let obs = observe(&scene, truth, &Defects::realistic(), seed);
-    let output = match_segments(with, &obs.lists, &MatchParams::default()).expect("valid");
+    let output = pipeline::run(
+        with,
+        Input::lists(&obs.lists),
+        &Options::with(MatchParams::default()),
+    )
+    .map(|m| m.output)
+    .expect("valid");
     let segments: Vec<_> = output.segments();
     let s = score(
         &segments,

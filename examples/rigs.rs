@@ -6,7 +6,7 @@
 
 use trinocular::extract::Params;
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::{match_images, match_segments};
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
     error_classes, render_triplet, rig_centre, score_capture, shaped_capture, Defects,
     RenderParams, RigShape,
@@ -35,16 +35,25 @@ fn main() {
                     include_uncertain: true,
                     ..MatchParams::default()
                 };
-                match_segments(&rig, &obs.lists, &params).expect("match")
+                pipeline::run(
+                    &rig,
+                    Input::lists(&obs.lists),
+                    &Options::with(params.clone()),
+                )
+                .map(|m| m.output)
+                .expect("match")
             } else {
                 let images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
-                match_images(
+                pipeline::run(
                     &rig,
-                    [&images[0], &images[1], &images[2]],
-                    &Params::default(),
-                    &MatchParams {
-                        include_uncertain: all,
-                        ..MatchParams::default()
+                    Input::Images([&images[0], &images[1], &images[2]]),
+                    &Options {
+                        params: MatchParams {
+                            include_uncertain: all,
+                            ..MatchParams::default()
+                        },
+                        extract: Params::default(),
+                        ..Options::default()
                     },
                 )
                 .expect("match")

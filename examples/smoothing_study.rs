@@ -10,7 +10,7 @@
 
 use trinocular::extract;
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::match_images;
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{render_triplet, score_capture, standard_capture, Defects, RenderParams};
 
 fn list(arg: Option<&String>, default: &[f64]) -> Vec<f64> {
@@ -43,11 +43,14 @@ fn main() {
                     smoothing_sigma_px: (smoothing >= 0.0).then_some(smoothing),
                     ..extract::Params::default()
                 };
-                let result = match_images(
+                let result = pipeline::run(
                     &rig,
-                    [&images[0], &images[1], &images[2]],
-                    &params,
-                    &MatchParams::default(),
+                    Input::Images([&images[0], &images[1], &images[2]]),
+                    &Options {
+                        params: MatchParams::default(),
+                        extract: params.clone(),
+                        ..Options::default()
+                    },
                 )
                 .expect("a rendered room matches");
                 let s = score_capture(&result.output.segments(), &obs, &rig);

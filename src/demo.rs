@@ -7,10 +7,8 @@
 //! segments, a top view of the 3D segments over the ground truth) and the response.
 
 use crate::api::{self, pb};
-use crate::extract;
-use crate::matching::MatchParams;
 use crate::overlay;
-use crate::pipeline::match_images;
+use crate::pipeline::{self, Input};
 use crate::segment::Segment3;
 use crate::synth::{
     render_triplet, rig_centre, score_capture, standard_capture, Defects, RenderParams,
@@ -43,18 +41,21 @@ pub fn run(seed: u64) -> Result<Demo, String> {
     let png = |i: usize| -> Result<Vec<u8>, String> {
         overlay::grey_png(&images[i]).map_err(|e| format!("cannot encode image {}: {e}", i + 1))
     };
-    let result = match_images(
+    let result = pipeline::run(
         &rig,
-        [&images[0], &images[1], &images[2]],
-        &extract::Params::default(),
-        &MatchParams::default(),
+        Input::Images([&images[0], &images[1], &images[2]]),
+        &pipeline::Options::default(),
     )
     .map_err(|e| format!("the demo capture did not match: {e}"))?;
+    let extracted = result
+        .extracted
+        .as_ref()
+        .ok_or("the demo capture gave no extraction")?;
 
     let segments = result.output.segments();
     let truth = &observation.ground_truth;
     let s = score_capture(&segments, &observation, &rig);
-    let lists = result.extracted.each_ref().map(|e| &e.segments);
+    let lists = extracted.each_ref().map(|e| &e.segments);
     let labels = overlay::segment3_labels(&result.output, lists.map(|l| l.segments.len()));
     let picture = overlay::triplet_overlay(
         [&images[0], &images[1], &images[2]],
@@ -105,7 +106,7 @@ pub fn run(seed: u64) -> Result<Demo, String> {
         images_png: [png(0)?, png(1)?, png(2)?],
         overlay_png: picture.to_png().map_err(|e| e.to_string())?,
         top_png: top.to_png().map_err(|e| e.to_string())?,
-        response: api::match_response(&result.output, Some(&result.extracted)),
+        response: api::match_response(&result.output, Some(extracted)),
         summary,
         error_rate,
         completeness,

@@ -630,31 +630,19 @@ impl MatchInput {
 
     /// [`MatchInput::execute`], stopping between stages when `checkpoint` says so.
     pub fn execute_until(&self, checkpoint: Checkpoint) -> Result<Executed, RunError> {
-        Ok(match &self.source {
-            MatchSource::Segments(lists) => Executed {
-                output: pipeline::match_segments_until(
-                    &self.rig,
-                    lists,
-                    &[],
-                    &self.params,
-                    checkpoint,
-                )?,
-                extracted: None,
-            },
-            MatchSource::Images(images) => {
-                let [a, b, c] = images;
-                let result = pipeline::match_images_until(
-                    &self.rig,
-                    [a, b, c],
-                    &self.extract,
-                    &self.params,
-                    checkpoint,
-                )?;
-                Executed {
-                    output: result.output,
-                    extracted: Some(result.extracted),
-                }
-            }
+        let input = match &self.source {
+            MatchSource::Segments(lists) => pipeline::Input::lists(lists),
+            MatchSource::Images([a, b, c]) => pipeline::Input::Images([a, b, c]),
+        };
+        let options = pipeline::Options {
+            params: self.params.clone(),
+            extract: self.extract.clone(),
+            checkpoint,
+        };
+        let matched = pipeline::run(&self.rig, input, &options)?;
+        Ok(Executed {
+            output: matched.output,
+            extracted: matched.extracted,
         })
     }
 

@@ -3,7 +3,7 @@
 //! does not flap them. `cargo run --release --example accuracy` prints the full table.
 
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::{match_segments, MatchOutput};
+use trinocular::pipeline::{self, Input, MatchOutput, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
     eligible_intervals_with, match_labels, rig_centre, score, score_labelled, standard_capture,
@@ -41,7 +41,13 @@ fn run(defects: &Defects, collinear: bool) -> (Pooled, Vec<(Observation, MatchOu
     let (mut strict, mut matched, mut runs) = (Vec::new(), Vec::new(), Vec::new());
     for seed in SEEDS {
         let (_, rig, obs) = standard_capture(seed, *defects, collinear);
-        let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
+        let out = pipeline::run(
+            &rig,
+            Input::lists(&obs.lists),
+            &Options::with(params.clone()),
+        )
+        .map(|m| m.output)
+        .expect("valid input");
         let segs: Vec<Segment3> = out.segments();
         // Eligible: visible in all three views, >= 20 px and >= 10 grey levels in each.
         let eligible = eligible_intervals_with(&obs, 20.0, Some(10.0));
@@ -122,7 +128,15 @@ fn output_does_not_depend_on_the_number_of_threads() {
             .num_threads(threads)
             .build()
             .expect("pool");
-        pool.install(|| match_segments(&rig, &obs.lists, &params).expect("valid"))
+        pool.install(|| {
+            pipeline::run(
+                &rig,
+                Input::lists(&obs.lists),
+                &Options::with(params.clone()),
+            )
+            .map(|m| m.output)
+            .expect("valid")
+        })
     };
     let (one, two, four) = (on(1), on(2), on(4));
     assert!(!one.triplets.is_empty());
@@ -145,7 +159,13 @@ fn a_miscalibrated_rig_widens_the_noise_instead_of_losing_its_matches() {
         include_uncertain: true,
         ..MatchParams::default()
     };
-    let exact = match_segments(&rig, &obs.lists, &everything).expect("valid input");
+    let exact = pipeline::run(
+        &rig,
+        Input::lists(&obs.lists),
+        &Options::with(everything.clone()),
+    )
+    .map(|m| m.output)
+    .expect("valid input");
     assert_eq!(
         exact.stats.noise_scale, 1.0,
         "an exact rig needs no wider noise"
@@ -162,7 +182,13 @@ fn a_miscalibrated_rig_widens_the_noise_instead_of_losing_its_matches() {
     )
     .expect("valid camera");
     let off_rig = Rig::new([cams[0].clone(), cams[1].clone(), off]).expect("valid rig");
-    let shifted = match_segments(&off_rig, &obs.lists, &everything).expect("valid input");
+    let shifted = pipeline::run(
+        &off_rig,
+        Input::lists(&obs.lists),
+        &Options::with(everything.clone()),
+    )
+    .map(|m| m.output)
+    .expect("valid input");
     println!(
         "exact: {} segments; third camera 0.7 px off: {} segments, noise scale {:.2}, {} inconsistent",
         exact.segments_3d.len(),

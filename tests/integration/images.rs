@@ -10,7 +10,7 @@ use serde_json::{json, Value};
 use trinocular::api::{self, pb};
 use trinocular::extract::{self, edges, gradient, GreyImage, Params};
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::match_images;
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
     edge_recall, render_image, render_triplet, score_capture, standard_capture, Defects,
     RenderParams,
@@ -152,11 +152,14 @@ fn lens_distortion_is_removed_before_the_polygon_fit() {
 fn end_to_end(seed: u64, params: &MatchParams) -> (f64, f64, usize) {
     let (scene, rig, obs) = standard_capture(seed, Defects::clean(), false);
     let images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
-    let result = match_images(
+    let result = pipeline::run(
         &rig,
-        [&images[0], &images[1], &images[2]],
-        &Params::default(),
-        params,
+        Input::Images([&images[0], &images[1], &images[2]]),
+        &Options {
+            params: params.clone(),
+            extract: Params::default(),
+            ..Options::default()
+        },
     )
     .expect("valid input");
     let s = score_capture(&result.output.segments(), &obs, &rig);
@@ -489,11 +492,14 @@ fn cli_extracts_matches_images_and_draws_the_overlay() {
 
     // The same triplets as the library on the same images (the PNG round trip is lossless:
     // the renders are quantised to 8 bits).
-    let lib = match_images(
+    let lib = pipeline::run(
         &rig,
-        [&images[0], &images[1], &images[2]],
-        &Params::default(),
-        &MatchParams::default(),
+        Input::Images([&images[0], &images[1], &images[2]]),
+        &Options {
+            params: MatchParams::default(),
+            extract: Params::default(),
+            ..Options::default()
+        },
     )
     .unwrap();
     let pairs = |t: &[pb::Triplet]| t.iter().map(|t| [t.s1, t.s2, t.s3]).collect::<Vec<_>>();

@@ -5,7 +5,7 @@
 //! (docs/RIGS.md).
 
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::match_segments;
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
     eligible_intervals_with, rig_centre, score, shaped_capture, Defects, RigShape,
@@ -24,7 +24,13 @@ fn exact(shape: RigShape) -> (f64, f64, bool) {
     let mut per_pair = false;
     for seed in SEEDS {
         let (_, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
-        let out = match_segments(&rig, &obs.lists, &params).expect("valid input");
+        let out = pipeline::run(
+            &rig,
+            Input::lists(&obs.lists),
+            &Options::with(params.clone()),
+        )
+        .map(|m| m.output)
+        .expect("valid input");
         per_pair = out.stats.per_pair_rectification;
         let segs: Vec<Segment3> = out.segments();
         let e = eligible_intervals_with(&obs, 20.0, Some(10.0));

@@ -7,9 +7,9 @@
 //!           extract                     pipeline             geometry   matching  matching   matching    reconstruct                    map
 //! ```
 //!
-//! [`pipeline::match_segments`] runs the whole chain on a [`geometry::Rig`] and three
-//! [`segment::SegmentList`]s, [`pipeline::match_images`] on three images. Every stage is a
-//! plain function over plain data:
+//! [`pipeline::run`] runs the whole chain on a [`geometry::Rig`] and three images or three
+//! [`segment::SegmentList`]s ([`pipeline::Input`]), with [`pipeline::Options`]. Every stage
+//! is a plain function over plain data:
 //!
 //! | module | what |
 //! |---|---|

@@ -4,7 +4,8 @@
 //! segment lists ─▶ check + undistort ─▶ rectify ─▶ bucket ─▶ predict ─▶ validate ⇄ reconstruct ─▶ merge fragments (reconstruct)
 //! ```
 //!
-//! From images, [`match_images`] runs [`crate::extract`] on the three first (in parallel).
+//! One entry point, [`run`]: from images it runs [`crate::extract`] on the three first (in
+//! parallel).
 //!
 //! Input problems are errors that name the list, the segment and the coordinate; zero-length
 //! segments are dropped and counted; empty lists give an empty result.
@@ -34,32 +35,86 @@ const RECONSTRUCT_CHUNK: usize = 4096;
 
 pub use crate::checkpoint::{Checkpoint, Stopped};
 
-/// Matching three images: what was extracted from each, and the match of those lists.
+/// What Match works on: three images, whose segments are extracted here (in parallel, view
+/// 1's segment graph feeding validation), or three segment lists, with view 1's graph when
+/// the client knows it (`graph`: indices into `lists[0]`, as [`crate::extract`] finds them;
+/// validation then counts support across those vertices as well as between segments whose
+/// ends are within `neighbour_radius_px`).
+#[derive(Clone, Copy)]
+pub enum Input<'a> {
+    Images([&'a GreyImage; 3]),
+    Lists {
+        lists: &'a [SegmentList; 3],
+        graph: &'a [Adjacent],
+    },
+}
+
+impl<'a> Input<'a> {
+    /// Three segment lists, no graph.
+    pub fn lists(lists: &'a [SegmentList; 3]) -> Input<'a> {
+        Input::Lists { lists, graph: &[] }
+    }
+}
+
+/// How to match: the matcher's parameters, the extractor's (for images), and when to stop
+/// (`checkpoint`, asked between stages: a request's deadline).
+#[derive(Clone)]
+pub struct Options<'a> {
+    pub params: MatchParams,
+    pub extract: extract::Params,
+    pub checkpoint: Checkpoint<'a>,
+}
+
+impl Default for Options<'_> {
+    fn default() -> Self {
+        Options {
+            params: MatchParams::default(),
+            extract: extract::Params::default(),
+            checkpoint: Checkpoint::NEVER,
+        }
+    }
+}
+
+impl Options<'static> {
+    /// The defaults with these matcher parameters.
+    pub fn with(params: MatchParams) -> Options<'static> {
+        Options {
+            params,
+            ..Options::default()
+        }
+    }
+}
+
+/// What Match found: triplets and 3D segments, and from images what was extracted from each.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct ImageMatch {
-    pub extracted: [Extraction; 3],
+pub struct Matched {
     pub output: MatchOutput,
+    pub extracted: Option<[Extraction; 3]>,
 }
 
-/// Extracts the segments of three images (in parallel) and matches them; view 1's segment
-/// graph feeds validation. `stats.total_ms` of the output covers extraction too.
-pub fn match_images(
-    rig: &Rig,
-    images: [&GreyImage; 3],
-    extract_params: &extract::Params,
-    params: &MatchParams,
-) -> Result<ImageMatch, MatchError> {
-    match_images_until(rig, images, extract_params, params, Checkpoint::NEVER)
+/// Matches three views seen by `rig` and reconstructs the 3D segments: the one entry point
+/// of the pipeline. From images, `stats.total_ms` of the output covers extraction too.
+pub fn run(rig: &Rig, input: Input, options: &Options) -> Result<Matched, MatchError> {
+    match input {
+        Input::Images(images) => match_images(rig, images, options),
+        Input::Lists { lists, graph } => Ok(Matched {
+            output: match_lists(rig, lists, graph, &options.params, options.checkpoint)?,
+            extracted: None,
+        }),
+    }
 }
 
-/// [`match_images`], stopping between stages when `checkpoint` says so.
-pub fn match_images_until(
+fn match_images(
     rig: &Rig,
     images: [&GreyImage; 3],
-    extract_params: &extract::Params,
-    params: &MatchParams,
-    checkpoint: Checkpoint,
-) -> Result<ImageMatch, MatchError> {
+    options: &Options,
+) -> Result<Matched, MatchError> {
+    let Options {
+        params,
+        extract: extract_params,
+        checkpoint,
+    } = options;
+    let checkpoint = *checkpoint;
     let start = Instant::now();
     params.check()?;
     extract_params.check()?;
@@ -86,7 +141,7 @@ pub fn match_images_until(
         second.segments.clone(),
         third.segments.clone(),
     ];
-    let mut output = match_segments_until(rig, &lists, &first.graph, params, checkpoint)?;
+    let mut output = match_lists(rig, &lists, &first.graph, params, checkpoint)?;
     output.stats.extract_ms = Some([
         first.stats.total_ms,
         second.stats.total_ms,
@@ -98,9 +153,9 @@ pub fn match_images_until(
         third.stats.smoothing_sigma_px,
     ]);
     output.stats.total_ms = ms(start);
-    Ok(ImageMatch {
-        extracted: [first, second, third],
+    Ok(Matched {
         output,
+        extracted: Some([first, second, third]),
     })
 }
 
@@ -580,29 +635,8 @@ impl<'a> Observations<'a> {
     }
 }
 
-/// Matches three segment lists seen by `rig` and reconstructs the 3D segments.
-pub fn match_segments(
-    rig: &Rig,
-    lists: &[SegmentList; 3],
-    params: &MatchParams,
-) -> Result<MatchOutput, MatchError> {
-    match_segments_with_graph(rig, lists, &[], params)
-}
-
-/// [`match_segments`], told which segments of view 1 meet (`graph`, indices into
-/// `lists[0]`, as [`crate::extract`] finds them): validation then counts support across
-/// those vertices as well as between segments whose ends are within `neighbour_radius_px`.
-pub fn match_segments_with_graph(
-    rig: &Rig,
-    lists: &[SegmentList; 3],
-    graph: &[Adjacent],
-    params: &MatchParams,
-) -> Result<MatchOutput, MatchError> {
-    match_segments_until(rig, lists, graph, params, Checkpoint::NEVER)
-}
-
-/// [`match_segments_with_graph`], stopping between stages when `checkpoint` says so.
-pub fn match_segments_until(
+/// Matches three segment lists ([`run`]'s `Input::Lists`).
+fn match_lists(
     rig: &Rig,
     lists: &[SegmentList; 3],
     graph: &[Adjacent],
@@ -1438,6 +1472,15 @@ mod tests {
     use crate::synth::{Pose, RigSpec};
     use nalgebra::Vector2;
 
+    /// [`run`] on three lists with `params`, as most tests ask.
+    fn match_segments(
+        rig: &Rig,
+        lists: &[SegmentList; 3],
+        params: &MatchParams,
+    ) -> Result<MatchOutput, MatchError> {
+        run(rig, Input::lists(lists), &Options::with(params.clone())).map(|m| m.output)
+    }
+
     /// A vertical line 2 m ahead of the rig, as a fit of `chi2` with ends agreeing to
     /// `ends` σ.
     fn line_at(x: f64, z: f64, chi2: f64, ends: f64) -> Line3Estimate {
@@ -1818,11 +1861,15 @@ mod tests {
             let asked = AtomicUsize::new(0);
             let stop = || asked.fetch_add(1, Ordering::Relaxed) >= allowed;
             let checkpoint = Checkpoint::new(&stop);
-            match match_segments_until(&rig, &lists, &[], &MatchParams::default(), checkpoint) {
+            let options = Options {
+                checkpoint,
+                ..Options::default()
+            };
+            match run(&rig, Input::lists(&lists), &options) {
                 Err(MatchError::Stopped { stage }) => stages.push(stage),
-                Ok(output) => {
+                Ok(matched) => {
                     // Let through every checkpoint, it gives what an unstoppable call gives.
-                    assert_eq!(output.triplets, full.triplets);
+                    assert_eq!(matched.output.triplets, full.triplets);
                     break;
                 }
                 Err(e) => panic!("{e}"),

@@ -188,3 +188,16 @@ pub fn runtime() -> tokio::runtime::Runtime {
         .build()
         .expect("runtime")
 }
+
+/// A gRPC client of the server at `url`. The schema's generated client has no `connect` (it
+/// would make every user of the schema compile tonic's transport), so the channel is made
+/// here, as tonic's `connect` would.
+pub async fn grpc_connect(
+    url: String,
+) -> Result<
+    trinocular::api::pb::trinocular_client::TrinocularClient<tonic::transport::Channel>,
+    tonic::transport::Error,
+> {
+    let channel = tonic::transport::Endpoint::new(url)?.connect().await?;
+    Ok(trinocular::api::pb::trinocular_client::TrinocularClient::new(channel))
+}

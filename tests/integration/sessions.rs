@@ -30,7 +30,7 @@ async fn start() -> server::Running {
 type Client = pb::trinocular_client::TrinocularClient<tonic::transport::Channel>;
 
 async fn connect(addr: std::net::SocketAddr) -> Client {
-    Client::connect(format!("http://{addr}"))
+    crate::common::grpc_connect(format!("http://{addr}"))
         .await
         .expect("connect")
         .max_decoding_message_size(64 << 20)

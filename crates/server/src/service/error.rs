@@ -6,7 +6,7 @@ use thiserror::Error;
 use tonic::Code;
 
 use super::pool::PoolError;
-use crate::api::{InputError, RunError};
+use trinocular_schema::{InputError, RunError};
 
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum ServiceError {

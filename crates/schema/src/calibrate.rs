@@ -8,15 +8,15 @@ use std::time::Instant;
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::session::pose_from_pb;
-use super::{camera_to_pb, extract_params, pb, InputError, RunError};
-use crate::calibrate::detect::{detect_until, DetectError};
-use crate::calibrate::estimate::{estimate_camera, CameraFit, EstimateOptions};
-use crate::calibrate::{CalibrationPattern, GridBoard};
-use crate::checkpoint::{Checkpoint, Stopped};
-use crate::extract::decode::DecodeLimits;
-use crate::extract::GreyImage;
-use crate::geometry::{Camera, Rig, RigError};
+use crate::session::pose_from_pb;
+use crate::{camera_to_pb, extract_params, pb, InputError, RunError};
+use trinocular_core::calibrate::detect::{detect_until, DetectError};
+use trinocular_core::calibrate::estimate::{estimate_camera, CameraFit, EstimateOptions};
+use trinocular_core::calibrate::{CalibrationPattern, GridBoard};
+use trinocular_core::checkpoint::{Checkpoint, Stopped};
+use trinocular_core::extract::decode::DecodeLimits;
+use trinocular_core::extract::GreyImage;
+use trinocular_core::geometry::{Camera, Rig, RigError};
 
 /// Where the 3D–2D correspondences come from.
 #[derive(Debug, Clone)]
@@ -35,7 +35,7 @@ pub struct CalibrateInput {
     pub pattern: CalibrationPattern,
     pub source: CalibrateSource,
     pub options: EstimateOptions,
-    pub extract: crate::extract::Params,
+    pub extract: trinocular_core::extract::Params,
     pub rig_from_pattern: Option<Isometry3<f64>>,
     pub names: [String; 3],
 }
@@ -106,7 +106,7 @@ pub fn calibrate_request(
     let names: [String; 3] = match camera_names.len() {
         0 => std::array::from_fn(|i| format!("cam{}", i + 1)),
         3 => {
-            let max = super::convert::MAX_CAMERA_NAME_CHARS;
+            let max = crate::convert::MAX_CAMERA_NAME_CHARS;
             if let Some(i) = (0..3).find(|&i| camera_names[i].chars().count() > max) {
                 return Err(InputError::new(
                     format!("camera_names[{i}]"),
@@ -133,7 +133,7 @@ pub fn calibrate_request(
         .map_err(|e| InputError::new(format!("options.extract.{}", e.field), e.to_string()))?;
     let source = match input {
         Some(pb::calibrate_request::Input::Images(triplet)) => {
-            CalibrateSource::Images(super::images(triplet, limits)?)
+            CalibrateSource::Images(crate::images(triplet, limits)?)
         }
         Some(pb::calibrate_request::Input::Correspondences(c)) => correspondences(c)?,
         None => {

@@ -4,14 +4,18 @@
 //! Every conversion checks what the core cannot: counts and lengths of repeated fields, and
 //! maps core errors to an [`InputError`] that names the offending field by its path in the
 //! request (`calibration.cameras[2].projection`, `segments.lists[1].segments[17].u1`).
+//!
+//! ```text
+//! trinocular-server (use cases, transports) ─▶ trinocular-schema ─▶ trinocular-core (vision)
+//! ```
+//!
+//! Nothing here runs on a compute pool or touches a store: that is the server's. So a client
+//! that speaks the schema compiles no transport or store.
 
 pub mod calibrate;
 pub mod codec;
 pub(crate) mod convert;
 mod fast_json;
-pub mod grpc;
-pub mod grpc_body;
-pub mod http;
 pub mod session;
 
 pub use convert::{

@@ -4,12 +4,12 @@
 use nalgebra::{Matrix3, Matrix3x4, Point2, Vector3};
 
 use super::{pb, InputError};
-use crate::extract::decode::{self, DecodeError, DecodeLimits};
-use crate::extract::{self, Extraction, GreyImage};
-use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
-use crate::matching::MatchParams;
-use crate::pipeline::{self, Checkpoint, MatchError, MatchOutput};
-use crate::segment::{LineNoise, Segment2, SegmentList};
+use trinocular_core::extract::decode::{self, DecodeError, DecodeLimits};
+use trinocular_core::extract::{self, Extraction, GreyImage};
+use trinocular_core::geometry::{Camera, CameraError, Distortion, Rig, RigError};
+use trinocular_core::matching::MatchParams;
+use trinocular_core::pipeline::{self, Checkpoint, MatchError, MatchOutput};
+use trinocular_core::segment::{LineNoise, Segment2, SegmentList};
 
 fn exactly<const N: usize>(field: String, values: &[f64]) -> Result<[f64; N], InputError> {
     <[f64; N]>::try_from(values).map_err(|_| {

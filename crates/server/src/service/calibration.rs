@@ -4,9 +4,9 @@
 use std::time::{Duration, Instant};
 
 use super::{Service, ServiceError};
-use crate::api::{self, pb, InputError};
-use crate::checkpoint::Checkpoint;
-use crate::extract::DecodeLimits;
+use trinocular_core::checkpoint::Checkpoint;
+use trinocular_core::extract::DecodeLimits;
+use trinocular_schema::{self as api, pb, InputError};
 
 impl Service {
     /// Calibrate, recorded under `transport`. `read` produces the request on the compute

@@ -9,7 +9,8 @@
 //! ```
 //!
 //! `trinocular::pipeline` and the core's other modules are [`trinocular_core`]'s;
-//! `trinocular::api` is [`trinocular_schema`] with the server's transports; `trinocular::service` is the server's use cases with its servers and
+//! `trinocular::api` is [`trinocular_schema`] with the server's transports and the running of
+//! a checked request; `trinocular::service` is the server's use cases with its servers and
 //! configuration. The layering itself is the crates' (docs/ARCHITECTURE.md), not these
 //! re-exports'.
 
@@ -18,9 +19,13 @@ pub use trinocular_core::{
     segment, synth,
 };
 
-/// The schema and its conversions ([`trinocular_schema`]), and the transports.
+/// The schema and its conversions ([`trinocular_schema`]), the transports, and the running of
+/// a checked request (its traits, [`RunMatch`] and [`RunCalibration`], must be in scope for
+/// `input.run()`).
 pub mod api {
     pub use trinocular_schema::*;
+    pub use trinocular_server::service::calibration::RunCalibration;
+    pub use trinocular_server::service::matching::{Executed, RunError, RunMatch};
     pub use trinocular_server::{grpc, grpc_body, http};
 }
 

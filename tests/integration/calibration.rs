@@ -5,7 +5,7 @@
 
 use nalgebra::Point3;
 use prost::Message;
-use trinocular::api::{self, pb};
+use trinocular::api::{self, pb, RunCalibration, RunMatch};
 use trinocular::geometry::Rig;
 use trinocular::service::Limits;
 use trinocular::synth::{pattern_views, render_triplet, RenderParams, Rng};

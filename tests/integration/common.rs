@@ -53,7 +53,7 @@ pub fn example_request() -> trinocular::api::pb::MatchRequest {
 /// Runs a JSON request through the API, as the CLI and the service do; returns the failing
 /// field, or the response.
 pub fn run_json(request: &serde_json::Value) -> Result<trinocular::api::pb::MatchResponse, String> {
-    use trinocular::api::{self, RunError};
+    use trinocular::api::{self, RunError, RunMatch};
     let req: api::pb::MatchRequest =
         api::from_json("request", &request.to_string()).map_err(|e| e.field)?;
     let input = api::match_request(&req, &Default::default()).map_err(|e| e.field)?;

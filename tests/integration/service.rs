@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use prost::Message;
-use trinocular::api::{self, pb};
+use trinocular::api::{self, pb, RunMatch};
 use trinocular::service::{server, Limits};
 
 use crate::common::{example_request, runtime, JsonBody};

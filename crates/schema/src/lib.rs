@@ -9,8 +9,9 @@
 //! trinocular-server (use cases, transports) ─▶ trinocular-schema ─▶ trinocular-core (vision)
 //! ```
 //!
-//! Nothing here runs on a compute pool or touches a store: that is the server's. So a client
-//! that speaks the schema compiles no transport or store.
+//! Only conversions live here: running a checked request (the pipeline, the compute pool,
+//! the stores) is the server's. So a client or a robot that speaks the schema compiles no
+//! runtime, transport or store.
 
 pub mod calibrate;
 pub mod codec;
@@ -19,10 +20,9 @@ mod fast_json;
 pub mod session;
 
 pub use convert::{
-    calibration_to_pb, camera_to_pb, extract_params, images, match_params, match_request,
-    match_response, request_size, rig_from_calibration, segment_list_to_pb, segment_lists,
-    triplet_pixels, Executed, MatchInput, MatchSource, RequestLimits, RunError,
-    MAX_SEGMENTS_PER_LIST,
+    calibration_to_pb, camera_to_pb, extract_params, images, match_error, match_params,
+    match_request, match_response, request_size, rig_from_calibration, segment_list_to_pb,
+    segment_lists, triplet_pixels, MatchInput, MatchSource, RequestLimits, MAX_SEGMENTS_PER_LIST,
 };
 pub use fast_json::match_request_from_json;
 

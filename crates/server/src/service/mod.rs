@@ -14,6 +14,7 @@
 pub mod auth;
 pub mod calibration;
 pub mod error;
+pub mod matching;
 pub mod memory;
 pub mod metrics;
 pub mod pool;
@@ -24,9 +25,10 @@ pub mod store;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+use matching::{RunError, RunMatch};
 use trinocular_core::extract::DecodeLimits;
 use trinocular_core::pipeline::Checkpoint;
-use trinocular_schema::{self as api, pb, InputError, RunError};
+use trinocular_schema::{self as api, pb, InputError};
 
 pub use error::{http_status, ServiceError};
 pub use pool::{ComputePool, PoolError};

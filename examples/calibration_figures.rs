@@ -11,7 +11,7 @@
 use std::time::Instant;
 
 use nalgebra::{Matrix3, Matrix4, Point3, Vector3};
-use trinocular::api::{self, pb};
+use trinocular::api::{self, pb, RunCalibration};
 use trinocular::geometry::{Camera, Rig};
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};

@@ -17,7 +17,7 @@ use base64::Engine;
 use clap::Parser;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
-use trinocular::api::{self, pb, RequestLimits};
+use trinocular::api::{self, pb, RequestLimits, RunMatch};
 use trinocular::map::{self, Capture, FuseParams};
 use trinocular::segment::Segment3;
 

@@ -1,20 +1,39 @@
-//! Trinocular as a service: the protobuf schema and its conversions (`api`), the use cases,
-//! stores and transports (`service`), and the demo, over the vision core of
-//! [`trinocular_core`] (re-exported here, module by module, so that `trinocular::pipeline`
-//! and the rest keep their paths).
+//! Trinocular as a library, a CLI and a service: the `trinocular` binary and its demo, over
+//! the workspace's crates, re-exported here so that code written against the single crate
+//! keeps its paths.
 //!
 //! ```text
-//! service (gRPC, HTTP, sessions, stores) ─▶ api (schema, conversions) ─▶ trinocular-core (vision)
+//! trinocular (CLI, demo) ─▶ trinocular-server (use cases, transports)
+//!                                 ─▶ trinocular-schema (messages, conversions)
+//!                                       ─▶ trinocular-core (vision)
 //! ```
 //!
-//! The core knows nothing of the service; `api` depends on it, never the reverse (the
-//! crate boundary enforces it). docs/ARCHITECTURE.md draws the whole tree.
+//! `trinocular::pipeline` and the core's other modules are [`trinocular_core`]'s;
+//! `trinocular::api` is [`trinocular_schema`] with the server's transports and the running of
+//! a checked request; `trinocular::service` is the server's use cases with its servers and
+//! configuration. The layering itself is the crates' (docs/ARCHITECTURE.md), not these
+//! re-exports'.
 
 pub use trinocular_core::{
     angle, calibrate, checkpoint, extract, geometry, map, matching, overlay, pipeline, reconstruct,
     segment, synth,
 };
 
-pub mod api;
+/// The schema and its conversions ([`trinocular_schema`]), the transports, and the running of
+/// a checked request (its traits, [`RunMatch`] and [`RunCalibration`], must be in scope for
+/// `input.run()`).
+pub mod api {
+    pub use trinocular_schema::*;
+    pub use trinocular_server::service::calibration::RunCalibration;
+    pub use trinocular_server::service::matching::{Executed, RunError, RunMatch};
+    pub use trinocular_server::{grpc, grpc_body, http};
+}
+
+/// The use cases, pool, stores and errors ([`trinocular_server::service`]), with the servers,
+/// request ids, TLS and configuration.
+pub mod service {
+    pub use trinocular_server::service::*;
+    pub use trinocular_server::{config, http_server, request_id, server, tls};
+}
+
 pub mod demo;
-pub mod service;

@@ -6,7 +6,9 @@ use std::{fs, path::Path, path::PathBuf, process::ExitCode};
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
-use trinocular::api::{self, pb, Executed, InputError, MatchInput, MatchSource};
+use trinocular::api::{
+    self, pb, Executed, InputError, MatchInput, MatchSource, RunCalibration, RunMatch,
+};
 use trinocular::extract::decode::{self, DecodeLimits};
 use trinocular::overlay;
 

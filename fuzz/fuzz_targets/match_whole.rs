@@ -1,14 +1,14 @@
 //! The whole match of segment input: a structured generator builds a valid-ish rig from a few
 //! numbers and three segment lists (3D segments projected into the views with noise, strays,
 //! duplicates and near-duplicates, now and then one raw number), then the request is converted and matched as the service
-//! does (`api::match_request`, `MatchInput::run_until`), and the answer is checked for
+//! does (`api::match_request`, `RunMatch::run_until`), and the answer is checked for
 //! consistency. At most `MAX_SEGMENTS` segments per list keep one execution short.
 #![no_main]
 
 use arbitrary::{Arbitrary, Unstructured};
 use libfuzzer_sys::fuzz_target;
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
-use trinocular::api::{self, pb, RunError};
+use trinocular::api::{self, pb, RunError, RunMatch};
 use trinocular::geometry::{Camera, Distortion};
 use trinocular::pipeline::Checkpoint;
 

@@ -7,7 +7,7 @@ use libfuzzer_sys::fuzz_target;
 use prost::Message;
 use trinocular::api::calibrate::{calibrate_request, CalibrateSource};
 use trinocular::api::session::{capture_match_request, check_create_session, pose_from_pb};
-use trinocular::api::{self, pb};
+use trinocular::api::{self, pb, RunCalibration};
 use trinocular_fuzz::debug;
 
 /// Largest image side a calibration is run on.

@@ -5,7 +5,7 @@
 
 use nalgebra::Point3;
 use prost::Message;
-use trinocular::api::{self, pb};
+use trinocular::api::{self, pb, RunCalibration, RunMatch};
 use trinocular::geometry::Rig;
 use trinocular::service::Limits;
 use trinocular::synth::{pattern_views, render_triplet, RenderParams, Rng};
@@ -162,13 +162,10 @@ fn calibrate_over_http_as_curl_sends_it_and_over_grpc() {
         assert_eq!(calibration.cameras[0].intrinsics.len(), 9);
 
         // The calibration as is starts a session.
-        let mut grpc = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            running.grpc_addr
-        ))
-        .await
-        .unwrap()
-        .max_decoding_message_size(64 << 20);
+        let mut grpc = crate::common::grpc_connect(format!("http://{}", running.grpc_addr))
+            .await
+            .unwrap()
+            .max_decoding_message_size(64 << 20);
         let session = grpc
             .create_session(pb::CreateSessionRequest {
                 name: "recalibrated".into(),

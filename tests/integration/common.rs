@@ -53,7 +53,7 @@ pub fn example_request() -> trinocular::api::pb::MatchRequest {
 /// Runs a JSON request through the API, as the CLI and the service do; returns the failing
 /// field, or the response.
 pub fn run_json(request: &serde_json::Value) -> Result<trinocular::api::pb::MatchResponse, String> {
-    use trinocular::api::{self, RunError};
+    use trinocular::api::{self, RunError, RunMatch};
     let req: api::pb::MatchRequest =
         api::from_json("request", &request.to_string()).map_err(|e| e.field)?;
     let input = api::match_request(&req, &Default::default()).map_err(|e| e.field)?;
@@ -187,4 +187,17 @@ pub fn runtime() -> tokio::runtime::Runtime {
         .enable_all()
         .build()
         .expect("runtime")
+}
+
+/// A gRPC client of the server at `url`. The schema's generated client has no `connect` (it
+/// would make every user of the schema compile tonic's transport), so the channel is made
+/// here, as tonic's `connect` would.
+pub async fn grpc_connect(
+    url: String,
+) -> Result<
+    trinocular::api::pb::trinocular_client::TrinocularClient<tonic::transport::Channel>,
+    tonic::transport::Error,
+> {
+    let channel = tonic::transport::Endpoint::new(url)?.connect().await?;
+    Ok(trinocular::api::pb::trinocular_client::TrinocularClient::new(channel))
 }

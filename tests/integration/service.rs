@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use prost::Message;
-use trinocular::api::{self, pb};
+use trinocular::api::{self, pb, RunMatch};
 use trinocular::service::{server, Limits};
 
 use crate::common::{example_request, runtime, JsonBody};
@@ -19,7 +19,7 @@ async fn start(limits: Limits) -> server::Running {
 async fn grpc_client(
     running: &server::Running,
 ) -> pb::trinocular_client::TrinocularClient<tonic::transport::Channel> {
-    pb::trinocular_client::TrinocularClient::connect(format!("http://{}", running.grpc_addr))
+    crate::common::grpc_connect(format!("http://{}", running.grpc_addr))
         .await
         .expect("connect")
 }

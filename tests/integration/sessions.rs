@@ -30,7 +30,7 @@ pub(crate) async fn start() -> server::Running {
 pub(crate) type Client = pb::trinocular_client::TrinocularClient<tonic::transport::Channel>;
 
 pub(crate) async fn connect(addr: std::net::SocketAddr) -> Client {
-    Client::connect(format!("http://{addr}"))
+    crate::common::grpc_connect(format!("http://{addr}"))
         .await
         .expect("connect")
         .max_decoding_message_size(64 << 20)

@@ -128,11 +128,7 @@ fn both_ports_serve_tls_to_clients_that_trust_the_certificate_and_nothing_in_cle
         let answer = client.r#match(request).await.expect("Match over TLS");
         assert!(!answer.get_ref().segments_3d.is_empty());
         // Without TLS the gRPC port does not answer.
-        let plain = pb::trinocular_client::TrinocularClient::connect(format!(
-            "http://{}",
-            server.grpc_addr
-        ))
-        .await;
+        let plain = crate::common::grpc_connect(format!("http://{}", server.grpc_addr)).await;
         if let Ok(mut plain) = plain {
             let mut request = tonic::Request::new(example_request());
             request.set_timeout(std::time::Duration::from_secs(5));

@@ -27,9 +27,9 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use clap::Parser;
 use prost::Message;
-use trinocular::api::{self, pb};
-use trinocular::service::store::MemoryStore;
-use trinocular::service::{Limits, Service};
+use trinocular_schema::{self as api, pb};
+use trinocular_server::service::store::MemoryStore;
+use trinocular_server::service::{Limits, Service};
 
 #[derive(Parser)]
 #[command(
@@ -226,7 +226,7 @@ async fn main() -> anyhow::Result<()> {
             .context("inproc://THREADS needs a number of threads")?;
         let limits = Limits {
             threads,
-            max_jobs: trinocular::service::JOBS_PER_THREAD * threads,
+            max_jobs: trinocular_server::service::JOBS_PER_THREAD * threads,
             ..Limits::default()
         };
         let ttl = Duration::from_secs(60);

@@ -3,8 +3,9 @@
 
 use std::sync::Arc;
 
-use trinocular::service::store::MemoryStore;
-use trinocular::service::{server, Limits, Service};
+use trinocular_server::server;
+use trinocular_server::service::store::MemoryStore;
+use trinocular_server::service::{Limits, Service};
 
 fn loadgen(args: &[&str]) -> serde_json::Value {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_trinocular-loadgen"))

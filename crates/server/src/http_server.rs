@@ -5,7 +5,7 @@
 //! connections only as long as its grace period, then cuts them.
 //!
 //! HTTP/1.1 and HTTP/2 (prior knowledge, for h2c clients) on one port, as before; with TLS
-//! ([`super::tls`]) the handshake is done on the connection's own task, within the header
+//! ([`crate::tls`]) the handshake is done on the connection's own task, within the header
 //! timeout, and ALPN picks the protocol.
 
 use std::future::Future;
@@ -26,30 +26,9 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
 use tokio::task::JoinSet;
 
-/// How the HTTP server treats its connections.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ConnectionLimits {
-    /// Connections open at once; past it a new one is answered 503 and closed.
-    pub max_connections: usize,
-    /// Longest wait for a request's headers, from the connection's start or the end of the
-    /// previous answer (so also the idle timeout of a kept-alive connection).
-    pub header_timeout: Duration,
-    /// Longest wait for a request's whole body, from its headers.
-    pub body_timeout: Duration,
-    /// After a stop, how long open connections may finish what they do before being cut.
-    pub shutdown_grace: Duration,
-}
-
-impl Default for ConnectionLimits {
-    fn default() -> Self {
-        ConnectionLimits {
-            max_connections: 1024,
-            header_timeout: Duration::from_secs(10),
-            body_timeout: Duration::from_secs(30),
-            shutdown_grace: Duration::from_secs(10),
-        }
-    }
-}
+// The limits are part of the service's [`Limits`](crate::service::Limits), which the
+// configuration builds; they are kept there so that the service never imports this module.
+pub use crate::service::ConnectionLimits;
 
 /// The body of the answer to a connection past the cap.
 const REFUSAL: &str =

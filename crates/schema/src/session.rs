@@ -1,5 +1,6 @@
 //! Session messages ⇄ domain: poses (checked rigid), the session a `CreateSessionRequest`
-//! describes, the match an `AddCaptureRequest` asks for, and what a store keeps per capture.
+//! describes, the match an `AddCaptureRequest` asks for, what a store keeps per capture, and
+//! the fused map's `Map` message.
 //!
 //! A capture's 3D segments are stored in the rig frame with the capture's pose, not in the
 //! world frame: the map is fused from them when asked, so fusion can improve without
@@ -8,7 +9,8 @@
 use nalgebra::{Isometry3, Matrix3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion};
 
 use super::{match_params, pb, rig_from_calibration, InputError};
-use crate::segment::Segment3;
+use trinocular_core::map::MapSegment;
+use trinocular_core::segment::Segment3;
 
 /// How far a pose's rotation block may be from a rotation (RᵀR − I, determinant − 1).
 pub const POSE_TOLERANCE: f64 = 1e-6;
@@ -138,7 +140,7 @@ pub fn capture_match_request(
 /// An `AddCaptureRequest` (session id left empty) for segment lists seen from `rig_to_world`.
 pub fn segment_capture(
     rig_to_world: &Isometry3<f64>,
-    lists: &[crate::segment::SegmentList; 3],
+    lists: &[trinocular_core::segment::SegmentList; 3],
 ) -> pb::AddCaptureRequest {
     pb::AddCaptureRequest {
         session_id: String::new(),
@@ -169,6 +171,40 @@ pub fn stored_capture_segments(
         })
         .collect();
     Ok((pose, segments))
+}
+
+/// A session's fused map, world frame.
+#[derive(Debug, Clone)]
+pub struct SessionMap {
+    pub session_id: String,
+    pub segments: Vec<MapSegment>,
+    /// Rig pose of each capture, in capture order.
+    pub poses: Vec<Isometry3<f64>>,
+    pub fuse_ms: f64,
+}
+
+/// The `Map` message of a fused map.
+pub fn map_to_pb(map: &SessionMap) -> pb::Map {
+    let point = |p: &nalgebra::Point3<f64>| pb::Point3 {
+        x: p.x,
+        y: p.y,
+        z: p.z,
+    };
+    pb::Map {
+        session_id: map.session_id.clone(),
+        segments: map
+            .segments
+            .iter()
+            .map(|s| pb::MapSegment {
+                start: Some(point(&s.start)),
+                end: Some(point(&s.end)),
+                observations: s.observations,
+                captures: s.captures.clone(),
+            })
+            .collect(),
+        poses: map.poses.iter().map(pose_to_pb).collect(),
+        fuse_ms: map.fuse_ms,
+    }
 }
 
 #[cfg(test)]

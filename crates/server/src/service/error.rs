@@ -5,8 +5,9 @@ use axum::http::StatusCode;
 use thiserror::Error;
 use tonic::Code;
 
+use super::matching::RunError;
 use super::pool::PoolError;
-use crate::api::{InputError, RunError};
+use trinocular_schema::InputError;
 
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum ServiceError {

@@ -4,21 +4,25 @@
 //! Every conversion checks what the core cannot: counts and lengths of repeated fields, and
 //! maps core errors to an [`InputError`] that names the offending field by its path in the
 //! request (`calibration.cameras[2].projection`, `segments.lists[1].segments[17].u1`).
+//!
+//! ```text
+//! trinocular-server (use cases, transports) ─▶ trinocular-schema ─▶ trinocular-core (vision)
+//! ```
+//!
+//! Only conversions live here: running a checked request (the pipeline, the compute pool,
+//! the stores) is the server's. So a client or a robot that speaks the schema compiles no
+//! runtime, transport or store.
 
 pub mod calibrate;
 pub mod codec;
 pub(crate) mod convert;
 mod fast_json;
-pub mod grpc;
-pub mod grpc_body;
-pub mod http;
 pub mod session;
 
 pub use convert::{
-    calibration_to_pb, camera_to_pb, extract_params, images, match_params, match_request,
-    match_response, request_size, rig_from_calibration, segment_list_to_pb, segment_lists,
-    triplet_pixels, Executed, MatchInput, MatchSource, RequestLimits, RunError,
-    MAX_SEGMENTS_PER_LIST,
+    calibration_to_pb, camera_to_pb, extract_params, images, match_error, match_params,
+    match_request, match_response, request_size, rig_from_calibration, segment_list_to_pb,
+    segment_lists, triplet_pixels, MatchInput, MatchSource, RequestLimits, MAX_SEGMENTS_PER_LIST,
 };
 pub use fast_json::match_request_from_json;
 

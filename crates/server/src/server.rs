@@ -9,9 +9,10 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tonic::transport::server::TcpIncoming;
 
-use super::tls::ServerTls;
-use super::Service;
-use crate::api::{grpc, http, pb};
+use crate::service::Service;
+use crate::tls::ServerTls;
+use crate::{grpc, http};
+use trinocular_schema::pb;
 
 /// HTTP/2 flow-control windows of the gRPC server, bytes.
 const H2_STREAM_WINDOW: u32 = 4 << 20;
@@ -70,7 +71,7 @@ pub async fn start_with_tls(
     // Both reflection versions: grpcurl before 1.9 and many other tools only ask v1alpha.
     let reflection = || {
         tonic_reflection::server::Builder::configure()
-            .register_encoded_file_descriptor_set(crate::api::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(trinocular_schema::FILE_DESCRIPTOR_SET)
             .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
     };
     let reflection_v1 = reflection().build_v1().map_err(std::io::Error::other)?;
@@ -92,9 +93,7 @@ pub async fn start_with_tls(
         grpc_server
             .timeout(call_timeout)
             // Each message's bytes come out of the same budget as HTTP bodies.
-            .layer(crate::api::grpc_body::BodyBudgetLayer::new(Arc::clone(
-                &service,
-            )))
+            .layer(crate::grpc_body::BodyBudgetLayer::new(Arc::clone(&service)))
             .http2_keepalive_interval(Some(connections.header_timeout))
             .http2_keepalive_timeout(Some(connections.header_timeout))
             .max_concurrent_streams(Some(GRPC_MAX_STREAMS))
@@ -144,7 +143,7 @@ pub async fn start_with_tls(
     });
     let http_stop = stop.subscribe();
     let app = http::router(Arc::clone(&service));
-    let http = tokio::spawn(super::http_server::serve(
+    let http = tokio::spawn(crate::http_server::serve(
         http_listener,
         app,
         connections,

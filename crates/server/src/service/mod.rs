@@ -1,34 +1,34 @@
-//! The service: the use cases both transports call, the compute pool they run on, the one
-//! error type, and the servers. A thin shell over the core: it decodes, checks, hands the CPU
-//! work to the pool and maps errors; the core knows nothing of it.
+//! The service: the use cases both transports call, the compute pool they run on, the
+//! session stores and the one error type. A thin shell over the core: it decodes, checks,
+//! hands the CPU work to the pool and maps errors; the core knows nothing of it.
 //!
 //! ```text
 //! gRPC (tonic) ─┐                     ┌─ rayon compute pool (admission, catch_unwind)
-//!               ├─▶ Service::match_request ─▶ api::match_request + pipeline
+//!               ├─▶ Service::match_request ─▶ schema::match_request + pipeline
 //! HTTP (axum) ──┘
 //! ```
+//!
+//! The transports (the crate's `grpc`, `http` and `server` modules) call this module; it
+//! imports none of them.
 
 pub mod auth;
 pub mod calibration;
-pub mod config;
 pub mod error;
-pub mod http_server;
+pub mod matching;
 pub mod memory;
 pub mod metrics;
 pub mod pool;
 pub mod priority;
-pub mod request_id;
-pub mod server;
 pub mod sessions;
 pub mod store;
-pub mod tls;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-use crate::api::{self, pb, InputError, RunError};
-use crate::extract::DecodeLimits;
-use crate::pipeline::Checkpoint;
+use matching::{RunError, RunMatch};
+use trinocular_core::extract::DecodeLimits;
+use trinocular_core::pipeline::Checkpoint;
+use trinocular_schema::{self as api, pb, InputError};
 
 pub use error::{http_status, ServiceError};
 pub use pool::{ComputePool, PoolError};
@@ -68,7 +68,7 @@ pub struct Limits {
     /// ([`memory`]) before it decodes or extracts anything.
     pub max_working_bytes: u64,
     /// Connections, header and body timeouts, and the shutdown grace period.
-    pub connections: http_server::ConnectionLimits,
+    pub connections: ConnectionLimits,
 }
 
 /// The default of [`Limits::max_image_pixels`]: 3 megapixels (2048 × 1536), more than robot
@@ -82,6 +82,31 @@ pub const MAX_IMAGE_PIXELS: u64 = 3_000_000;
 /// triplet within the other limits takes on one core.
 pub const MAX_REQUEST_TIME: std::time::Duration = std::time::Duration::from_secs(60);
 
+/// How the HTTP server treats its connections.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConnectionLimits {
+    /// Connections open at once; past it a new one is answered 503 and closed.
+    pub max_connections: usize,
+    /// Longest wait for a request's headers, from the connection's start or the end of the
+    /// previous answer (so also the idle timeout of a kept-alive connection).
+    pub header_timeout: std::time::Duration,
+    /// Longest wait for a request's whole body, from its headers.
+    pub body_timeout: std::time::Duration,
+    /// After a stop, how long open connections may finish what they do before being cut.
+    pub shutdown_grace: std::time::Duration,
+}
+
+impl Default for ConnectionLimits {
+    fn default() -> Self {
+        ConnectionLimits {
+            max_connections: 1024,
+            header_timeout: std::time::Duration::from_secs(10),
+            body_timeout: std::time::Duration::from_secs(30),
+            shutdown_grace: std::time::Duration::from_secs(10),
+        }
+    }
+}
+
 impl Default for Limits {
     fn default() -> Self {
         let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
@@ -94,7 +119,7 @@ impl Default for Limits {
             max_request_time: MAX_REQUEST_TIME,
             max_body_bytes_in_flight: 32 << 20,
             max_working_bytes: 320 << 20,
-            connections: http_server::ConnectionLimits::default(),
+            connections: ConnectionLimits::default(),
         }
     }
 }

@@ -4,12 +4,12 @@
 use nalgebra::{Matrix3, Matrix3x4, Point2, Vector3};
 
 use super::{pb, InputError};
-use crate::extract::decode::{self, DecodeError, DecodeLimits};
-use crate::extract::{self, Extraction, GreyImage};
-use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
-use crate::matching::MatchParams;
-use crate::pipeline::{self, Checkpoint, MatchError, MatchOutput};
-use crate::segment::{LineNoise, Segment2, SegmentList};
+use trinocular_core::extract::decode::{self, DecodeError, DecodeLimits};
+use trinocular_core::extract::{self, Extraction, GreyImage};
+use trinocular_core::geometry::{Camera, CameraError, Distortion, Rig, RigError};
+use trinocular_core::matching::MatchParams;
+use trinocular_core::pipeline::{MatchError, MatchOutput};
+use trinocular_core::segment::{LineNoise, Segment2, SegmentList};
 
 fn exactly<const N: usize>(field: String, values: &[f64]) -> Result<[f64; N], InputError> {
     <[f64; N]>::try_from(values).map_err(|_| {
@@ -614,59 +614,6 @@ pub fn match_request(
     })
 }
 
-/// What running a [`MatchInput`] produced.
-#[derive(Debug, Clone)]
-pub struct Executed {
-    pub output: MatchOutput,
-    /// Image input: what was extracted from each image.
-    pub extracted: Option<[Extraction; 3]>,
-}
-
-impl MatchInput {
-    /// Runs the pipeline on this input, or reports an input error naming the field.
-    pub fn execute(&self) -> Result<Executed, RunError> {
-        self.execute_until(Checkpoint::NEVER)
-    }
-
-    /// [`MatchInput::execute`], stopping between stages when `checkpoint` says so.
-    pub fn execute_until(&self, checkpoint: Checkpoint) -> Result<Executed, RunError> {
-        let input = match &self.source {
-            MatchSource::Segments(lists) => pipeline::Input::lists(lists),
-            MatchSource::Images([a, b, c]) => pipeline::Input::Images([a, b, c]),
-        };
-        let options = pipeline::Options {
-            params: self.params.clone(),
-            extract: self.extract.clone(),
-            checkpoint,
-        };
-        let matched = pipeline::run(&self.rig, input, &options)?;
-        Ok(Executed {
-            output: matched.output,
-            extracted: matched.extracted,
-        })
-    }
-
-    /// The response to this input for what [`MatchInput::execute`] produced: the extracted
-    /// lists are included when the request asked for them.
-    pub fn response(&self, executed: &Executed) -> pb::MatchResponse {
-        let extracted = executed
-            .extracted
-            .as_ref()
-            .filter(|_| self.return_extracted);
-        match_response(&executed.output, extracted)
-    }
-
-    /// [`MatchInput::execute`], then [`MatchInput::response`].
-    pub fn run(&self) -> Result<pb::MatchResponse, RunError> {
-        self.run_until(Checkpoint::NEVER)
-    }
-
-    /// [`MatchInput::execute_until`], then [`MatchInput::response`].
-    pub fn run_until(&self, checkpoint: Checkpoint) -> Result<pb::MatchResponse, RunError> {
-        Ok(self.response(&self.execute_until(checkpoint)?))
-    }
-}
-
 /// A `SegmentList` message.
 pub fn segment_list_to_pb(list: &SegmentList) -> pb::SegmentList {
     pb::SegmentList {
@@ -688,52 +635,42 @@ pub fn segment_list_to_pb(list: &SegmentList) -> pb::SegmentList {
     }
 }
 
-/// Why running a [`MatchInput`] produced no answer.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum RunError {
-    /// The input cannot be matched; names the field.
-    #[error(transparent)]
-    Input(#[from] InputError),
-    /// The checkpoint stopped the pipeline: nobody wants the answer any more.
-    #[error("stopped before {stage}: the result is no longer wanted")]
-    Stopped { stage: &'static str },
-}
-
-impl From<MatchError> for RunError {
-    fn from(e: MatchError) -> RunError {
-        let field = match &e {
-            MatchError::Stopped { stage } => return RunError::Stopped { stage },
-            MatchError::Params(p) => format!("options.{}", p.field()),
-            MatchError::Rectify(_) => "calibration".to_string(),
-            MatchError::NonFiniteCoordinate {
-                list,
-                index,
-                coordinate,
-            }
-            | MatchError::OutOfImage {
-                list,
-                index,
-                coordinate,
-                ..
-            } => format!(
-                "segments.lists[{list}].segments[{index}].{}",
-                coordinate.name()
-            ),
-            MatchError::NegativeGradient { list, index, .. } => {
-                format!("segments.lists[{list}].segments[{index}].gradient")
-            }
-            MatchError::NonPositiveSigma { list, index, field } => {
-                format!("segments.lists[{list}].segments[{index}].{field}")
-            }
-            MatchError::Extract(p) => format!("options.extract.{}", p.field),
-            MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),
-            MatchError::TooManyHypotheses { .. } => "segments".to_string(),
-        };
-        RunError::Input(InputError {
-            field,
-            message: e.to_string(),
-        })
-    }
+/// A pipeline error as the request's fault, naming the field at fault; or, when the
+/// pipeline's checkpoint stopped it (nobody wants the answer any more), the stage it stopped
+/// before.
+pub fn match_error(e: MatchError) -> Result<InputError, &'static str> {
+    let field = match &e {
+        MatchError::Stopped { stage } => return Err(stage),
+        MatchError::Params(p) => format!("options.{}", p.field()),
+        MatchError::Rectify(_) => "calibration".to_string(),
+        MatchError::NonFiniteCoordinate {
+            list,
+            index,
+            coordinate,
+        }
+        | MatchError::OutOfImage {
+            list,
+            index,
+            coordinate,
+            ..
+        } => format!(
+            "segments.lists[{list}].segments[{index}].{}",
+            coordinate.name()
+        ),
+        MatchError::NegativeGradient { list, index, .. } => {
+            format!("segments.lists[{list}].segments[{index}].gradient")
+        }
+        MatchError::NonPositiveSigma { list, index, field } => {
+            format!("segments.lists[{list}].segments[{index}].{field}")
+        }
+        MatchError::Extract(p) => format!("options.extract.{}", p.field),
+        MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),
+        MatchError::TooManyHypotheses { .. } => "segments".to_string(),
+    };
+    Ok(InputError {
+        field,
+        message: e.to_string(),
+    })
 }
 
 fn point3(p: &nalgebra::Point3<f64>) -> pb::Point3 {

@@ -8,10 +8,11 @@ use tonic::metadata::MetadataValue;
 use tonic::{Request, Response, Status};
 use tracing::Instrument;
 
-use super::pb;
+use crate::request_id;
 use crate::service::auth::Caller;
 use crate::service::sessions::map_to_pb;
-use crate::service::{request_id, Service, ServiceError};
+use crate::service::{Service, ServiceError};
+use trinocular_schema::pb;
 
 pub struct GrpcApi {
     service: Arc<Service>,

@@ -29,11 +29,12 @@ use axum::routing::{get, post};
 use axum::Router;
 use prost::Message;
 
-use super::{from_json, pb, to_json, InputError};
+use crate::http_server::timed_out_body;
+use crate::request_id;
 use crate::service::auth::Caller;
-use crate::service::http_server::timed_out_body;
 use crate::service::sessions::{map_to_pb, SessionMap};
-use crate::service::{request_id, Service, ServiceError};
+use crate::service::{Service, ServiceError};
+use trinocular_schema::{from_json, pb, to_json, InputError};
 
 const PROTOBUF: &str = "application/x-protobuf";
 const JSON: &str = "application/json";
@@ -286,7 +287,7 @@ async fn match_handler(
                 } else {
                     std::str::from_utf8(&body)
                         .map_err(|_| InputError::new("request", "the body is not UTF-8 JSON"))
-                        .and_then(super::match_request_from_json)
+                        .and_then(trinocular_schema::match_request_from_json)
                 }
             }),
             Err(e) => return refuse(body_error(&e, e.status(), e.body_text(), max_bytes)),
@@ -572,7 +573,7 @@ async fn get_map(
 
 /// A fused map in `format`.
 fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response, ServiceError> {
-    use crate::map::export;
+    use trinocular_core::map::export;
     let file = |content_type: &'static str, ext: &str, body: Vec<u8>| {
         let disposition = format!("inline; filename=\"map-{}.{ext}\"", map.session_id);
         let mut response = ([(header::CONTENT_TYPE, content_type)], body).into_response();

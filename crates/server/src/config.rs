@@ -39,7 +39,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use super::Limits;
+use crate::service::Limits;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
@@ -53,7 +53,7 @@ pub struct Config {
     pub tls: TlsConfig,
 }
 
-/// TLS on both ports ([`super::tls`]): a PEM certificate chain and its private key; neither
+/// TLS on both ports ([`crate::tls`]): a PEM certificate chain and its private key; neither
 /// leaves both ports plain TCP.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
@@ -64,8 +64,8 @@ pub struct TlsConfig {
     pub key_file: PathBuf,
 }
 
-/// API keys ([`super::auth`]): from `keys_file` and the `TRINOCULAR_API_KEYS` variable; none
-/// at all leaves the service open.
+/// API keys ([`crate::service::auth`]): from `keys_file` and the `TRINOCULAR_API_KEYS`
+/// variable; none at all leaves the service open.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct AuthConfig {
@@ -79,12 +79,12 @@ impl Default for AuthConfig {
     fn default() -> Self {
         AuthConfig {
             keys_file: PathBuf::new(),
-            max_sessions_per_key: super::MAX_SESSIONS_PER_KEY,
+            max_sessions_per_key: crate::service::MAX_SESSIONS_PER_KEY,
         }
     }
 }
 
-/// Where sessions live (see [`super::store::open`]).
+/// Where sessions live (see [`crate::service::store::open`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct StoreConfig {
@@ -154,7 +154,8 @@ pub struct ComputeConfig {
     /// Jobs queued or running at once; 0: two per thread.
     pub max_jobs: usize,
     /// How many nice levels below the compute threads the network threads run (0 to 19; 0:
-    /// the same), so that under overload the CPU goes to admitted work ([`super::priority`]).
+    /// the same), so that under overload the CPU goes to admitted work
+    /// ([`crate::service::priority`]).
     pub network_nice: i32,
 }
 
@@ -163,7 +164,7 @@ impl Default for ComputeConfig {
         ComputeConfig {
             threads: 0,
             max_jobs: 0,
-            network_nice: super::priority::DEFAULT_NETWORK_NICE,
+            network_nice: crate::service::priority::DEFAULT_NETWORK_NICE,
         }
     }
 }
@@ -184,7 +185,7 @@ pub struct LimitsConfig {
 
 impl Default for ServerConfig {
     fn default() -> Self {
-        let connections = super::http_server::ConnectionLimits::default();
+        let connections = crate::http_server::ConnectionLimits::default();
         ServerConfig {
             grpc_addr: SocketAddr::from(([0, 0, 0, 0], 50051)),
             http_addr: SocketAddr::from(([0, 0, 0, 0], 8080)),
@@ -200,11 +201,11 @@ impl Default for LimitsConfig {
     fn default() -> Self {
         LimitsConfig {
             max_message_mib: 32,
-            max_image_pixels: super::Limits::default().max_image_pixels,
-            max_segments_per_list: crate::api::MAX_SEGMENTS_PER_LIST,
-            max_request_ms: super::MAX_REQUEST_TIME.as_millis() as u64,
-            max_bodies_mib: super::Limits::default().max_body_bytes_in_flight >> 20,
-            max_working_mib: super::Limits::default().max_working_bytes >> 20,
+            max_image_pixels: crate::service::Limits::default().max_image_pixels,
+            max_segments_per_list: trinocular_schema::MAX_SEGMENTS_PER_LIST,
+            max_request_ms: crate::service::MAX_REQUEST_TIME.as_millis() as u64,
+            max_bodies_mib: crate::service::Limits::default().max_body_bytes_in_flight >> 20,
+            max_working_mib: crate::service::Limits::default().max_working_bytes >> 20,
         }
     }
 }
@@ -324,7 +325,7 @@ impl Config {
         if self.limits.max_segments_per_list == 0 {
             problems.push("limits.max_segments_per_list must be at least 1".to_string());
         }
-        if let Err(problem) = super::store::check_url(&self.store.url) {
+        if let Err(problem) = crate::service::store::check_url(&self.store.url) {
             problems.push(problem);
         }
         if self.auth.max_sessions_per_key == 0 {
@@ -356,7 +357,7 @@ impl Config {
         Limits {
             threads,
             max_jobs: if self.compute.max_jobs == 0 {
-                super::JOBS_PER_THREAD * threads
+                crate::service::JOBS_PER_THREAD * threads
             } else {
                 self.compute.max_jobs
             },
@@ -366,7 +367,7 @@ impl Config {
             max_request_time: Duration::from_millis(self.limits.max_request_ms),
             max_body_bytes_in_flight: self.limits.max_bodies_mib << 20,
             max_working_bytes: self.limits.max_working_mib << 20,
-            connections: super::http_server::ConnectionLimits {
+            connections: crate::http_server::ConnectionLimits {
                 max_connections: self.server.max_connections,
                 header_timeout: Duration::from_millis(self.server.header_timeout_ms),
                 body_timeout: Duration::from_millis(self.server.body_timeout_ms),
@@ -415,7 +416,7 @@ mod tests {
         assert_eq!(c.limits().max_jobs, 7);
         assert_eq!(
             Config::default().limits().max_jobs,
-            super::super::JOBS_PER_THREAD * Limits::default().threads
+            crate::service::JOBS_PER_THREAD * Limits::default().threads
         );
     }
 

@@ -9,7 +9,7 @@ use prometheus::{
     TextEncoder,
 };
 
-use crate::api::pb;
+use trinocular_schema::pb;
 
 /// Latency buckets, seconds: 1 ms to 10 s.
 const LATENCY_BUCKETS: &[f64] = &[
@@ -151,7 +151,7 @@ impl Metrics {
         self.in_flight.set(in_flight as i64);
         self.overrunning.set(overrunning as i64);
         self.malformed
-            .set(crate::api::codec::malformed_messages() as i64);
+            .set(trinocular_schema::codec::malformed_messages() as i64);
         self.max_jobs.set(max_jobs as i64);
         let mut out = Vec::new();
         // Encoding into a Vec cannot fail for well-formed metrics; an error gives what we have.

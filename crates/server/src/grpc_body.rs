@@ -18,7 +18,7 @@ use http_body::Frame;
 use prost::bytes::Bytes;
 use tonic::body::Body;
 
-use super::grpc::status;
+use crate::grpc::status;
 use crate::service::{BodyReservation, Service};
 
 /// Bytes of a gRPC message prefix: a compression flag, then the length (big-endian u32).

@@ -6,7 +6,7 @@
 //! file, instead of failing every handshake later. The HTTP port offers ALPN `h2` and
 //! `http/1.1`; the gRPC port is tonic's own TLS (ALPN `h2`) over the same identity.
 //! Client certificates are not asked for: callers authenticate with API keys
-//! ([`super::auth`]), which TLS keeps secret on the wire.
+//! ([`crate::service::auth`]), which TLS keeps secret on the wire.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

@@ -8,25 +8,17 @@
 
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use nalgebra::Isometry3;
 use prost::Message;
 
 use super::auth::{public_id, store_id, Caller};
 use super::store::{SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
-use crate::api::session::{capture_match_request, pose_from_pb, pose_to_pb};
-use crate::api::{pb, InputError};
-use crate::map::{self, FuseParams, MapSegment};
+use trinocular_core::map::{self, FuseParams};
+use trinocular_schema::session::{capture_match_request, pose_from_pb, pose_to_pb};
+use trinocular_schema::{pb, InputError};
 
-/// A session's fused map, world frame.
-#[derive(Debug, Clone)]
-pub struct SessionMap {
-    pub session_id: String,
-    pub segments: Vec<MapSegment>,
-    /// Rig pose of each capture, in capture order.
-    pub poses: Vec<Isometry3<f64>>,
-    pub fuse_ms: f64,
-}
+// The fused map and its message are the schema's: the transports answer with it.
+pub use trinocular_schema::session::{map_to_pb, SessionMap};
 
 /// Captures one session may hold: each is stored and fused into every map asked for, so
 /// their number bounds a session's storage and a GetMap's work.
@@ -145,7 +137,7 @@ impl Service {
     ) -> Result<pb::Session, ServiceError> {
         let start = Instant::now();
         let result = async {
-            crate::api::session::check_create_session(&request)?;
+            trinocular_schema::session::check_create_session(&request)?;
             if caller.tenant.is_some() {
                 let held = self.own_sessions(caller).await?.len();
                 if held >= self.max_sessions_per_key {
@@ -411,11 +403,12 @@ fn fuse_stored(
     let mut segments = Vec::with_capacity(captures.len());
     for bytes in captures {
         let capture = pb::StoredCapture::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
-        let (pose, s) = crate::api::session::stored_capture_segments(&capture).map_err(|e| {
-            ServiceError::Internal {
-                detail: format!("stored capture: {e}"),
-            }
-        })?;
+        let (pose, s) =
+            trinocular_schema::session::stored_capture_segments(&capture).map_err(|e| {
+                ServiceError::Internal {
+                    detail: format!("stored capture: {e}"),
+                }
+            })?;
         poses.push(pose);
         segments.push(s);
     }
@@ -440,28 +433,4 @@ fn fuse_stored(
         poses,
         fuse_ms: t.elapsed().as_secs_f64() * 1e3,
     })
-}
-
-/// The `Map` message of a fused map.
-pub fn map_to_pb(map: &SessionMap) -> pb::Map {
-    let point = |p: &nalgebra::Point3<f64>| pb::Point3 {
-        x: p.x,
-        y: p.y,
-        z: p.z,
-    };
-    pb::Map {
-        session_id: map.session_id.clone(),
-        segments: map
-            .segments
-            .iter()
-            .map(|s| pb::MapSegment {
-                start: Some(point(&s.start)),
-                end: Some(point(&s.end)),
-                observations: s.observations,
-                captures: s.captures.clone(),
-            })
-            .collect(),
-        poses: map.poses.iter().map(pose_to_pb).collect(),
-        fuse_ms: map.fuse_ms,
-    }
 }

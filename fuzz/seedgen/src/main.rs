@@ -144,6 +144,8 @@ fn main() {
         neighbour_radius_px: Some(4.0),
         max_residual_px: Some(1.5),
         line_noise_px: Some(0.3),
+        min_gradient: Some(1.0),
+        min_gradient_to_background: Some(2.5),
         max_direction_sigma_deg: Some(90.0),
         extract: Some(pb::ExtractOptions {
             smoothing_sigma_px: Some(1.0),

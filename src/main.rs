@@ -347,7 +347,7 @@ fn run_extract(args: &ExtractArgs) -> Result<(), Failure> {
     let params = api::extract_params(options.as_ref());
     params
         .check()
-        .map_err(|e| InputError::new(format!("options.{}", e.field), e.to_string()))?;
+        .map_err(|e| InputError::new(format!("options.{}", e.field()), e.to_string()))?;
     let extraction = trinocular::extract::extract(&image, None, &params);
     let json = api::to_json(&api::segment_list_to_pb(&extraction.segments));
     match &args.output {

@@ -115,6 +115,26 @@ fn segment_noise_and_the_accuracy_gate_are_checked_by_name() {
 }
 
 #[test]
+fn every_bad_option_is_reported_at_once() {
+    // One round trip tells the client everything to fix: the error names the first field at
+    // fault and its message lists each problem.
+    let mut r = request_json();
+    r["options"] = json!({"tolerancePx": "NaN", "minGradient": -1, "gateConfidence": 1.0});
+    let request: pb::MatchRequest = api::from_json("request", &r.to_string()).unwrap();
+    let err = api::match_request(&request, &Default::default()).unwrap_err();
+    assert_eq!(err.field, "options.tolerance_px");
+    for field in ["tolerance_px", "min_gradient", "gate_confidence"] {
+        assert!(err.message.contains(field), "{field}: {}", err.message);
+    }
+    let mut r = request_json();
+    r["options"] = json!({"extract": {"gradientLow": -1, "maxDeviationPx": 0}});
+    let request: pb::MatchRequest = api::from_json("request", &r.to_string()).unwrap();
+    let err = api::match_request(&request, &Default::default()).unwrap_err();
+    assert_eq!(err.field, "options.extract.gradient_low");
+    assert!(err.message.contains("max_deviation_px"), "{}", err.message);
+}
+
+#[test]
 fn projection_problems_are_named() {
     let mut r = request_json();
     let p = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];

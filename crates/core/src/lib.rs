@@ -32,6 +32,7 @@ pub mod geometry;
 pub mod map;
 pub mod matching;
 pub mod overlay;
+pub mod params;
 pub mod pipeline;
 pub mod reconstruct;
 pub mod segment;

@@ -20,7 +20,7 @@ use crate::extract::{self, Adjacent, Extraction, GreyImage};
 use crate::geometry::{
     Line3Estimate, LineObservation, Rectification, RectifyError, Rig, RigFrames,
 };
-use crate::matching::{self, Hypothesis, MatchParams, ParamError, RectSegment, Views};
+use crate::matching::{self, Hypothesis, MatchParams, ParamErrors, RectSegment, Views};
 use crate::reconstruct::{fragment_groups, reconstruct, reconstruct_fragments, reconstruct_pieces};
 use crate::segment::{CrowdingModel, LineNoise, Segment3, SegmentList};
 
@@ -116,8 +116,8 @@ fn match_images(
     } = options;
     let checkpoint = *checkpoint;
     let start = Instant::now();
-    params.check()?;
-    extract_params.check()?;
+    params.check().map_err(MatchError::Params)?;
+    extract_params.check().map_err(MatchError::Extract)?;
     for (view, image) in images.iter().enumerate() {
         let cam = rig.camera(view);
         if (image.width(), image.height()) != (cam.width(), cam.height()) {
@@ -276,8 +276,9 @@ impl Coordinate {
 
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum MatchError {
+    /// The matcher's parameters (`MatchOptions`), every problem.
     #[error(transparent)]
-    Params(#[from] ParamError),
+    Params(ParamErrors),
     #[error(transparent)]
     Rectify(#[from] RectifyError),
     #[error("list {list}, segment {index}: {} is not a finite number", coordinate.name())]
@@ -298,8 +299,9 @@ pub enum MatchError {
         width: u32,
         height: u32,
     },
+    /// The extractor's parameters (`MatchOptions.extract`), every problem.
     #[error(transparent)]
-    Extract(#[from] extract::ParamError),
+    Extract(ParamErrors),
     #[error(
         "image {view}: {width}x{height} pixels, but its camera is {expected_width}x{expected_height}"
     )]
@@ -644,7 +646,7 @@ fn match_lists(
     checkpoint: Checkpoint,
 ) -> Result<MatchOutput, MatchError> {
     let start = Instant::now();
-    params.check()?;
+    params.check().map_err(MatchError::Params)?;
     checkpoint.before("rectify")?;
     let mut zero = [0u32; 3];
     for (i, list) in lists.iter().enumerate() {

@@ -123,7 +123,7 @@ pub fn calibrate_request(
     let extract = extract_params(options.as_ref().and_then(|o| o.extract.as_ref()));
     extract
         .check()
-        .map_err(|e| InputError::new(format!("options.extract.{}", e.field), e.to_string()))?;
+        .map_err(|e| InputError::new(format!("options.extract.{}", e.field()), e.to_string()))?;
     let source = match input {
         Some(pb::calibrate_request::Input::Images(triplet)) => {
             CalibrateSource::Images(crate::images(triplet, limits)?)

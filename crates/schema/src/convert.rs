@@ -587,7 +587,7 @@ pub fn match_request(
     let extract = extract_params(options.as_ref().and_then(|o| o.extract.as_ref()));
     extract
         .check()
-        .map_err(|e| InputError::new(format!("options.extract.{}", e.field), e.to_string()))?;
+        .map_err(|e| InputError::new(format!("options.extract.{}", e.field()), e.to_string()))?;
     let return_extracted = options
         .as_ref()
         .and_then(|o| o.return_extracted)
@@ -663,7 +663,7 @@ pub fn match_error(e: MatchError) -> Result<InputError, &'static str> {
         MatchError::NonPositiveSigma { list, index, field } => {
             format!("segments.lists[{list}].segments[{index}].{field}")
         }
-        MatchError::Extract(p) => format!("options.extract.{}", p.field),
+        MatchError::Extract(p) => format!("options.extract.{}", p.field()),
         MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),
         MatchError::TooManyHypotheses { .. } => "segments".to_string(),
     };

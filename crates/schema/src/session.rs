@@ -107,7 +107,7 @@ pub fn check_create_session(request: &pb::CreateSessionRequest) -> Result<(), In
         .map_err(|e| InputError::new(format!("options.{}", e.field()), e.to_string()))?;
     super::extract_params(options.as_ref().and_then(|o| o.extract.as_ref()))
         .check()
-        .map_err(|e| InputError::new(format!("options.extract.{}", e.field), e.to_string()))?;
+        .map_err(|e| InputError::new(format!("options.extract.{}", e.field()), e.to_string()))?;
     if let Some(pb::MapOptions {
         min_observations: Some(0),
     }) = map_options

@@ -29,10 +29,10 @@ pub mod scale;
 use std::time::Instant;
 
 use nalgebra::Point2;
-use thiserror::Error;
 
 use crate::checkpoint::{Checkpoint, Stopped};
 use crate::geometry::Camera;
+use crate::params::{check_all, Rule};
 use crate::segment::{CrowdingModel, LineNoise, Segment2, SegmentList};
 
 pub use self::image::GreyImage;
@@ -67,65 +67,48 @@ impl Default for Params {
 }
 
 /// A parameter out of its domain; `field` is the schema's `ExtractOptions` field name.
-#[derive(Debug, Clone, PartialEq, Error)]
-#[error("{field} must be {requirement}, got {value}")]
-pub struct ParamError {
-    pub field: &'static str,
-    pub value: f64,
-    pub requirement: &'static str,
-}
+pub use crate::params::{ParamError, ParamErrors};
 
 /// Largest smoothing accepted, pixels: beyond it edges of a room-scale image melt together,
 /// and the kernel cost grows with σ.
 pub const MAX_SMOOTHING_SIGMA_PX: f64 = 10.0;
 
 impl Params {
-    /// Checks every field; reports the first problem.
-    pub fn check(&self) -> Result<(), ParamError> {
-        let fail = |field, value, requirement| {
-            Err(ParamError {
-                field,
-                value,
-                requirement,
-            })
-        };
-        if let Some(sigma) = self.smoothing_sigma_px {
-            if !(0.0..=MAX_SMOOTHING_SIGMA_PX).contains(&sigma) {
-                return fail("smoothing_sigma_px", sigma, "between 0 and 10");
-            }
-        }
-        let checks: [(&'static str, f64, bool, &'static str); 4] = [
-            (
+    /// Checks every field; reports every problem.
+    pub fn check(&self) -> Result<(), ParamErrors> {
+        let sigma = self.smoothing_sigma_px.unwrap_or(0.0);
+        check_all([
+            Rule::new(
+                "smoothing_sigma_px",
+                sigma,
+                (0.0..=MAX_SMOOTHING_SIGMA_PX).contains(&sigma),
+                "between 0 and 10",
+            ),
+            Rule::new(
                 "gradient_low",
                 self.gradient_low,
                 self.gradient_low >= 0.0 && self.gradient_low.is_finite(),
                 "a finite number at least 0",
             ),
-            (
+            Rule::new(
                 "gradient_high",
                 self.gradient_high,
                 self.gradient_high >= self.gradient_low && self.gradient_high.is_finite(),
                 "a finite number at least gradient_low",
             ),
-            (
+            Rule::new(
                 "max_deviation_px",
                 self.max_deviation_px,
                 self.max_deviation_px > 0.0 && self.max_deviation_px.is_finite(),
                 "a finite number greater than 0",
             ),
-            (
+            Rule::new(
                 "min_segment_px",
                 self.min_segment_px,
                 self.min_segment_px >= 0.0 && self.min_segment_px.is_finite(),
                 "a finite number at least 0",
             ),
-        ];
-        for (field, value, ok, requirement) in checks {
-            if !ok {
-                return fail(field, value, requirement);
-            }
-        }
-        Ok(())
+        ])
     }
 }
 
@@ -815,7 +798,7 @@ mod tests {
             ),
         ];
         for (params, field) in bad {
-            assert_eq!(params.check().unwrap_err().field, field);
+            assert_eq!(params.check().unwrap_err().field(), field);
         }
     }
 }

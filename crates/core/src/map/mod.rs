@@ -17,6 +17,7 @@ mod tests;
 
 use nalgebra::{Isometry3, Point3};
 
+use crate::params::{check_all, Rule};
 use crate::segment::Segment3;
 
 pub use fuse::fuse;
@@ -69,60 +70,44 @@ impl Default for FuseParams {
 }
 
 /// A [`FuseParams`] field out of range.
-#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error("{field} must be {requirement}, got {value}")]
-pub struct ParamError {
-    pub field: &'static str,
-    pub value: f64,
-    pub requirement: &'static str,
-}
+pub use crate::params::{ParamError, ParamErrors};
 
 impl FuseParams {
-    /// Checks every field; reports the first problem.
-    pub fn check(&self) -> Result<(), ParamError> {
-        let rules: [(&'static str, f64, bool, &'static str); 5] = [
-            (
+    /// Checks every field; reports every problem. (`contains` and comparisons are false for
+    /// NaN, so non-finite values fail too.)
+    pub fn check(&self) -> Result<(), ParamErrors> {
+        check_all([
+            Rule::new(
                 "lateral_m",
                 self.lateral_m,
                 self.lateral_m > 0.0 && self.lateral_m <= 10.0,
                 "in (0, 10]",
             ),
-            (
+            Rule::new(
                 "lateral_rel",
                 self.lateral_rel,
                 (0.0..=1.0).contains(&self.lateral_rel),
                 "in [0, 1]",
             ),
-            (
+            Rule::new(
                 "angle_deg",
                 self.angle_deg,
                 self.angle_deg > 0.0 && self.angle_deg <= 45.0,
                 "in (0, 45]",
             ),
-            (
+            Rule::new(
                 "max_gap_m",
                 self.max_gap_m,
                 (0.0..=100.0).contains(&self.max_gap_m),
                 "in [0, 100]",
             ),
-            (
+            Rule::new(
                 "min_observations",
                 f64::from(self.min_observations),
                 self.min_observations >= 1,
                 "at least 1",
             ),
-        ];
-        // `contains` and comparisons are false for NaN, so non-finite values fail here too.
-        for (field, value, ok, requirement) in rules {
-            if !ok {
-                return Err(ParamError {
-                    field,
-                    value,
-                    requirement,
-                });
-            }
-        }
-        Ok(())
+        ])
     }
 }
 

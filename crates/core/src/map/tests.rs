@@ -53,7 +53,7 @@ fn default_params_pass_and_bad_ones_name_their_field() {
     let bad = |f: fn(&mut FuseParams)| {
         let mut p = FuseParams::default();
         f(&mut p);
-        p.check().unwrap_err().field
+        p.check().unwrap_err().field()
     };
     assert_eq!(bad(|p| p.lateral_m = 0.0), "lateral_m");
     assert_eq!(bad(|p| p.lateral_rel = f64::NAN), "lateral_rel");

@@ -11,7 +11,8 @@ pub mod predict;
 pub mod validate;
 
 use nalgebra::{Point2, Vector2};
-use thiserror::Error;
+
+use crate::params::{check_all, Rule};
 
 pub use predict::{predict, predict_in_frames_until, predict_until, Hypothesis, PredictError};
 pub use validate::{adjacency, rank, rank_until, select, validate};
@@ -94,173 +95,119 @@ impl Default for MatchParams {
 }
 
 /// A parameter out of its domain; `field` is the schema's `MatchOptions` field name.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum ParamError {
-    #[error("{field} must be a finite number, got {value}")]
-    NonFinite { field: &'static str, value: f64 },
-    #[error("{field} must be {requirement}, got {value}")]
-    OutOfRange {
-        field: &'static str,
-        value: f64,
-        requirement: &'static str,
-    },
-}
-
-impl ParamError {
-    pub fn field(&self) -> &'static str {
-        match self {
-            ParamError::NonFinite { field, .. } | ParamError::OutOfRange { field, .. } => field,
-        }
-    }
-}
+pub use crate::params::{ParamError, ParamErrors};
 
 impl MatchParams {
-    /// Checks every field; reports the first problem.
-    pub fn check(&self) -> Result<(), ParamError> {
-        let fields: [(&'static str, f64); 17] = [
-            ("depth_min_m", self.depth_min_m),
-            ("depth_max_m", self.depth_max_m),
-            ("tolerance_px", self.tolerance_px),
-            ("angle_tolerance_deg", self.angle_tolerance_deg),
-            (
+    /// Checks every field; reports every problem. Every field must be finite as well as in
+    /// its range.
+    pub fn check(&self) -> Result<(), ParamErrors> {
+        let rule = |field, value: f64, ok: bool, requirement| {
+            Rule::new(field, value, value.is_finite() && ok, requirement)
+        };
+        check_all([
+            rule(
+                "depth_min_m",
+                self.depth_min_m,
+                self.depth_min_m > 0.0,
+                "a finite number greater than 0",
+            ),
+            rule(
+                "depth_max_m",
+                self.depth_max_m,
+                self.depth_max_m > self.depth_min_m,
+                "a finite number greater than depth_min_m",
+            ),
+            rule(
+                "tolerance_px",
+                self.tolerance_px,
+                self.tolerance_px > 0.0 && self.tolerance_px <= 50.0,
+                "a finite number in (0, 50]",
+            ),
+            rule(
+                "angle_tolerance_deg",
+                self.angle_tolerance_deg,
+                self.angle_tolerance_deg > 0.0 && self.angle_tolerance_deg <= 90.0,
+                "a finite number in (0, 90]",
+            ),
+            rule(
                 "verify_angle_tolerance_deg",
                 self.verify_angle_tolerance_deg,
+                self.verify_angle_tolerance_deg >= 0.0 && self.verify_angle_tolerance_deg <= 45.0,
+                "a finite number in [0, 45]",
             ),
-            ("min_length_px", self.min_length_px),
-            ("gradient_ratio_max", self.gradient_ratio_max),
-            ("min_gradient", self.min_gradient),
-            (
+            rule(
+                "min_length_px",
+                self.min_length_px,
+                self.min_length_px >= 0.0,
+                "a finite number at least 0",
+            ),
+            rule(
+                "gradient_ratio_max",
+                self.gradient_ratio_max,
+                self.gradient_ratio_max >= 1.0,
+                "a finite number at least 1",
+            ),
+            rule(
+                "min_gradient",
+                self.min_gradient,
+                self.min_gradient >= 0.0,
+                "a finite number at least 0",
+            ),
+            rule(
                 "min_gradient_to_background",
                 self.min_gradient_to_background,
+                self.min_gradient_to_background >= 0.0,
+                "a finite number at least 0",
             ),
-            ("neighbour_radius_px", self.neighbour_radius_px),
-            ("max_residual_px", self.max_residual_px),
-            ("line_noise_px", self.line_noise_px),
-            ("max_direction_sigma_deg", self.max_direction_sigma_deg),
-            ("gate_direction_deg", self.gate_direction_deg),
-            ("gate_position_m", self.gate_position_m),
-            ("gate_position_rel", self.gate_position_rel),
-            ("gate_confidence", self.gate_confidence),
-        ];
-        for (field, value) in fields {
-            if !value.is_finite() {
-                return Err(ParamError::NonFinite { field, value });
-            }
-        }
-        let positive = "greater than 0";
-        let check = |ok: bool, field: &'static str, value: f64, requirement: &'static str| {
-            if ok {
-                Ok(())
-            } else {
-                Err(ParamError::OutOfRange {
-                    field,
-                    value,
-                    requirement,
-                })
-            }
-        };
-        check(
-            self.depth_min_m > 0.0,
-            "depth_min_m",
-            self.depth_min_m,
-            positive,
-        )?;
-        check(
-            self.depth_max_m > self.depth_min_m,
-            "depth_max_m",
-            self.depth_max_m,
-            "greater than depth_min_m",
-        )?;
-        check(
-            self.tolerance_px > 0.0 && self.tolerance_px <= 50.0,
-            "tolerance_px",
-            self.tolerance_px,
-            "in (0, 50]",
-        )?;
-        check(
-            self.angle_tolerance_deg > 0.0 && self.angle_tolerance_deg <= 90.0,
-            "angle_tolerance_deg",
-            self.angle_tolerance_deg,
-            "in (0, 90]",
-        )?;
-        check(
-            self.verify_angle_tolerance_deg >= 0.0 && self.verify_angle_tolerance_deg <= 45.0,
-            "verify_angle_tolerance_deg",
-            self.verify_angle_tolerance_deg,
-            "in [0, 45]",
-        )?;
-        check(
-            self.min_length_px >= 0.0,
-            "min_length_px",
-            self.min_length_px,
-            "at least 0",
-        )?;
-        check(
-            self.min_gradient >= 0.0,
-            "min_gradient",
-            self.min_gradient,
-            "at least 0",
-        )?;
-        check(
-            self.min_gradient_to_background >= 0.0,
-            "min_gradient_to_background",
-            self.min_gradient_to_background,
-            "at least 0",
-        )?;
-        check(
-            self.gradient_ratio_max >= 1.0,
-            "gradient_ratio_max",
-            self.gradient_ratio_max,
-            "at least 1",
-        )?;
-        check(
-            self.neighbour_radius_px >= 0.0 && self.neighbour_radius_px <= 100.0,
-            "neighbour_radius_px",
-            self.neighbour_radius_px,
-            "in [0, 100]",
-        )?;
-        check(
-            self.max_residual_px > 0.0,
-            "max_residual_px",
-            self.max_residual_px,
-            positive,
-        )?;
-        check(
-            self.line_noise_px > 0.0,
-            "line_noise_px",
-            self.line_noise_px,
-            positive,
-        )?;
-        check(
-            self.max_direction_sigma_deg > 0.0,
-            "max_direction_sigma_deg",
-            self.max_direction_sigma_deg,
-            positive,
-        )?;
-        check(
-            self.gate_direction_deg > 0.0 && self.gate_direction_deg <= 180.0,
-            "gate_direction_deg",
-            self.gate_direction_deg,
-            "in (0, 180]",
-        )?;
-        check(
-            self.gate_position_m > 0.0,
-            "gate_position_m",
-            self.gate_position_m,
-            positive,
-        )?;
-        check(
-            self.gate_position_rel >= 0.0,
-            "gate_position_rel",
-            self.gate_position_rel,
-            "at least 0",
-        )?;
-        check(
-            self.gate_confidence > 0.0 && self.gate_confidence < 1.0,
-            "gate_confidence",
-            self.gate_confidence,
-            "in (0, 1)",
-        )
+            rule(
+                "neighbour_radius_px",
+                self.neighbour_radius_px,
+                self.neighbour_radius_px >= 0.0 && self.neighbour_radius_px <= 100.0,
+                "a finite number in [0, 100]",
+            ),
+            rule(
+                "max_residual_px",
+                self.max_residual_px,
+                self.max_residual_px > 0.0,
+                "a finite number greater than 0",
+            ),
+            rule(
+                "line_noise_px",
+                self.line_noise_px,
+                self.line_noise_px > 0.0,
+                "a finite number greater than 0",
+            ),
+            rule(
+                "max_direction_sigma_deg",
+                self.max_direction_sigma_deg,
+                self.max_direction_sigma_deg > 0.0,
+                "a finite number greater than 0",
+            ),
+            rule(
+                "gate_direction_deg",
+                self.gate_direction_deg,
+                self.gate_direction_deg > 0.0 && self.gate_direction_deg <= 180.0,
+                "a finite number in (0, 180]",
+            ),
+            rule(
+                "gate_position_m",
+                self.gate_position_m,
+                self.gate_position_m > 0.0,
+                "a finite number greater than 0",
+            ),
+            rule(
+                "gate_position_rel",
+                self.gate_position_rel,
+                self.gate_position_rel >= 0.0,
+                "a finite number at least 0",
+            ),
+            rule(
+                "gate_confidence",
+                self.gate_confidence,
+                self.gate_confidence > 0.0 && self.gate_confidence < 1.0,
+                "a finite number in (0, 1)",
+            ),
+        ])
     }
 }
 
@@ -324,4 +271,24 @@ pub struct Views<'a> {
     pub segments: [&'a [RectSegment]; 3],
     /// True when all three lists are oriented by contrast.
     pub oriented: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_problem_of_the_parameters_is_reported_once_in_field_order() {
+        let params = MatchParams {
+            tolerance_px: f64::NAN,
+            min_gradient: -1.0,
+            gate_confidence: 1.0,
+            ..MatchParams::default()
+        };
+        let e = params.check().unwrap_err();
+        let fields: Vec<_> = e.problems().iter().map(|p| p.field).collect();
+        assert_eq!(fields, ["tolerance_px", "min_gradient", "gate_confidence"]);
+        assert_eq!(e.field(), "tolerance_px");
+        assert!(MatchParams::default().check().is_ok());
+    }
 }

@@ -174,6 +174,13 @@ fn bad_input_is_invalid_argument_naming_the_field_on_both_transports() {
             "{}",
             status.message()
         );
+        // The field, as a google.rpc.BadRequest field violation (tonic-types reads it).
+        let violations = tonic_types::StatusExt::get_details_bad_request(&status)
+            .expect("a BadRequest detail")
+            .field_violations;
+        assert_eq!(violations.len(), 1, "{violations:?}");
+        assert_eq!(violations[0].field, "calibration.cameras[2].projection");
+        assert!(!violations[0].description.is_empty());
 
         let http = reqwest::Client::new();
         let url = format!("http://{}/v1/match", running.http_addr);

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use tonic::metadata::MetadataValue;
 use tonic::{Request, Response, Status};
+use tonic_types::{ErrorDetails, StatusExt};
 use tracing::Instrument;
 
 use crate::request_id;
@@ -25,9 +26,18 @@ impl GrpcApi {
 }
 
 /// The status of a service error: its code, and its message (`field: what is wrong` for
-/// input errors).
+/// input errors). An input error also carries the field as a `google.rpc.BadRequest` field
+/// violation, the gRPC richer error model's standard detail, so a client reads which field
+/// is at fault without parsing the message, as an HTTP client reads the JSON error's `field`.
 pub fn status(e: &ServiceError) -> Status {
-    Status::new(e.code(), e.to_string())
+    match e {
+        ServiceError::Input(input) => Status::with_error_details(
+            e.code(),
+            e.to_string(),
+            ErrorDetails::with_bad_request_violation(input.field.clone(), input.message.clone()),
+        ),
+        _ => Status::new(e.code(), e.to_string()),
+    }
 }
 
 /// The `grpc-timeout` header's duration (`<digits><unit>`, unit one of H M S m u n).

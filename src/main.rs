@@ -56,9 +56,9 @@ struct CalibrateArgs {
     #[arg(long)]
     options: Option<PathBuf>,
     /// A Pose in proto3 JSON mapping pattern-frame points to the rig frame: the calibration
-    /// is then in the rig frame.
-    #[arg(long)]
-    rig_from_pattern: Option<PathBuf>,
+    /// is then in the rig frame. (`--rig-from-pattern`, its former name, still works.)
+    #[arg(long, alias = "rig-from-pattern")]
+    pattern_to_rig: Option<PathBuf>,
     /// Write the Calibration here instead of stdout.
     #[arg(short, long)]
     output: Option<PathBuf>,
@@ -311,8 +311,8 @@ fn run_calibrate(args: &CalibrateArgs) -> Result<(), Failure> {
             None => None,
         },
         input: Some(input),
-        rig_from_pattern: match json("rig-from-pattern", &args.rig_from_pattern)? {
-            Some(text) => Some(api::from_json("rig_from_pattern", &text)?),
+        pattern_to_rig: match json("pattern-to-rig", &args.pattern_to_rig)? {
+            Some(text) => Some(api::from_json("pattern_to_rig", &text)?),
             None => None,
         },
         options: match json("options", &args.options)? {

@@ -31,7 +31,7 @@ fn request(images: Vec<pb::Image>) -> pb::CalibrateRequest {
         input: Some(pb::calibrate_request::Input::Images(pb::ImageTriplet {
             images,
         })),
-        rig_from_pattern: None,
+        pattern_to_rig: None,
         options: None,
         camera_names: Vec::new(),
     }

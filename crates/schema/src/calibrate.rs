@@ -5,7 +5,7 @@
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
 use crate::session::pose_from_pb;
-use crate::{extract_params, pb, InputError};
+use crate::{extract_params, from_json, pb, InputError};
 use trinocular_core::calibrate::estimate::EstimateOptions;
 use trinocular_core::calibrate::{CalibrationPattern, GridBoard};
 use trinocular_core::extract::decode::DecodeLimits;
@@ -22,6 +22,34 @@ pub enum CalibrateSource {
     },
 }
 
+/// The name `CalibrateRequest.pattern_to_rig` had before the schema named every frame
+/// transform source_to_target (like `rig_to_world`); requests that use it are still read.
+pub const LEGACY_PATTERN_TO_RIG: &str = "rig_from_pattern";
+
+/// Parses a `CalibrateRequest` from proto3 JSON, reading the pose under its former name
+/// (`rigFromPattern` or `rig_from_pattern`) as `patternToRig`.
+pub fn calibrate_request_from_json(text: &str) -> Result<pb::CalibrateRequest, InputError> {
+    if !(text.contains("rigFromPattern") || text.contains(LEGACY_PATTERN_TO_RIG)) {
+        return from_json("request", text);
+    }
+    let mut value: serde_json::Value = from_json("request", text)?;
+    if let Some(fields) = value.as_object_mut() {
+        for legacy in ["rigFromPattern", LEGACY_PATTERN_TO_RIG] {
+            if let Some(pose) = fields.remove(legacy) {
+                if fields.contains_key("patternToRig") || fields.contains_key("pattern_to_rig") {
+                    return Err(InputError::new(
+                        "pattern_to_rig",
+                        format!("given twice, also as {legacy} (its former name): give one"),
+                    ));
+                }
+                fields.insert("patternToRig".to_string(), pose);
+            }
+        }
+    }
+    serde_json::from_value(value)
+        .map_err(|e| InputError::new("request", format!("invalid JSON: {e}")))
+}
+
 /// A checked `CalibrateRequest`.
 #[derive(Debug, Clone)]
 pub struct CalibrateInput {
@@ -29,7 +57,7 @@ pub struct CalibrateInput {
     pub source: CalibrateSource,
     pub options: EstimateOptions,
     pub extract: trinocular_core::extract::Params,
-    pub rig_from_pattern: Option<Isometry3<f64>>,
+    pub pattern_to_rig: Option<Isometry3<f64>>,
     pub names: [String; 3],
 }
 
@@ -91,7 +119,7 @@ pub fn calibrate_request(
     let pb::CalibrateRequest {
         pattern,
         input,
-        rig_from_pattern,
+        pattern_to_rig,
         options,
         camera_names,
     } = request;
@@ -115,8 +143,8 @@ pub fn calibrate_request(
             ))
         }
     };
-    let rig_from_pattern = match rig_from_pattern {
-        Some(pose) => Some(pose_from_pb(Some(pose), "rig_from_pattern")?),
+    let pattern_to_rig = match pattern_to_rig {
+        Some(pose) => Some(pose_from_pb(Some(pose), "pattern_to_rig")?),
         None => None,
     };
     let distortion = options.as_ref().and_then(|o| o.distortion).unwrap_or(false);
@@ -144,7 +172,7 @@ pub fn calibrate_request(
             ..EstimateOptions::default()
         },
         extract,
-        rig_from_pattern,
+        pattern_to_rig,
         names,
     })
 }
@@ -195,4 +223,32 @@ fn correspondences(c: &pb::Correspondences) -> Result<CalibrateSource, InputErro
         }),
         sizes: std::array::from_fn(|i| (points_2d[i].width, points_2d[i].height)),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const POSE: &str = r#"{"matrix": [1,0,0,0.1, 0,1,0,0, 0,0,1,0, 0,0,0,1]}"#;
+
+    #[test]
+    fn the_pose_is_read_under_its_name_and_its_former_one() {
+        let new = calibrate_request_from_json(&format!(r#"{{"patternToRig": {POSE}}}"#)).unwrap();
+        let pose = new.pattern_to_rig.clone().expect("the pose");
+        assert_eq!(pose.matrix[3], 0.1);
+        for legacy in ["rigFromPattern", "rig_from_pattern"] {
+            let old = calibrate_request_from_json(&format!(r#"{{"{legacy}": {POSE}}}"#)).unwrap();
+            assert_eq!(old, new, "{legacy}");
+        }
+        let both = format!(r#"{{"patternToRig": {POSE}, "rigFromPattern": {POSE}}}"#);
+        assert_eq!(
+            calibrate_request_from_json(&both).unwrap_err().field,
+            "pattern_to_rig"
+        );
+        // Without the former name the text is read as it is.
+        assert_eq!(
+            calibrate_request_from_json("{}").unwrap(),
+            pb::CalibrateRequest::default()
+        );
+    }
 }

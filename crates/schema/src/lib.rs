@@ -19,6 +19,7 @@ pub(crate) mod convert;
 mod fast_json;
 pub mod session;
 
+pub use calibrate::{calibrate_request_from_json, LEGACY_PATTERN_TO_RIG};
 pub use convert::{
     calibration_to_pb, camera_to_pb, extract_params, images, match_error, match_params,
     match_request, match_response, request_size, rig_from_calibration, segment_list_to_pb,

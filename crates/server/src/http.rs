@@ -5,7 +5,7 @@
 //!   DEADLINE_EXCEEDED past the timeout); or a `multipart/form-data` upload (parts
 //!   `calibration`, `options`, and `segments` or `image1` `image2` `image3`), answered in JSON;
 //! - `POST /v1/calibrate[?timeout_ms=N]`: a `CalibrateRequest` → a `CalibrateResponse`, or a
-//!   multipart upload (parts `pattern`, `options`, `rig_from_pattern`, `image1..3`);
+//!   multipart upload (parts `pattern`, `options`, `pattern_to_rig`, `image1..3`);
 //! - sessions: `POST /v1/sessions` (a `CreateSessionRequest`), `GET /v1/sessions`,
 //!   `GET|DELETE /v1/sessions/{id}`, `POST /v1/sessions/{id}/captures[?timeout_ms=N]` (an
 //!   `AddCaptureRequest`, or a multipart upload with parts `pose` and `segments` or
@@ -34,7 +34,9 @@ use crate::request_id;
 use crate::service::auth::Caller;
 use crate::service::sessions::{map_to_pb, SessionMap};
 use crate::service::{Service, ServiceError};
-use trinocular_schema::{from_json, pb, to_json, InputError};
+use trinocular_schema::{
+    calibrate_request_from_json, from_json, pb, to_json, InputError, LEGACY_PATTERN_TO_RIG,
+};
 
 const PROTOBUF: &str = "application/x-protobuf";
 const JSON: &str = "application/json";
@@ -408,7 +410,15 @@ async fn calibrate(
             Box::new(move || Ok(request))
         } else {
             let body = read_body(request, max_bytes).await?;
-            Box::new(move || decode_body::<pb::CalibrateRequest>(&body, protobuf))
+            Box::new(move || {
+                if protobuf {
+                    decode_body::<pb::CalibrateRequest>(&body, true)
+                } else {
+                    std::str::from_utf8(&body)
+                        .map_err(|_| InputError::new("request", "the body is not UTF-8 JSON"))
+                        .and_then(calibrate_request_from_json)
+                }
+            })
         };
         service.calibrate(read, timeout, "http").await
     }
@@ -615,7 +625,7 @@ fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response
 
 /// The parts of a `multipart/form-data` upload, for curl: `calibration` and `options` (JSON,
 /// for `/v1/match`), `pose` (JSON, for captures: a `Pose` or its 16 numbers), `pattern`,
-/// `options` and `rig_from_pattern` (JSON, for `/v1/calibrate`), and either `segments` (a
+/// `options` and `pattern_to_rig` (JSON, for `/v1/calibrate`), and either `segments` (a
 /// `SegmentTriplet`, JSON) or `image1`, `image2`, `image3` (image files).
 #[derive(Default)]
 struct Upload {
@@ -623,7 +633,7 @@ struct Upload {
     /// Read when it is known which options these are.
     options: Option<String>,
     pattern: Option<pb::CalibrationPattern>,
-    rig_from_pattern: Option<pb::Pose>,
+    pattern_to_rig: Option<pb::Pose>,
     pose: Option<pb::Pose>,
     segments: Option<pb::SegmentTriplet>,
     images: [Option<Vec<u8>>; 3],
@@ -654,8 +664,9 @@ impl Upload {
                 }
                 "options" => upload.options = Some(text(&name, &bytes)?),
                 "pattern" => upload.pattern = Some(from_json("pattern", &text(&name, &bytes)?)?),
-                "rig_from_pattern" => {
-                    upload.rig_from_pattern = Some(pose_part(&name, &text(&name, &bytes)?)?)
+                // The part's name before the schema named frames source_to_target.
+                "pattern_to_rig" | LEGACY_PATTERN_TO_RIG => {
+                    upload.pattern_to_rig = Some(pose_part(&name, &text(&name, &bytes)?)?)
                 }
                 "segments" => upload.segments = Some(from_json("segments", &text(&name, &bytes)?)?),
                 "pose" => upload.pose = Some(pose_part(&name, &text(&name, &bytes)?)?),
@@ -667,7 +678,7 @@ impl Upload {
                     return Err(bad(
                         other,
                         "unknown part: expected calibration, options, pose, pattern, \
-                         rig_from_pattern, segments or image1..image3"
+                         pattern_to_rig, segments or image1..image3"
                             .into(),
                     ))
                 }
@@ -682,7 +693,7 @@ impl Upload {
             "options" => self.options.is_some(),
             "pose" => self.pose.is_some(),
             "pattern" => self.pattern.is_some(),
-            "rig_from_pattern" => self.rig_from_pattern.is_some(),
+            "pattern_to_rig" => self.pattern_to_rig.is_some(),
             "segments" => self.segments.is_some(),
             _ => false,
         }
@@ -732,7 +743,7 @@ impl Upload {
     fn match_request(mut self) -> Result<pb::MatchRequest, ServiceError> {
         self.refuse(&["pose"], "a match has no pose (captures of a session do)")?;
         self.refuse(
-            &["pattern", "rig_from_pattern"],
+            &["pattern", "pattern_to_rig"],
             "a match has no pattern (calibrations do)",
         )?;
         let calibration = self.calibration.take();
@@ -780,14 +791,14 @@ fn pose_part(name: &str, text: &str) -> Result<pb::Pose, ServiceError> {
 
 impl Upload {
     /// The upload as a `CalibrateRequest`: parts `pattern` (optional: the default pattern),
-    /// `options`, `rig_from_pattern`, and the three images.
+    /// `options`, `pattern_to_rig`, and the three images.
     fn calibrate_request(mut self) -> Result<pb::CalibrateRequest, ServiceError> {
         self.refuse(
             &["calibration", "pose", "segments"],
-            "a calibration takes pattern, options, rig_from_pattern and image1..image3",
+            "a calibration takes pattern, options, pattern_to_rig and image1..image3",
         )?;
         let options = self.options()?;
-        let (pattern, rig_from_pattern) = (self.pattern.take(), self.rig_from_pattern.take());
+        let (pattern, pattern_to_rig) = (self.pattern.take(), self.pattern_to_rig.take());
         let images = match self.input()? {
             Input::Images(i) => i,
             Input::Segments(_) => unreachable!("segments were refused above"),
@@ -795,7 +806,7 @@ impl Upload {
         Ok(pb::CalibrateRequest {
             pattern,
             input: Some(pb::calibrate_request::Input::Images(images)),
-            rig_from_pattern,
+            pattern_to_rig,
             options,
             camera_names: Vec::new(),
         })

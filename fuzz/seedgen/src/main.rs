@@ -266,7 +266,7 @@ fn main() {
                     .collect(),
             },
         )),
-        rig_from_pattern: Some(pb::Pose {
+        pattern_to_rig: Some(pb::Pose {
             matrix: vec![
                 0.0, -1.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.1, 0.0, 0.0, 0.0, 1.0,
             ],
@@ -312,7 +312,7 @@ fn main() {
                 })
                 .collect(),
         })),
-        rig_from_pattern: None,
+        pattern_to_rig: None,
         options: None,
         camera_names: Vec::new(),
     };

@@ -415,15 +415,22 @@ class Client:
     # -- calibration ---------------------------------------------------------------------------
 
     def calibrate(self, img1: ImageLike, img2: ImageLike, img3: ImageLike, pattern=None,
-                  distortion: bool = False, rig_from_pattern=None,
-                  camera_names: Optional[Sequence[str]] = None, extract=None) -> CalibrationResult:
-        """Estimates the three cameras from images of the pattern (default: the README's)."""
+                  distortion: bool = False, pattern_to_rig=None,
+                  camera_names: Optional[Sequence[str]] = None, extract=None,
+                  rig_from_pattern=None) -> CalibrationResult:
+        """Estimates the three cameras from images of the pattern (default: the README's).
+        `pattern_to_rig` (4x4) puts the calibration in the rig frame; `rig_from_pattern` is its
+        former name, still accepted."""
+        if rig_from_pattern is not None:
+            if pattern_to_rig is not None:
+                raise ValueError("give pattern_to_rig only (rig_from_pattern is its former name)")
+            pattern_to_rig = rig_from_pattern
         req = pb.CalibrateRequest(images=_images([img1, img2, img3]))
         pat = _parse(pattern, pb.CalibrationPattern)
         if pat is not None:
             req.pattern.CopyFrom(pat)
-        if rig_from_pattern is not None:
-            req.rig_from_pattern.CopyFrom(_pose(rig_from_pattern))
+        if pattern_to_rig is not None:
+            req.pattern_to_rig.CopyFrom(_pose(pattern_to_rig))
         req.options.distortion = bool(distortion)
         ext = _parse(extract, pb.ExtractOptions)
         if ext is not None:

@@ -193,13 +193,13 @@ impl RunCalibration for CalibrateInput {
     }
 }
 
-/// The camera mapping rig-frame points: P_rig = P_pattern · (rig_from_pattern)⁻¹.
+/// The camera mapping rig-frame points: P_rig = P_pattern · (pattern_to_rig)⁻¹.
 fn in_rig_frame(input: &CalibrateInput, camera: &Camera) -> Result<Camera, InputError> {
-    let Some(rig_from_pattern) = &input.rig_from_pattern else {
+    let Some(pattern_to_rig) = &input.pattern_to_rig else {
         return Ok(camera.clone());
     };
-    let pattern_from_rig = rig_from_pattern.inverse().to_homogeneous();
-    let p = camera.projection() * pattern_from_rig;
+    let rig_to_pattern = pattern_to_rig.inverse().to_homogeneous();
+    let p = camera.projection() * rig_to_pattern;
     Camera::from_projection(
         camera.name().to_string(),
         camera.width(),
@@ -207,5 +207,5 @@ fn in_rig_frame(input: &CalibrateInput, camera: &Camera) -> Result<Camera, Input
         p,
         camera.distortion().cloned(),
     )
-    .map_err(|e| InputError::new("rig_from_pattern", e.to_string()))
+    .map_err(|e| InputError::new("pattern_to_rig", e.to_string()))
 }

@@ -6,6 +6,7 @@ use std::{fs, path::Path, path::PathBuf, process::ExitCode};
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
+use serde::Serialize;
 use trinocular::api::{
     self, pb, Executed, InputError, MatchInput, MatchSource, RunCalibration, RunMatch,
 };
@@ -64,55 +65,87 @@ struct CalibrateArgs {
     output: Option<PathBuf>,
 }
 
-#[derive(Args)]
+/// `trinocular serve`'s flags, the last of the configuration's layers: each names, by its
+/// `serde` name, the configuration key it sets, and an absent flag sets nothing.
+#[derive(Args, Serialize)]
 struct ServeArgs {
     /// A TOML configuration file (see README); the environment (TRINOCULAR__SECTION__KEY)
     /// overrides it, and these flags override both.
     #[arg(long)]
+    #[serde(skip)]
     config: Option<PathBuf>,
     /// gRPC listen address (default 0.0.0.0:50051).
     #[arg(long)]
+    #[serde(rename = "server.grpc_addr", skip_serializing_if = "Option::is_none")]
     grpc_addr: Option<std::net::SocketAddr>,
     /// HTTP listen address (default 0.0.0.0:8080).
     #[arg(long)]
+    #[serde(rename = "server.http_addr", skip_serializing_if = "Option::is_none")]
     http_addr: Option<std::net::SocketAddr>,
     /// Compute threads (default: one per core).
     #[arg(long)]
+    #[serde(rename = "compute.threads", skip_serializing_if = "Option::is_none")]
     threads: Option<usize>,
     /// Jobs queued or running at once; past it, 429 / RESOURCE_EXHAUSTED (default: 2 per thread).
     #[arg(long)]
+    #[serde(rename = "compute.max_jobs", skip_serializing_if = "Option::is_none")]
     max_jobs: Option<usize>,
     /// Largest request, MiB (default 32).
     #[arg(long)]
+    #[serde(
+        rename = "limits.max_message_mib",
+        skip_serializing_if = "Option::is_none"
+    )]
     max_message_mib: Option<usize>,
     /// Largest image, pixels (default 12,000,000).
     #[arg(long)]
+    #[serde(
+        rename = "limits.max_image_pixels",
+        skip_serializing_if = "Option::is_none"
+    )]
     max_image_pixels: Option<u64>,
     /// The compute jobs' working memory at once, MiB (default 1024): each request reserves
     /// its estimate (36 bytes per image pixel, 512 per segment) before it runs.
     #[arg(long)]
+    #[serde(
+        rename = "limits.max_working_mib",
+        skip_serializing_if = "Option::is_none"
+    )]
     max_working_mib: Option<u64>,
     /// Most segments in one list of a request (default 100,000).
     #[arg(long)]
+    #[serde(
+        rename = "limits.max_segments_per_list",
+        skip_serializing_if = "Option::is_none"
+    )]
     max_segments_per_list: Option<usize>,
     /// Where sessions live: `embedded` (default: a file under --data-dir, no server needed)
     /// or `redis://HOST:PORT[/DB]` (shared by replicas).
     #[arg(long)]
+    #[serde(rename = "store.url", skip_serializing_if = "Option::is_none")]
     store: Option<String>,
     /// The embedded store's directory (default `data`).
     #[arg(long)]
+    #[serde(rename = "store.data_dir", skip_serializing_if = "Option::is_none")]
     data_dir: Option<PathBuf>,
     /// Sessions unused this long expire with their captures, seconds (default 86400).
     #[arg(long)]
+    #[serde(
+        rename = "store.session_ttl_s",
+        skip_serializing_if = "Option::is_none"
+    )]
     session_ttl_s: Option<u64>,
     /// Log one JSON object per line.
     #[arg(long)]
+    #[serde(rename = "log.json", skip_serializing_if = "std::ops::Not::not")]
     log_json: bool,
     /// TLS on both ports: the server's certificate chain, PEM (with --tls-key).
     #[arg(long, requires = "tls_key")]
+    #[serde(rename = "tls.cert_file", skip_serializing_if = "Option::is_none")]
     tls_cert: Option<PathBuf>,
     /// TLS on both ports: the certificate's private key, PEM (with --tls-cert).
     #[arg(long, requires = "tls_cert")]
+    #[serde(rename = "tls.key_file", skip_serializing_if = "Option::is_none")]
     tls_key: Option<PathBuf>,
 }
 
@@ -383,153 +416,11 @@ fn run_demo(args: &DemoArgs) -> Result<(), Failure> {
 }
 
 fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
-    use std::sync::Arc;
-    use trinocular::service::{config::Config, server, store, Service};
-    let file = match &args.config {
-        Some(path) => Some(read(path)?),
-        None => None,
-    };
-    let mut config =
-        Config::load(file.as_deref(), std::env::vars()).map_err(|e| anyhow::anyhow!(e))?;
-    // Flags last.
-    if let Some(a) = args.grpc_addr {
-        config.server.grpc_addr = a;
-    }
-    if let Some(a) = args.http_addr {
-        config.server.http_addr = a;
-    }
-    if let Some(n) = args.threads {
-        config.compute.threads = n;
-    }
-    if let Some(n) = args.max_jobs {
-        config.compute.max_jobs = n;
-    }
-    if let Some(n) = args.max_message_mib {
-        config.limits.max_message_mib = n;
-    }
-    if let Some(n) = args.max_image_pixels {
-        config.limits.max_image_pixels = n;
-    }
-    if let Some(n) = args.max_working_mib {
-        config.limits.max_working_mib = n;
-    }
-    if let Some(n) = args.max_segments_per_list {
-        config.limits.max_segments_per_list = n;
-    }
-    if let Some(url) = &args.store {
-        config.store.url = url.clone();
-    }
-    if let Some(dir) = &args.data_dir {
-        config.store.data_dir = dir.clone();
-    }
-    if let Some(s) = args.session_ttl_s {
-        config.store.session_ttl_s = s;
-    }
-    if args.log_json {
-        config.log.json = true;
-    }
-    if let (Some(cert), Some(key)) = (&args.tls_cert, &args.tls_key) {
-        config.tls.cert_file = cert.clone();
-        config.tls.key_file = key.clone();
-    }
-    config
-        .validate()
-        .map_err(|e| anyhow::anyhow!("invalid configuration:\n{e}"))?;
-    let filter = tracing_subscriber::EnvFilter::try_new(&config.log.level)
-        .map_err(|e| anyhow::anyhow!("log.level: {e}"))?;
-    let logs = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_writer(std::io::stderr);
-    if config.log.json {
-        logs.json().init();
-    } else {
-        logs.init();
-    }
-    let limits = config.limits();
-    let shown = {
-        let mut shown = config.clone();
-        shown.store.url = store::redacted(&config.store.url);
-        shown
-    };
-    tracing::info!(
-        config = %toml::to_string(&shown).unwrap_or_default(),
-        limits = ?limits,
-        "effective configuration"
-    );
-    let network_nice = config.compute.network_nice;
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .on_thread_start(move || {
-            if let Err(e) = trinocular::service::priority::lower_this_thread(network_nice) {
-                tracing::warn!(error = %e, "cannot lower the network threads' priority");
-            }
-        })
-        .build()
-        .context("cannot start the async runtime")?;
-    runtime.block_on(async {
-        let ttl = config.store.session_ttl();
-        let store = store::open(&config.store.url, &config.store.data_dir, ttl)
-            .await
-            .context("cannot open the session store")?;
-        tracing::info!(store = %store.describe(), "sessions");
-        let keys_file = if config.auth.keys_file.as_os_str().is_empty() {
-            None
-        } else {
-            Some(
-                std::fs::read_to_string(&config.auth.keys_file).with_context(|| {
-                    format!(
-                        "cannot read auth.keys_file {}",
-                        config.auth.keys_file.display()
-                    )
-                })?,
-            )
-        };
-        let keys = trinocular::service::auth::ApiKeys::parse(
-            keys_file.as_deref(),
-            std::env::var(trinocular::service::auth::KEYS_ENV)
-                .ok()
-                .as_deref(),
-        )
-        .map_err(anyhow::Error::msg)
-        .context("API keys")?;
-        if keys.is_empty() {
-            tracing::warn!("auth: no API keys configured; the service is open to every caller");
-        } else {
-            tracing::info!(keys = keys.len(), "auth: an API key is required");
-        }
-        let service = Arc::new(
-            Service::new(limits.clone(), store, ttl)
-                .context("cannot start the service")?
-                .with_api_keys(keys, config.auth.max_sessions_per_key),
-        );
-        let tls = trinocular::service::tls::ServerTls::from_config(
-            &config.tls.cert_file,
-            &config.tls.key_file,
-        )
-        .context("TLS")?;
-        let scheme = if tls.is_some() { "TLS" } else { "plain TCP" };
-        let running = server::start_with_tls(
-            Arc::clone(&service),
-            config.server.grpc_addr,
-            config.server.http_addr,
-            tls,
-        )
-        .await
-        .context("cannot listen")?;
-        tracing::info!(grpc = %running.grpc_addr, http = %running.http_addr, transport = scheme, "listening");
-        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-            .context("cannot handle SIGTERM")?;
-        tokio::select! {
-            _ = tokio::signal::ctrl_c() => {}
-            _ = term.recv() => {}
-        }
-        tracing::info!("stopping: readiness false, finishing in-flight requests");
-        service.set_ready(false);
-        running.shutdown().await;
-        tracing::info!("stopped");
-        Ok::<(), anyhow::Error>(())
-    })?;
+    use trinocular::service::{config::Config, serve::serve};
+    let file = args.config.as_deref().map(read).transpose()?;
+    let layers = Config::with_flags(Config::layers(file.as_deref()), args);
+    let config = Config::from_layers(&layers).map_err(anyhow::Error::from)?;
+    serve(config).map_err(anyhow::Error::from)?;
     Ok(())
 }
 

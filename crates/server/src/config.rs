@@ -1,6 +1,6 @@
-//! Service configuration, in layers: defaults → an optional TOML file → environment variables
-//! `TRINOCULAR__SECTION__KEY` → command-line flags (applied by the caller). Unknown keys are
-//! errors wherever they come from; [`Config::validate`] reports every problem at once.
+//! Service configuration, in layers (figment): defaults → an optional TOML file → environment
+//! variables `TRINOCULAR__SECTION__KEY` → command-line flags (merged by the caller). Unknown
+//! keys are errors wherever they come from; [`Config::validate`] reports every problem at once.
 //!
 //! ```toml
 //! [server]
@@ -37,7 +37,10 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
+use figment::providers::{Env, Format, Serialized, Toml};
+use figment::Figment;
 use serde::{Deserialize, Serialize};
+use thiserror::Error;
 
 use crate::service::Limits;
 
@@ -224,45 +227,55 @@ const MAX_MESSAGE_MIB: usize = 1024;
 /// Environment variables read, with this prefix and `__` between section and key.
 pub const ENV_PREFIX: &str = "TRINOCULAR__";
 
+/// Why a configuration cannot be used.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    /// A layer could not be read: TOML that does not parse, an unknown key, a value of the
+    /// wrong type. Names the key and the layer it came from (file, environment variable, flag).
+    #[error("configuration: {0}")]
+    Layer(Box<figment::Error>),
+    /// Values that read well but do not make a service: every problem, one per line.
+    #[error("invalid configuration:\n{0}")]
+    Invalid(String),
+}
+
+impl From<figment::Error> for ConfigError {
+    fn from(e: figment::Error) -> ConfigError {
+        ConfigError::Layer(Box::new(e))
+    }
+}
+
 impl Config {
-    /// Defaults, overlaid by `file` (TOML text) and then by `env` (name, value) pairs with the
-    /// [`ENV_PREFIX`]; values are read as TOML (`8`, `"0.0.0.0:1"`, or bare strings).
-    pub fn load(
-        file: Option<&str>,
-        env: impl IntoIterator<Item = (String, String)>,
-    ) -> Result<Config, String> {
-        let mut tree: toml::Table = match file {
-            Some(text) => text.parse().map_err(|e| format!("config file: {e}"))?,
-            None => toml::Table::new(),
-        };
-        for (name, value) in env {
-            let Some(path) = name.strip_prefix(ENV_PREFIX) else {
-                continue;
-            };
-            let keys: Vec<String> = path.split("__").map(str::to_lowercase).collect();
-            let [section, key] = keys.as_slice() else {
-                return Err(format!(
-                    "{name}: expected {ENV_PREFIX}SECTION__KEY, e.g. {ENV_PREFIX}COMPUTE__THREADS"
-                ));
-            };
-            let parsed = format!("v = {value}")
-                .parse::<toml::Table>()
-                .ok()
-                .and_then(|mut t| t.remove("v"))
-                .unwrap_or_else(|| toml::Value::String(value.clone()));
-            let table = tree
-                .entry(section.clone())
-                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-            match table {
-                toml::Value::Table(t) => {
-                    t.insert(key.clone(), parsed);
-                }
-                _ => return Err(format!("{name}: [{section}] is not a section")),
-            }
+    /// The layers, each over the one before: the defaults, `file` (TOML text), then the
+    /// environment's `TRINOCULAR__SECTION__KEY` variables (values read as TOML: `8`,
+    /// `"0.0.0.0:1"`, or bare strings). A caller merges its command-line flags on top (as
+    /// `("section.key", value)` pairs) and reads the result with [`Config::from_layers`].
+    pub fn layers(file: Option<&str>) -> Figment {
+        let mut layers = Figment::from(Serialized::defaults(Config::default()));
+        if let Some(text) = file {
+            layers = layers.merge(Toml::string(text));
         }
-        toml::Value::Table(tree)
-            .try_into()
-            .map_err(|e: toml::de::Error| format!("config: {}", e.message()))
+        layers.merge(Env::prefixed(ENV_PREFIX).split("__"))
+    }
+
+    /// `layers` with command-line `flags` over them: `flags` serialises to a map keyed by
+    /// dotted paths (`"server.grpc_addr"`), absent flags skipped — so each flag's declaration
+    /// says which key it sets, and no code copies flags into the configuration one by one.
+    pub fn with_flags(layers: Figment, flags: &impl Serialize) -> Figment {
+        match serde_json::to_value(flags) {
+            Ok(serde_json::Value::Object(map)) => map
+                .into_iter()
+                .fold(layers, |layers, (key, value)| layers.merge((key, value))),
+            // Not a struct of flags: a programming error that extraction reports.
+            other => layers.merge(("flags", other.map_err(|e| e.to_string()))),
+        }
+    }
+
+    /// The configuration the layers give, checked ([`Config::validate`]).
+    pub fn from_layers(layers: &Figment) -> Result<Config, ConfigError> {
+        let config: Config = layers.extract()?;
+        config.validate().map_err(ConfigError::Invalid)?;
+        Ok(config)
     }
 
     /// Every problem, one per line.
@@ -378,42 +391,47 @@ impl Config {
 }
 
 #[cfg(test)]
+// figment's `Jail` closures return its `Error`, large by figment's design.
+#[allow(clippy::result_large_err)]
 mod tests {
     use super::*;
 
-    fn env(pairs: &[(&str, &str)]) -> Vec<(String, String)> {
-        pairs
-            .iter()
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect()
+    use figment::Jail;
+
+    /// The configuration of `file` under the environment `jail` set.
+    fn load(file: Option<&str>) -> Result<Config, ConfigError> {
+        Config::from_layers(&Config::layers(file))
     }
 
     #[test]
     fn layers_apply_in_order() {
-        let file =
-            "[compute]\nthreads = 3\nmax_jobs = 5\n[server]\nhttp_addr = \"127.0.0.1:9000\"\n";
-        let c = Config::load(
-            Some(file),
-            env(&[("TRINOCULAR__COMPUTE__MAX_JOBS", "7"), ("HOME", "/root")]),
-        )
-        .unwrap();
-        assert_eq!(c.compute.threads, 3, "from the file");
-        assert_eq!(c.compute.max_jobs, 7, "the environment beats the file");
-        assert_eq!(c.server.http_addr, "127.0.0.1:9000".parse().unwrap());
-        assert_eq!(
-            c.server.grpc_addr,
-            ServerConfig::default().grpc_addr,
-            "default"
-        );
-        let env_addr = Config::load(
-            None,
-            env(&[("TRINOCULAR__SERVER__GRPC_ADDR", "127.0.0.1:1")]),
-        );
-        assert_eq!(
-            env_addr.unwrap().server.grpc_addr,
-            "127.0.0.1:1".parse().unwrap()
-        );
-        assert_eq!(c.limits().max_jobs, 7);
+        Jail::expect_with(|jail| {
+            let file =
+                "[compute]\nthreads = 3\nmax_jobs = 5\n[server]\nhttp_addr = \"127.0.0.1:9000\"\n";
+            jail.set_env("TRINOCULAR__COMPUTE__MAX_JOBS", "7");
+            jail.set_env("HOME", "/root");
+            let c = load(Some(file)).unwrap();
+            assert_eq!(c.compute.threads, 3, "from the file");
+            assert_eq!(c.compute.max_jobs, 7, "the environment beats the file");
+            assert_eq!(c.server.http_addr, "127.0.0.1:9000".parse().unwrap());
+            assert_eq!(
+                c.server.grpc_addr,
+                ServerConfig::default().grpc_addr,
+                "default"
+            );
+            assert_eq!(c.limits().max_jobs, 7);
+            // A flag, merged last, beats them all.
+            let flagged =
+                Config::from_layers(&Config::layers(Some(file)).merge(("compute.max_jobs", 9)))
+                    .unwrap();
+            assert_eq!(flagged.compute.max_jobs, 9);
+            jail.set_env("TRINOCULAR__SERVER__GRPC_ADDR", "127.0.0.1:1");
+            assert_eq!(
+                load(None).unwrap().server.grpc_addr,
+                "127.0.0.1:1".parse().unwrap()
+            );
+            Ok(())
+        });
         assert_eq!(
             Config::default().limits().max_jobs,
             crate::service::JOBS_PER_THREAD * Limits::default().threads
@@ -421,14 +439,24 @@ mod tests {
     }
 
     #[test]
-    fn unknown_keys_and_bad_values_are_refused() {
-        let e = Config::load(Some("[compute]\nthread = 3\n"), env(&[])).unwrap_err();
-        assert!(e.contains("thread"), "{e}");
-        let e = Config::load(None, env(&[("TRINOCULAR__COMPUTE__SPEED", "9")])).unwrap_err();
-        assert!(e.contains("speed"), "{e}");
-        let e = Config::load(None, env(&[("TRINOCULAR__THREADS", "9")])).unwrap_err();
-        assert!(e.contains("SECTION__KEY"), "{e}");
-        assert!(Config::load(Some("[limits]\nmax_message_mib = \"big\"\n"), env(&[])).is_err());
+    fn unknown_keys_and_bad_values_are_refused_naming_them() {
+        Jail::expect_with(|jail| {
+            let e = load(Some("[compute]\nthread = 3\n"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("thread"), "{e}");
+            jail.set_env("TRINOCULAR__COMPUTE__SPEED", "9");
+            let e = load(None).unwrap_err().to_string();
+            assert!(e.contains("speed"), "{e}");
+            jail.clear_env();
+            jail.set_env("TRINOCULAR__THREADS", "9");
+            let e = load(None).unwrap_err().to_string();
+            assert!(e.contains("threads"), "{e}");
+            jail.clear_env();
+            let e = load(Some("[limits]\nmax_message_mib = \"big\"\n")).unwrap_err();
+            assert!(e.to_string().contains("max_message_mib"), "{e}");
+            Ok(())
+        });
         let mut c = Config::default();
         c.limits.max_message_mib = 0;
         c.limits.max_image_pixels = 0;
@@ -444,18 +472,17 @@ mod tests {
         assert_eq!(c.store.data_dir, PathBuf::from("data"));
         assert_eq!(c.store.session_ttl(), Duration::from_secs(86400));
         assert!(c.validate().is_ok());
-        let file = "[store]\nurl = \"redis://127.0.0.1:6379/1\"\ndata_dir = \"/var/lib/t\"\n";
-        let c = Config::load(
-            Some(file),
-            env(&[("TRINOCULAR__STORE__SESSION_TTL_S", "60")]),
-        )
-        .unwrap();
-        assert_eq!(c.store.url, "redis://127.0.0.1:6379/1");
-        assert_eq!(c.store.data_dir, PathBuf::from("/var/lib/t"));
-        assert_eq!(c.store.session_ttl_s, 60);
-        assert!(c.validate().is_ok());
-        let e = Config::load(Some("[store]\nttl = 5\n"), env(&[])).unwrap_err();
-        assert!(e.contains("ttl"), "{e}");
+        Jail::expect_with(|jail| {
+            let file = "[store]\nurl = \"redis://127.0.0.1:6379/1\"\ndata_dir = \"/var/lib/t\"\n";
+            jail.set_env("TRINOCULAR__STORE__SESSION_TTL_S", "60");
+            let c = load(Some(file)).unwrap();
+            assert_eq!(c.store.url, "redis://127.0.0.1:6379/1");
+            assert_eq!(c.store.data_dir, PathBuf::from("/var/lib/t"));
+            assert_eq!(c.store.session_ttl_s, 60);
+            let e = load(Some("[store]\nttl = 5\n")).unwrap_err().to_string();
+            assert!(e.contains("ttl"), "{e}");
+            Ok(())
+        });
         let mut c = Config::default();
         c.store.url = "mysql://db".to_string();
         c.store.session_ttl_s = 0;

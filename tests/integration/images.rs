@@ -170,6 +170,21 @@ fn end_to_end(seed: u64, params: &MatchParams) -> (f64, f64, usize) {
     )
 }
 
+/// Every match from rendered images: most of the room is found, and most of what is found is
+/// right (the guard of the matcher before any accuracy gate).
+const EVERYTHING_MIN_SEGMENTS: usize = 100;
+const EVERYTHING_MIN_COMPLETENESS: f64 = 0.40;
+const EVERYTHING_MAX_ERROR: f64 = 0.45;
+/// The gate's purpose: wrong segments an order of magnitude rarer than without it (plus a
+/// floor for a seed with few), keeping at least half the completeness.
+const GATE_ERROR_FACTOR: f64 = 0.1;
+const GATE_ERROR_FLOOR: f64 = 0.05;
+const GATE_MIN_COMPLETENESS_SHARE: f64 = 0.5;
+/// Directions within 2° only: few wrong segments, a quarter of the room.
+const PRECISE_MIN_SEGMENTS: usize = 30;
+const PRECISE_MIN_COMPLETENESS: f64 = 0.25;
+const PRECISE_MAX_ERROR: f64 = 0.15;
+
 #[test]
 fn rendered_triplets_match_end_to_end() {
     // Every match, precise or not. Measured before the accuracy gate: 39% / 51% on seed 1.
@@ -179,7 +194,11 @@ fn rendered_triplets_match_end_to_end() {
     };
     let (error, completeness, n) = end_to_end(1, &everything);
     println!("include_uncertain: {n} segments, error {error:.3}, completeness {completeness:.3}");
-    assert!(n > 100 && completeness > 0.40 && error < 0.45);
+    assert!(
+        n > EVERYTHING_MIN_SEGMENTS
+            && completeness > EVERYTHING_MIN_COMPLETENESS
+            && error < EVERYTHING_MAX_ERROR
+    );
     // Defaults: only what meets the gate (5 degrees, max(2 cm, 1%) at 95%). Measured on
     // seed 1: 40 segments, 5.0% wrong, 41.7% complete (34% / 56% without the gate). The
     // guard is the gate's purpose — wrong segments an order of magnitude rarer than without
@@ -189,8 +208,8 @@ fn rendered_triplets_match_end_to_end() {
     println!(
         "defaults: {n} segments, error {gated_error:.3}, completeness {gated_completeness:.3}"
     );
-    assert!(n > 20 && gated_error <= 0.1 * error.max(0.1) + 0.05);
-    assert!(gated_completeness >= 0.5 * completeness);
+    assert!(n > 20 && gated_error <= GATE_ERROR_FACTOR * error.max(0.1) + GATE_ERROR_FLOOR);
+    assert!(gated_completeness >= GATE_MIN_COMPLETENESS_SHARE * completeness);
     // Every match, but only well-determined directions (the older, direction-only filter):
     // few wrong segments.
     let precise = MatchParams {
@@ -202,7 +221,11 @@ fn rendered_triplets_match_end_to_end() {
     println!("sigma <= 2 deg: {n} segments, error {error:.3}, completeness {completeness:.3}");
     // (The direction σ is the covariance's now, from measured noise, wider than the old
     // nominal 0.1 px model: 41 segments pass 2° on this seed, 80 before.)
-    assert!(n > 30 && completeness > 0.25 && error < 0.15);
+    assert!(
+        n > PRECISE_MIN_SEGMENTS
+            && completeness > PRECISE_MIN_COMPLETENESS
+            && error < PRECISE_MAX_ERROR
+    );
 }
 
 // ---- golden files --------------------------------------------------------------------

@@ -15,19 +15,25 @@
 //!
 //! Errors are `{"error": {"code": "INVALID_ARGUMENT", "field": "...", "message": "..."}}` with
 //! the HTTP status of the gRPC code.
+//!
+//! Query strings are read by axum's `Query` into one small struct per route whose fields are
+//! optional strings, then checked here: a bad value is that error naming its parameter
+//! (`timeout_ms`, `page_size`, `min_observations`, `format`), not axum's plain-text rejection.
 
 use std::pin::Pin;
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::{DefaultBodyLimit, Extension, FromRequest, Multipart, Path, State};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{DefaultBodyLimit, Extension, FromRequest, Multipart, Path, Query, State};
 use std::time::Duration;
 
-use axum::http::{header, HeaderMap, StatusCode, Uri};
+use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::Router;
 use prost::Message;
+use serde::Deserialize;
 
 use crate::http_server::timed_out_body;
 use crate::request_id;
@@ -225,28 +231,135 @@ fn code_name(code: tonic::Code) -> String {
 /// Longest `timeout_ms` accepted: an hour.
 const MAX_TIMEOUT_MS: u64 = 3_600_000;
 
-/// The `timeout_ms` query parameter, if any.
-fn timeout_of(uri: &Uri) -> Result<Option<Duration>, InputError> {
-    let Some(query) = uri.query() else {
-        return Ok(None);
-    };
-    for pair in query.split('&') {
-        if let Some(value) = pair.strip_prefix("timeout_ms=") {
-            return match value.parse::<u64>() {
-                Ok(ms) if (1..=MAX_TIMEOUT_MS).contains(&ms) => Ok(Some(Duration::from_millis(ms))),
-                _ => Err(InputError::new(
-                    "timeout_ms",
-                    format!("must be a whole number of milliseconds from 1 to {MAX_TIMEOUT_MS}, got {value:?}"),
-                )),
-            };
+/// The query string as `T`. Every field of a query struct is an optional string, so only a
+/// repeated parameter fails here (serde refuses a duplicate field): that is INVALID_ARGUMENT
+/// naming the query, in our error format rather than axum's.
+fn query<T>(query: Result<Query<T>, QueryRejection>) -> Result<T, InputError> {
+    query
+        .map(|Query(q)| q)
+        .map_err(|e| InputError::new("query", e.body_text()))
+}
+
+/// The query of the calls that run compute: `?timeout_ms=N`.
+#[derive(Debug, Default, Deserialize)]
+struct TimeoutQuery {
+    timeout_ms: Option<String>,
+}
+
+impl TimeoutQuery {
+    /// The timeout asked for, if any: 1 ms to an hour.
+    fn timeout(&self) -> Result<Option<Duration>, InputError> {
+        let Some(value) = &self.timeout_ms else {
+            return Ok(None);
+        };
+        match value.parse::<u64>() {
+            Ok(ms) if (1..=MAX_TIMEOUT_MS).contains(&ms) => Ok(Some(Duration::from_millis(ms))),
+            _ => Err(InputError::new(
+                "timeout_ms",
+                format!(
+                    "must be a whole number of milliseconds from 1 to {MAX_TIMEOUT_MS}, got {value:?}"
+                ),
+            )),
         }
     }
-    Ok(None)
+}
+
+/// ListSessions' query: `?page_size=N&page_token=T`, both optional.
+#[derive(Debug, Default, Deserialize)]
+struct ListQuery {
+    page_size: Option<String>,
+    page_token: Option<String>,
+}
+
+impl ListQuery {
+    fn request(self) -> Result<pb::ListSessionsRequest, InputError> {
+        let page_size = match self.page_size {
+            None => 0,
+            Some(v) => v.parse::<u32>().map_err(|_| {
+                InputError::new("page_size", format!("must be a whole number, got {v:?}"))
+            })?,
+        };
+        Ok(pb::ListSessionsRequest {
+            page_size,
+            page_token: self.page_token.unwrap_or_default(),
+        })
+    }
+}
+
+/// GetMap's query: `?format=F&min_observations=N`, both optional.
+#[derive(Debug, Default, Deserialize)]
+struct MapQuery {
+    format: Option<String>,
+    min_observations: Option<String>,
+}
+
+impl MapQuery {
+    fn min_observations(&self) -> Result<Option<u32>, InputError> {
+        let Some(v) = &self.min_observations else {
+            return Ok(None);
+        };
+        match v.parse::<u32>() {
+            Ok(n) if n >= 1 => Ok(Some(n)),
+            _ => Err(InputError::new(
+                "min_observations",
+                format!("must be a whole number at least 1, got {v:?}"),
+            )),
+        }
+    }
+
+    /// The export asked for; JSON (or protobuf, by `Accept`) when none is.
+    fn format(&self) -> Result<MapFormat, InputError> {
+        self.format
+            .as_deref()
+            .map_or(Ok(MapFormat::Json), str::parse)
+    }
+}
+
+/// The formats GetMap exports a map in over HTTP.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum MapFormat {
+    /// The `SessionMap` message: proto3 JSON, or protobuf if the client accepts it.
+    Json,
+    Ply,
+    Obj,
+    /// A top view.
+    Svg,
+    /// The same top view, rasterised.
+    Png,
+}
+
+impl MapFormat {
+    /// Every format, by its query value.
+    const ALL: [(&'static str, MapFormat); 5] = [
+        ("json", MapFormat::Json),
+        ("ply", MapFormat::Ply),
+        ("obj", MapFormat::Obj),
+        ("svg", MapFormat::Svg),
+        ("png", MapFormat::Png),
+    ];
+}
+
+impl std::str::FromStr for MapFormat {
+    type Err = InputError;
+
+    /// A query's `format` value, exactly as written (lower case).
+    fn from_str(s: &str) -> Result<MapFormat, InputError> {
+        MapFormat::ALL
+            .iter()
+            .find(|(name, _)| *name == s)
+            .map(|&(_, format)| format)
+            .ok_or_else(|| {
+                InputError::new(
+                    "format",
+                    format!("{s:?}: expected json, ply, obj, svg or png"),
+                )
+            })
+    }
 }
 
 async fn match_handler(
     State(service): State<Arc<Service>>,
-    uri: Uri,
+    params: Result<Query<TimeoutQuery>, QueryRejection>,
     request: axum::extract::Request,
 ) -> Response {
     let protobuf = is_protobuf(request.headers());
@@ -257,7 +370,7 @@ async fn match_handler(
         service.record_refused("http", &e, start.elapsed().as_secs_f64());
         error_response(&e)
     };
-    let timeout = match timeout_of(&uri) {
+    let timeout = match query(params).and_then(|q| q.timeout()) {
         Ok(t) => t,
         Err(e) => return refuse(ServiceError::Input(e)),
     };
@@ -366,13 +479,6 @@ fn answer<T: Message + serde::Serialize>(
     }
 }
 
-/// The value of query parameter `name`, if given.
-fn query_param<'a>(uri: &'a Uri, name: &str) -> Option<&'a str> {
-    uri.query()?
-        .split('&')
-        .find_map(|pair| pair.strip_prefix(name)?.strip_prefix('='))
-}
-
 /// Reads a whole body, within the body limit.
 async fn read_body(
     request: axum::extract::Request,
@@ -393,14 +499,14 @@ fn is_multipart(headers: &HeaderMap) -> bool {
 
 async fn calibrate(
     State(service): State<Arc<Service>>,
-    uri: Uri,
+    params: Result<Query<TimeoutQuery>, QueryRejection>,
     request: axum::extract::Request,
 ) -> Response {
     let protobuf = is_protobuf(request.headers());
     let multipart = is_multipart(request.headers());
     let max_bytes = service.limits().max_message_bytes;
     let result = async {
-        let timeout = timeout_of(&uri)?;
+        let timeout = query(params)?.timeout()?;
         type Read = Box<dyn FnOnce() -> Result<pb::CalibrateRequest, InputError> + Send>;
         let read: Read = if multipart {
             let parts = Multipart::from_request(request, &())
@@ -445,22 +551,11 @@ async fn create_session(
 async fn list_sessions(
     State(service): State<Arc<Service>>,
     Extension(caller): Extension<Caller>,
-    uri: Uri,
+    params: Result<Query<ListQuery>, QueryRejection>,
     headers: HeaderMap,
 ) -> Response {
     let result = async {
-        let page_size = match query_param(&uri, "page_size") {
-            None => 0,
-            Some(v) => v.parse::<u32>().map_err(|_| {
-                InputError::new("page_size", format!("must be a whole number, got {v:?}"))
-            })?,
-        };
-        let request = pb::ListSessionsRequest {
-            page_size,
-            page_token: query_param(&uri, "page_token")
-                .unwrap_or_default()
-                .to_string(),
-        };
+        let request = query(params)?.request()?;
         service.list_sessions(&caller, request, "http").await
     }
     .await;
@@ -505,14 +600,14 @@ async fn add_capture(
     State(service): State<Arc<Service>>,
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-    uri: Uri,
+    params: Result<Query<TimeoutQuery>, QueryRejection>,
     request: axum::extract::Request,
 ) -> Response {
     let protobuf = is_protobuf(request.headers());
     let multipart = is_multipart(request.headers());
     let max_bytes = service.limits().max_message_bytes;
     let result = async {
-        let timeout = timeout_of(&uri)?;
+        let timeout = query(params)?.timeout()?;
         let mut capture = if multipart {
             let parts = Multipart::from_request(request, &())
                 .await
@@ -547,34 +642,20 @@ async fn get_map(
     State(service): State<Arc<Service>>,
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-    uri: Uri,
+    params: Result<Query<MapQuery>, QueryRejection>,
     headers: HeaderMap,
 ) -> Response {
     let result = async {
-        let min_observations = match query_param(&uri, "min_observations") {
-            None => None,
-            Some(v) => Some(v.parse::<u32>().ok().filter(|&n| n >= 1).ok_or_else(|| {
-                InputError::new(
-                    "min_observations",
-                    format!("must be a whole number at least 1, got {v:?}"),
-                )
-            })?),
-        };
-        let format = query_param(&uri, "format").unwrap_or("json");
-        if !["json", "ply", "obj", "svg", "png"].contains(&format) {
-            return Err(ServiceError::Input(InputError::new(
-                "format",
-                format!("{format:?}: expected json, ply, obj, svg or png"),
-            )));
-        }
+        let params = query(params)?;
+        let min_observations = params.min_observations()?;
+        let format = params.format()?;
         let map = service
             .get_map(&caller, &id, min_observations, "http")
             .await?;
-        let format = format.to_string();
         // Drawing and writing a large map is CPU work too.
         service
             .pool()
-            .run(move |_| map_export(&map, &format, wants_protobuf(&headers)))
+            .run(move |_| map_export(&map, format, wants_protobuf(&headers)))
             .await?
     }
     .await;
@@ -582,7 +663,11 @@ async fn get_map(
 }
 
 /// A fused map in `format`.
-fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response, ServiceError> {
+fn map_export(
+    map: &SessionMap,
+    format: MapFormat,
+    protobuf: bool,
+) -> Result<Response, ServiceError> {
     use trinocular_core::map::export;
     let file = |content_type: &'static str, ext: &str, body: Vec<u8>| {
         let disposition = format!("inline; filename=\"map-{}.{ext}\"", map.session_id);
@@ -595,22 +680,23 @@ fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response
         response
     };
     Ok(match format {
-        "ply" => file(
+        MapFormat::Json => encoded(&map_to_pb(map), protobuf),
+        MapFormat::Ply => file(
             "application/x-ply",
             "ply",
             export::to_ply(&map.segments).into_bytes(),
         ),
-        "obj" => file(
+        MapFormat::Obj => file(
             "model/obj",
             "obj",
             export::to_obj(&map.segments).into_bytes(),
         ),
-        "svg" => file(
+        MapFormat::Svg => file(
             "image/svg+xml",
             "svg",
             export::top_view_svg(&map.segments, &map.poses).into_bytes(),
         ),
-        "png" => file(
+        MapFormat::Png => file(
             "image/png",
             "png",
             export::top_view_png(&map.segments, &map.poses).map_err(|e| {
@@ -619,7 +705,6 @@ fn map_export(map: &SessionMap, format: &str, protobuf: bool) -> Result<Response
                 }
             })?,
         ),
-        _ => encoded(&map_to_pb(map), protobuf),
     })
 }
 
@@ -817,4 +902,57 @@ impl Upload {
 enum Input {
     Segments(pb::SegmentTriplet),
     Images(pb::ImageTriplet),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn map_formats_parse_by_their_query_names() {
+        for (name, format) in MapFormat::ALL {
+            assert_eq!(name.parse::<MapFormat>().unwrap(), format);
+        }
+        let e = "dxf".parse::<MapFormat>().unwrap_err();
+        assert_eq!(e.field, "format");
+        assert!(
+            e.message.contains("\"dxf\"") && e.message.contains("json, ply, obj, svg or png"),
+            "{e}"
+        );
+        for (name, _) in MapFormat::ALL {
+            assert!(e.message.contains(name), "{e} should list {name}");
+        }
+        // Exactly as written: the query values are lower case.
+        assert!("PNG".parse::<MapFormat>().is_err());
+        assert_eq!(MapQuery::default().format().unwrap(), MapFormat::Json);
+    }
+
+    #[test]
+    fn a_bad_query_value_names_its_parameter() {
+        let parsed = |uri: &str| {
+            let uri: axum::http::Uri = uri.parse().unwrap();
+            query(Query::<MapQuery>::try_from_uri(&uri))
+        };
+        let q = parsed("/v1/sessions/x/map?min_observations=3&format=svg").unwrap();
+        assert_eq!(q.min_observations().unwrap(), Some(3));
+        assert_eq!(q.format().unwrap(), MapFormat::Svg);
+        for bad in ["0", "-1", "many", ""] {
+            let e = parsed(&format!("/m?min_observations={bad}"))
+                .unwrap()
+                .min_observations()
+                .unwrap_err();
+            assert_eq!(e.field, "min_observations", "{bad:?}");
+            assert!(e.message.contains(&format!("{bad:?}")), "{e}");
+        }
+        let e = TimeoutQuery {
+            timeout_ms: Some("soon".into()),
+        }
+        .timeout()
+        .unwrap_err();
+        assert_eq!(e.field, "timeout_ms");
+        // A repeated parameter is refused in our format, naming the query.
+        let e = parsed("/m?format=ply&format=obj").err().unwrap();
+        assert_eq!(e.field, "query");
+        assert!(e.message.contains("format"), "{e}");
+    }
 }

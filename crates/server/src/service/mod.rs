@@ -13,6 +13,7 @@
 
 pub mod auth;
 pub mod calibration;
+pub mod clock;
 pub mod error;
 pub mod matching;
 pub mod memory;
@@ -132,6 +133,8 @@ pub struct Service {
     metrics: Arc<metrics::Metrics>,
     store: Arc<dyn store::SessionStore>,
     store_ttl: std::time::Duration,
+    /// What stamps sessions' and captures' creation times: the store's clock, in tests.
+    clock: Arc<dyn clock::Clock>,
     /// Request-body bytes held now, in KiB permits ([`Limits::max_body_bytes_in_flight`]).
     bodies: Arc<tokio::sync::Semaphore>,
     /// The compute jobs' working memory ([`Limits::max_working_bytes`]).
@@ -176,7 +179,14 @@ impl Service {
             metrics: Arc::new(metrics::Metrics::new()?),
             store,
             store_ttl: session_ttl,
+            clock: clock::system(),
         })
+    }
+
+    /// This service, stamping sessions and captures by `clock` (give the store the same one).
+    pub fn with_clock(mut self, clock: Arc<dyn clock::Clock>) -> Service {
+        self.clock = clock;
+        self
     }
 
     /// This service, requiring one of `keys` on every call (none: open), each key holding at

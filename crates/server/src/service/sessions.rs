@@ -6,7 +6,7 @@
 //! answer, so an acknowledged capture is never lost. The map is fused from the stored
 //! captures when asked, on the compute pool: replicas need share nothing but the store.
 
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use prost::Message;
 
@@ -27,12 +27,6 @@ const MAX_CAPTURES_PER_SESSION: u64 = 10_000;
 /// Sessions per ListSessions page by default, and at most.
 const DEFAULT_PAGE_SIZE: usize = 100;
 const MAX_PAGE_SIZE: usize = 1000;
-
-fn now_unix_ms() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis() as u64)
-}
 
 impl From<StoreError> for ServiceError {
     fn from(e: StoreError) -> ServiceError {
@@ -155,7 +149,7 @@ impl Service {
             let record = SessionRecord {
                 id: store_id(caller, &uuid::Uuid::new_v4().simple().to_string()),
                 name,
-                created_unix_ms: now_unix_ms(),
+                created_unix_ms: self.clock.now_unix_ms(),
                 calibration: calibration.unwrap_or_default().encode_to_vec(),
                 options: pb::StoredOptions {
                     options,
@@ -334,7 +328,7 @@ impl Service {
                         ..Default::default()
                     })
                     .collect(),
-                received_unix_ms: now_unix_ms(),
+                received_unix_ms: self.clock.now_unix_ms(),
             };
             let index = self
                 .store

@@ -11,6 +11,7 @@
 //! ```
 //!
 //! Expired sessions are swept lazily, when touched or listed: deterministic, no background task.
+//! Ages are measured by the store's injected clock (the system clock unless `with_clock`).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -18,9 +19,9 @@ use std::time::Duration;
 
 use redb::{Database, ReadableTable, Table, TableDefinition, WriteTransaction};
 
+use super::super::clock::{self, Clock};
 use super::{
-    decode_record, encode_record, now_unix_ms, ttl_ms, SessionInfo, SessionRecord, SessionStore,
-    StoreError,
+    decode_record, encode_record, ttl_ms, SessionInfo, SessionRecord, SessionStore, StoreError,
 };
 
 const SESSIONS: TableDefinition<&str, &[u8]> = TableDefinition::new("sessions");
@@ -32,6 +33,7 @@ pub const FILE_NAME: &str = "trinocular.redb";
 
 pub struct EmbeddedStore {
     inner: Arc<Inner>,
+    clock: Arc<dyn Clock>,
 }
 
 struct Inner {
@@ -95,7 +97,14 @@ impl EmbeddedStore {
         })??;
         Ok(EmbeddedStore {
             inner: Arc::new(inner),
+            clock: clock::system(),
         })
+    }
+
+    /// This store, measuring idleness by `clock` (a test's manual one).
+    pub fn with_clock(mut self, clock: Arc<dyn Clock>) -> EmbeddedStore {
+        self.clock = clock;
+        self
     }
 
     /// Runs `f` in one write transaction on the blocking pool, with the time now. The
@@ -107,9 +116,11 @@ impl EmbeddedStore {
         f: impl FnOnce(&Inner, &mut Tables, u64, &mut bool) -> Result<T, StoreError> + Send + 'static,
     ) -> Result<T, StoreError> {
         let inner = Arc::clone(&self.inner);
+        let clock = Arc::clone(&self.clock);
         tokio::task::spawn_blocking(move || {
             let txn = inner.db.begin_write().map_err(|e| inner.fail("begin", e))?;
-            let now = now_unix_ms();
+            // Read once the transaction is ours, so that `last_used` never goes backwards.
+            let now = clock.now_unix_ms();
             let mut changed = false;
             let result = {
                 let mut tables = Tables::open(&inner, &txn)?;
@@ -378,6 +389,7 @@ impl SessionStore for EmbeddedStore {
 pub(crate) mod tests {
     use super::super::contract;
     use super::*;
+    use crate::service::clock::ManualClock;
 
     /// A fresh directory under the system's temporary directory.
     pub fn temp_dir(name: &str) -> PathBuf {
@@ -415,9 +427,16 @@ pub(crate) mod tests {
 
     #[tokio::test]
     async fn embedded_expiry() {
-        let ttl = Duration::from_millis(1500);
+        // An hour's TTL passes in no time on a manual clock.
+        let ttl = Duration::from_secs(3600);
         let (s, dir) = store("expiry", ttl).await;
-        contract::expiry(&s, ttl).await;
+        let clock = Arc::new(ManualClock::new(1_700_000_000_000));
+        let s = s.with_clock(clock.clone());
+        contract::expiry(&s, ttl, |d| {
+            clock.advance(d);
+            std::future::ready(())
+        })
+        .await;
         drop(s);
         let _ = std::fs::remove_dir_all(dir);
     }

@@ -1,12 +1,13 @@
 //! Sessions in this process's memory: lost when it stops. For throwaway runs
 //! (`--store memory`), the load generator's in-process peer and tests; the same contract as
-//! the durable stores, idle expiry included.
+//! the durable stores, idle expiry included (by the injected clock, see `with_clock`).
 
 use std::collections::BTreeMap;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use super::{now_unix_ms, ttl_ms, SessionInfo, SessionRecord, SessionStore, StoreError};
+use super::super::clock::{self, Clock};
+use super::{ttl_ms, SessionInfo, SessionRecord, SessionStore, StoreError};
 
 struct Session {
     record: SessionRecord,
@@ -17,21 +18,34 @@ struct Session {
 pub struct MemoryStore {
     sessions: Mutex<BTreeMap<String, Session>>,
     ttl_ms: u64,
+    clock: Arc<dyn Clock>,
 }
 
 impl MemoryStore {
+    /// An empty store on the system clock.
     pub fn new(ttl: Duration) -> MemoryStore {
         MemoryStore {
             sessions: Mutex::new(BTreeMap::new()),
             ttl_ms: ttl_ms(ttl),
+            clock: clock::system(),
         }
+    }
+
+    /// This store, measuring idleness by `clock` (a test's manual one).
+    pub fn with_clock(mut self, clock: Arc<dyn Clock>) -> MemoryStore {
+        self.clock = clock;
+        self
+    }
+
+    fn now_unix_ms(&self) -> u64 {
+        self.clock.now_unix_ms()
     }
 
     /// The sessions, expired ones dropped first. A poisoned lock means a panic while holding
     /// it; the map is still consistent (every change is one insert or remove), so carry on.
     fn live(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, Session>> {
         let mut sessions = self.sessions.lock().unwrap_or_else(|p| p.into_inner());
-        let now = now_unix_ms();
+        let now = self.now_unix_ms();
         sessions.retain(|_, s| now.saturating_sub(s.last_used_unix_ms) < self.ttl_ms);
         sessions
     }
@@ -63,7 +77,7 @@ impl SessionStore for MemoryStore {
             Session {
                 record: record.clone(),
                 captures: Vec::new(),
-                last_used_unix_ms: now_unix_ms(),
+                last_used_unix_ms: self.now_unix_ms(),
             },
         );
         Ok(())
@@ -72,7 +86,7 @@ impl SessionStore for MemoryStore {
     async fn get(&self, id: &str) -> Result<SessionInfo, StoreError> {
         let mut sessions = self.live();
         let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
-        s.last_used_unix_ms = now_unix_ms();
+        s.last_used_unix_ms = self.now_unix_ms();
         Ok(info(s))
     }
 
@@ -91,14 +105,14 @@ impl SessionStore for MemoryStore {
         let mut sessions = self.live();
         let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
         s.captures.push(capture.to_vec());
-        s.last_used_unix_ms = now_unix_ms();
+        s.last_used_unix_ms = self.now_unix_ms();
         Ok(s.captures.len() as u64 - 1)
     }
 
     async fn captures(&self, id: &str) -> Result<Vec<Vec<u8>>, StoreError> {
         let mut sessions = self.live();
         let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
-        s.last_used_unix_ms = now_unix_ms();
+        s.last_used_unix_ms = self.now_unix_ms();
         Ok(s.captures.clone())
     }
 
@@ -111,6 +125,7 @@ impl SessionStore for MemoryStore {
 mod tests {
     use super::super::contract;
     use super::*;
+    use crate::service::clock::ManualClock;
 
     fn runtime() -> tokio::runtime::Runtime {
         tokio::runtime::Builder::new_current_thread()
@@ -124,8 +139,15 @@ mod tests {
         runtime().block_on(async {
             contract::crud(&MemoryStore::new(Duration::from_secs(60))).await;
             contract::captures(&MemoryStore::new(Duration::from_secs(60))).await;
-            let ttl = Duration::from_millis(600);
-            contract::expiry(&MemoryStore::new(ttl), ttl).await;
+            // An hour's TTL passes in no time on a manual clock.
+            let ttl = Duration::from_secs(3600);
+            let clock = Arc::new(ManualClock::new(1_700_000_000_000));
+            let store = MemoryStore::new(ttl).with_clock(clock.clone());
+            contract::expiry(&store, ttl, |d| {
+                clock.advance(d);
+                std::future::ready(())
+            })
+            .await;
         });
     }
 }

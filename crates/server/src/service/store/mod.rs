@@ -9,7 +9,10 @@
 //! ```
 //!
 //! A session not used (get, append, captures) for longer than the idle TTL disappears with its
-//! captures. Records and captures are opaque bytes here: the store never decodes them.
+//! captures. The memory and embedded stores measure that idleness by an injected
+//! [`Clock`](super::clock::Clock) (the system clock unless a test sets another with
+//! `with_clock`); Redis by its server's clock. Records and captures are opaque bytes here: the
+//! store never decodes them.
 
 pub mod embedded;
 pub mod memory;
@@ -17,7 +20,7 @@ pub mod redis;
 
 use std::path::Path;
 use std::sync::Arc;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 pub use self::redis::RedisStore;
 pub use embedded::EmbeddedStore;
@@ -143,14 +146,6 @@ fn a_password_is_never_shown() {
     assert_eq!(redacted("redis://token@cache"), "redis://***@cache");
     assert_eq!(redacted("redis://cache:6379"), "redis://cache:6379");
     assert_eq!(redacted("embedded"), "embedded");
-}
-
-/// Milliseconds since the Unix epoch (0 for a clock before 1970, which cannot happen in practice
-/// and must not panic).
-pub(crate) fn now_unix_ms() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis() as u64)
 }
 
 /// The TTL in milliseconds, at least 1 (a zero TTL would expire sessions as they are created).
@@ -301,14 +296,20 @@ pub(crate) mod contract {
         );
     }
 
-    /// With a `ttl` short store: use keeps a session alive, idleness ends it.
-    pub async fn expiry(store: &dyn SessionStore, ttl: Duration) {
+    /// With a store whose idle TTL is `ttl`: use keeps a session alive, idleness ends it.
+    /// `pass(d)` lets `d` go by on the store's clock: a manual clock's advance, or a real
+    /// sleep for a store that keeps time itself.
+    pub async fn expiry<F, Fut>(store: &dyn SessionStore, ttl: Duration, mut pass: F)
+    where
+        F: FnMut(Duration) -> Fut,
+        Fut: std::future::Future<Output = ()>,
+    {
         store.create(&record("idle")).await.unwrap();
         store.create(&record("busy")).await.unwrap();
         store.append_capture("idle", b"x").await.unwrap();
         let step = ttl / 3;
         for _ in 0..5 {
-            tokio::time::sleep(step).await;
+            pass(step).await;
             store.append_capture("busy", b"y").await.unwrap();
         }
         // More than the TTL has passed since "idle" was last used; "busy" was used throughout.

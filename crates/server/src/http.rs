@@ -20,14 +20,18 @@
 //! optional strings, then checked here: a bad value is that error naming its parameter
 //! (`timeout_ms`, `page_size`, `min_observations`, `format`), not axum's plain-text rejection.
 
+use std::convert::Infallible;
 use std::pin::Pin;
 use std::sync::Arc;
 
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
-use axum::extract::{DefaultBodyLimit, Extension, FromRequest, Multipart, Path, Query, State};
+use axum::extract::{
+    DefaultBodyLimit, Extension, FromRequest, FromRequestParts, Multipart, Path, Query, State,
+};
 use std::time::Duration;
 
+use axum::http::request::Parts;
 use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
@@ -182,11 +186,65 @@ async fn ready(State(service): State<Arc<Service>>) -> Response {
     }
 }
 
-fn is_protobuf(headers: &HeaderMap) -> bool {
-    headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with(PROTOBUF))
+/// How a request's body is written, from its `Content-Type`: proto3 JSON (the default),
+/// protobuf, or a `multipart/form-data` upload (for curl). An extractor, so that no handler
+/// reads the header itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum BodyFormat {
+    Json,
+    Protobuf,
+    Multipart,
+}
+
+impl BodyFormat {
+    fn of(headers: &HeaderMap) -> BodyFormat {
+        let content_type = headers
+            .get(header::CONTENT_TYPE)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("");
+        if content_type.starts_with(PROTOBUF) {
+            BodyFormat::Protobuf
+        } else if content_type.starts_with("multipart/form-data") {
+            BodyFormat::Multipart
+        } else {
+            BodyFormat::Json
+        }
+    }
+}
+
+impl<S: Send + Sync> FromRequestParts<S> for BodyFormat {
+    type Rejection = Infallible;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, Self::Rejection> {
+        Ok(BodyFormat::of(&parts.headers))
+    }
+}
+
+/// Whether the answer is protobuf: when the body was, or when `Accept` asks for it (GETs have
+/// no body to take the format from); proto3 JSON otherwise. An extractor, like [`BodyFormat`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct AnswerFormat {
+    protobuf: bool,
+}
+
+impl AnswerFormat {
+    fn of(headers: &HeaderMap) -> AnswerFormat {
+        let accepts = headers
+            .get(header::ACCEPT)
+            .and_then(|v| v.to_str().ok())
+            .is_some_and(|v| v.starts_with(PROTOBUF));
+        AnswerFormat {
+            protobuf: accepts || BodyFormat::of(headers) == BodyFormat::Protobuf,
+        }
+    }
+}
+
+impl<S: Send + Sync> FromRequestParts<S> for AnswerFormat {
+    type Rejection = Infallible;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, Self::Rejection> {
+        Ok(AnswerFormat::of(&parts.headers))
+    }
 }
 
 /// An error response, in JSON whatever the request's format (clients read it as text).
@@ -360,10 +418,11 @@ impl std::str::FromStr for MapFormat {
 async fn match_handler(
     State(service): State<Arc<Service>>,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
+    format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
-    let protobuf = is_protobuf(request.headers());
-    let multipart = is_multipart(request.headers());
+    let protobuf = format == BodyFormat::Protobuf;
+    let multipart = format == BodyFormat::Multipart;
     let start = std::time::Instant::now();
     let max_bytes = service.limits().max_message_bytes;
     let refuse = |e: ServiceError| {
@@ -489,21 +548,14 @@ async fn read_body(
         .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))
 }
 
-/// Whether the request is a `multipart/form-data` upload.
-fn is_multipart(headers: &HeaderMap) -> bool {
-    headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with("multipart/form-data"))
-}
-
 async fn calibrate(
     State(service): State<Arc<Service>>,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
+    format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
-    let protobuf = is_protobuf(request.headers());
-    let multipart = is_multipart(request.headers());
+    let protobuf = format == BodyFormat::Protobuf;
+    let multipart = format == BodyFormat::Multipart;
     let max_bytes = service.limits().max_message_bytes;
     let result = async {
         let timeout = query(params)?.timeout()?;
@@ -535,9 +587,10 @@ async fn calibrate(
 async fn create_session(
     State(service): State<Arc<Service>>,
     Extension(caller): Extension<Caller>,
+    format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
-    let protobuf = is_protobuf(request.headers());
+    let protobuf = format == BodyFormat::Protobuf;
     let max_bytes = service.limits().max_message_bytes;
     let result = async {
         let body = read_body(request, max_bytes).await?;
@@ -552,25 +605,25 @@ async fn list_sessions(
     State(service): State<Arc<Service>>,
     Extension(caller): Extension<Caller>,
     params: Result<Query<ListQuery>, QueryRejection>,
-    headers: HeaderMap,
+    answer_format: AnswerFormat,
 ) -> Response {
     let result = async {
         let request = query(params)?.request()?;
         service.list_sessions(&caller, request, "http").await
     }
     .await;
-    answer(result, wants_protobuf(&headers))
+    answer(result, answer_format.protobuf)
 }
 
 async fn get_session(
     State(service): State<Arc<Service>>,
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-    headers: HeaderMap,
+    answer_format: AnswerFormat,
 ) -> Response {
     answer(
         service.get_session(&caller, &id, "http").await,
-        wants_protobuf(&headers),
+        answer_format.protobuf,
     )
 }
 
@@ -578,22 +631,13 @@ async fn delete_session(
     State(service): State<Arc<Service>>,
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
-    headers: HeaderMap,
+    answer_format: AnswerFormat,
 ) -> Response {
     let result = service.delete_session(&caller, &id, "http").await;
     answer(
         result.map(|()| pb::DeleteSessionResponse {}),
-        wants_protobuf(&headers),
+        answer_format.protobuf,
     )
-}
-
-/// `Accept: application/x-protobuf` (for GETs, which have no body to take the format from).
-fn wants_protobuf(headers: &HeaderMap) -> bool {
-    headers
-        .get(header::ACCEPT)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with(PROTOBUF))
-        || is_protobuf(headers)
 }
 
 async fn add_capture(
@@ -601,10 +645,11 @@ async fn add_capture(
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
+    format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
-    let protobuf = is_protobuf(request.headers());
-    let multipart = is_multipart(request.headers());
+    let protobuf = format == BodyFormat::Protobuf;
+    let multipart = format == BodyFormat::Multipart;
     let max_bytes = service.limits().max_message_bytes;
     let result = async {
         let timeout = query(params)?.timeout()?;
@@ -643,7 +688,7 @@ async fn get_map(
     Extension(caller): Extension<Caller>,
     Path(id): Path<String>,
     params: Result<Query<MapQuery>, QueryRejection>,
-    headers: HeaderMap,
+    answer_format: AnswerFormat,
 ) -> Response {
     let result = async {
         let params = query(params)?;
@@ -655,7 +700,7 @@ async fn get_map(
         // Drawing and writing a large map is CPU work too.
         service
             .pool()
-            .run(move |_| map_export(&map, format, wants_protobuf(&headers)))
+            .run(move |_| map_export(&map, format, answer_format.protobuf))
             .await?
     }
     .await;
@@ -907,6 +952,31 @@ enum Input {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn headers(pairs: &[(header::HeaderName, &str)]) -> HeaderMap {
+        pairs
+            .iter()
+            .map(|(k, v)| (k.clone(), v.parse().unwrap()))
+            .collect()
+    }
+
+    #[test]
+    fn the_formats_come_from_content_type_and_accept() {
+        let protobuf = headers(&[(header::CONTENT_TYPE, PROTOBUF)]);
+        let upload = headers(&[(header::CONTENT_TYPE, "multipart/form-data; boundary=x")]);
+        let json = headers(&[(header::CONTENT_TYPE, "application/json")]);
+        assert_eq!(BodyFormat::of(&protobuf), BodyFormat::Protobuf);
+        assert_eq!(BodyFormat::of(&upload), BodyFormat::Multipart);
+        assert_eq!(BodyFormat::of(&json), BodyFormat::Json);
+        assert_eq!(BodyFormat::of(&HeaderMap::new()), BodyFormat::Json);
+        assert!(AnswerFormat::of(&protobuf).protobuf, "answered as asked");
+        assert!(
+            !AnswerFormat::of(&upload).protobuf,
+            "an upload is answered in JSON"
+        );
+        assert!(AnswerFormat::of(&headers(&[(header::ACCEPT, PROTOBUF)])).protobuf);
+        assert!(!AnswerFormat::of(&HeaderMap::new()).protobuf);
+    }
 
     #[test]
     fn map_formats_parse_by_their_query_names() {

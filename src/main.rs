@@ -418,7 +418,8 @@ fn run_demo(args: &DemoArgs) -> Result<(), Failure> {
 fn run_serve(args: &ServeArgs) -> Result<(), Failure> {
     use trinocular::service::{config::Config, serve::serve};
     let file = args.config.as_deref().map(read).transpose()?;
-    let layers = Config::with_flags(Config::layers(file.as_deref()), args);
+    let layers =
+        Config::with_flags(Config::layers(file.as_deref()), args).map_err(anyhow::Error::from)?;
     let config = Config::from_layers(&layers).map_err(anyhow::Error::from)?;
     serve(config).map_err(anyhow::Error::from)?;
     Ok(())

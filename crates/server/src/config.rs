@@ -261,14 +261,15 @@ impl Config {
     /// `layers` with command-line `flags` over them: `flags` serialises to a map keyed by
     /// dotted paths (`"server.grpc_addr"`), absent flags skipped — so each flag's declaration
     /// says which key it sets, and no code copies flags into the configuration one by one.
-    pub fn with_flags(layers: Figment, flags: &impl Serialize) -> Figment {
-        match serde_json::to_value(flags) {
-            Ok(serde_json::Value::Object(map)) => map
-                .into_iter()
-                .fold(layers, |layers, (key, value)| layers.merge((key, value))),
-            // Not a struct of flags: a programming error that extraction reports.
-            other => layers.merge(("flags", other.map_err(|e| e.to_string()))),
-        }
+    pub fn with_flags(layers: Figment, flags: &impl Serialize) -> Result<Figment, ConfigError> {
+        let not_a_map = || figment::Error::from("the flags are not a map of keys".to_string());
+        let flags = serde_json::to_value(flags).map_err(|_| not_a_map())?;
+        let serde_json::Value::Object(map) = flags else {
+            return Err(not_a_map().into());
+        };
+        Ok(map
+            .into_iter()
+            .fold(layers, |layers, (key, value)| layers.merge((key, value))))
     }
 
     /// The configuration the layers give, checked ([`Config::validate`]).

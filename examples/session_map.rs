@@ -6,6 +6,14 @@
 //!     cargo run --release --example session_map -- [--data DIR] [--images] [--out DIR]
 //!         [--min-observations N] [--options JSON] [--lateral-m M] [--lateral-rel R]
 //!         [--angle-deg A] [--max-gap-m G]
+//!         [--yaw-noise-deg Y --xy-noise-m T [--seed S]] [--register]
+//!
+//! Odometry is simulated by `--yaw-noise-deg` and `--xy-noise-m`: every capture but the first
+//! (whose pose anchors the map, as a robot's start anchors its odometry) gets a heading error
+//! about its rig's origin and an error across the floor drawn from N(0, Y°) and N(0, T m),
+//! independently, seeded by `--seed`. `--register` registers each capture, in order, to the
+//! captures before it (`map::register`) from that pose and the default prior covariance, and
+//! fuses with the refined poses; the pose errors against the true poses are printed.
 //!
 //! `--options` is a proto3-JSON `MatchOptions`, e.g. `{"maxDirectionSigmaDeg": 2}`.
 //! Writes `OUT/map.json` (`{"segments": [[x1,y1,z1,x2,y2,z2],...], "frame": "world",
@@ -18,7 +26,7 @@ use clap::Parser;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
 use trinocular::api::{self, pb, RequestLimits, RunMatch};
-use trinocular::map::{self, Capture, FuseParams};
+use trinocular::map::{self, Capture, FuseParams, Measured, PosePrior, RegisterParams};
 use trinocular::segment::Segment3;
 
 #[derive(Parser)]
@@ -44,6 +52,62 @@ struct Args {
     angle_deg: Option<f64>,
     #[arg(long)]
     max_gap_m: Option<f64>,
+    /// Heading error of the simulated odometry, 1σ, degrees.
+    #[arg(long, default_value_t = 0.0)]
+    yaw_noise_deg: f64,
+    /// Error across the floor of the simulated odometry, 1σ per axis, metres.
+    #[arg(long, default_value_t = 0.0)]
+    xy_noise_m: f64,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Register each capture to the ones before it.
+    #[arg(long)]
+    register: bool,
+    /// After registering in order, solve all poses together from the relative poses of every
+    /// pair of captures that registers (`map::poses`).
+    #[arg(long)]
+    graph: bool,
+}
+
+/// Standard normal draws from a seed (splitmix64, Box–Muller): the same noise for the same
+/// seed on every machine.
+struct Normal(u64);
+
+impl Normal {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        ((z >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+
+    fn sample(&mut self) -> f64 {
+        let (u, v) = (self.uniform(), self.uniform());
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    }
+}
+
+/// The pose odometry would report: `truth` turned about its own origin by a heading error and
+/// moved across the floor.
+fn perturbed(truth: &Isometry3<f64>, yaw: f64, dx: f64, dy: f64) -> Isometry3<f64> {
+    let turn = UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), yaw);
+    let t = truth.translation.vector + nalgebra::Vector3::new(dx, dy, 0.0);
+    Isometry3::from_parts(Translation3::from(t), turn * truth.rotation)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
 }
 
 type Error = Box<dyn std::error::Error>;
@@ -156,16 +220,27 @@ fn main() -> Result<(), Error> {
         })
         .collect();
     dirs.sort();
-    let mut poses = Vec::new();
+    let mut truths = Vec::new();
+    let mut measured: Vec<Vec<Measured>> = Vec::new();
     let mut segments: Vec<Vec<Segment3>> = Vec::new();
     let mut ids = Vec::new();
     for dir in &dirs {
         let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("");
         let id: u32 = name.trim_start_matches("capture_").parse()?;
-        let input = api::match_request(
-            &request(dir, args.images, &options)?,
-            &RequestLimits::default(),
-        )?;
+        let mut request = request(dir, args.images, &options)?;
+        // Registration uses every segment, each by its own covariance; the map only those
+        // that meet the gate, as a plain Match answers.
+        let asked_uncertain = request
+            .options
+            .as_ref()
+            .is_some_and(|o| o.include_uncertain == Some(true));
+        if args.register {
+            request
+                .options
+                .get_or_insert_with(Default::default)
+                .include_uncertain = Some(true);
+        }
+        let input = api::match_request(&request, &RequestLimits::default())?;
         let executed = input.execute()?;
         let out = &executed.output;
         eprintln!(
@@ -173,10 +248,84 @@ fn main() -> Result<(), Error> {
             out.segments_3d.len(),
             out.stats.total_ms
         );
-        segments.push(out.segments());
-        poses.push(pose(dir)?);
+        segments.push(
+            out.segments_3d
+                .iter()
+                .filter(|r| asked_uncertain || !r.uncertain)
+                .map(|r| r.segment)
+                .collect(),
+        );
+        measured.push(
+            out.segments_3d
+                .iter()
+                .map(|r| Measured {
+                    start: r.segment.start,
+                    end: r.segment.end,
+                    covariance: r.covariance,
+                })
+                .collect(),
+        );
+        truths.push(pose(dir)?);
         ids.push(id);
     }
+    let mut noise = Normal(args.seed);
+    let priors: Vec<Isometry3<f64>> = truths
+        .iter()
+        .enumerate()
+        .map(|(i, truth)| {
+            let (yaw, dx, dy) = (
+                noise.sample() * args.yaw_noise_deg.to_radians(),
+                noise.sample() * args.xy_noise_m,
+                noise.sample() * args.xy_noise_m,
+            );
+            if i == 0 {
+                *truth
+            } else {
+                perturbed(truth, yaw, dx, dy)
+            }
+        })
+        .collect();
+    let poses = if args.register {
+        register_in_order(
+            &priors,
+            &measured,
+            args.yaw_noise_deg,
+            args.xy_noise_m,
+            args.graph,
+        )
+    } else {
+        priors.clone()
+    };
+    let errors = |poses: &[Isometry3<f64>]| {
+        let later = poses.iter().zip(&truths).skip(1);
+        let rotation: Vec<f64> = later
+            .clone()
+            .map(|(p, t)| (p.rotation * t.rotation.inverse()).angle().to_degrees())
+            .collect();
+        let translation: Vec<f64> = later
+            .map(|(p, t)| (p.translation.vector - t.translation.vector).norm())
+            .collect();
+        (median(rotation), median(translation))
+    };
+    for (i, ((p, q), t)) in priors.iter().zip(&poses).zip(&truths).enumerate() {
+        let r = |x: &Isometry3<f64>| (x.rotation * t.rotation.inverse()).angle().to_degrees();
+        let d = |x: &Isometry3<f64>| (x.translation.vector - t.translation.vector).norm() * 1e3;
+        eprintln!(
+            "capture {i:02} error: prior {:.2} deg {:.1} mm, used {:.2} deg {:.1} mm",
+            r(p),
+            d(p),
+            r(q),
+            d(q)
+        );
+    }
+    let (prior_r, prior_t) = errors(&priors);
+    let (pose_r, pose_t) = errors(&poses);
+    eprintln!(
+        "pose error, median over captures after the first: prior {prior_r:.3} deg {:.1} mm, \
+         used {pose_r:.3} deg {:.1} mm",
+        prior_t * 1e3,
+        pose_t * 1e3
+    );
     let captures: Vec<Capture> = ids
         .iter()
         .zip(&poses)
@@ -203,7 +352,9 @@ fn main() -> Result<(), Error> {
         .map(|m| [m.start.x, m.start.y, m.start.z, m.end.x, m.end.y, m.end.z])
         .collect();
     let observations: Vec<u32> = fused.iter().map(|m| m.observations).collect();
-    let doc = json!({"segments": rows, "frame": "world", "observations": observations});
+    let doc = json!({"segments": rows, "frame": "world", "observations": observations,
+                     "pose_error": {"prior_deg": prior_r, "prior_m": prior_t,
+                                    "used_deg": pose_r, "used_m": pose_t}});
     std::fs::write(args.out.join("map.json"), doc.to_string())?;
     std::fs::write(args.out.join("map.ply"), map::export::to_ply(&fused))?;
     std::fs::write(
@@ -216,4 +367,104 @@ fn main() -> Result<(), Error> {
     )?;
     println!("{}", args.out.join("map.json").display());
     Ok(())
+}
+
+/// Each capture registered, in order, to the captures before it at their refined poses (a
+/// capture's segments as uncertain as its pose), then `sweeps` times each again to all the
+/// others, alternately backwards and forwards: the loop's end meets its start, and what it
+/// learns there flows back.
+fn register_in_order(
+    priors: &[Isometry3<f64>],
+    measured: &[Vec<Measured>],
+    yaw_sigma_deg: f64,
+    xy_sigma_m: f64,
+    graph: bool,
+) -> Vec<Isometry3<f64>> {
+    let prior = |i: usize| {
+        if i == 0 {
+            // The first pose anchors the map.
+            PosePrior {
+                rig_to_world: priors[0],
+                covariance: nalgebra::Matrix6::identity() * 1e-12,
+            }
+        } else {
+            prior_of(priors[i], yaw_sigma_deg, xy_sigma_m)
+        }
+    };
+    let mut poses: Vec<PosePrior> = Vec::new();
+    let references = |poses: &[PosePrior], skip: usize| -> Vec<Measured> {
+        poses
+            .iter()
+            .zip(measured)
+            .enumerate()
+            .filter(|(j, _)| *j != skip)
+            .flat_map(|(_, (p, m))| {
+                m.iter()
+                    .map(move |s| s.transformed_with(&p.rig_to_world, &p.covariance))
+            })
+            .collect()
+    };
+    for (i, segments) in measured.iter().enumerate() {
+        let t0 = std::time::Instant::now();
+        let got = map::register(
+            &references(&poses, usize::MAX),
+            segments,
+            &prior(i),
+            &RegisterParams::default(),
+        );
+        eprintln!(
+            "capture {i:02}: {:?}, {} inliers, moved {:.2} deg {:.1} mm, {:.1} ms",
+            got.status,
+            got.inliers,
+            got.rotation_change_deg,
+            got.translation_change_m * 1e3,
+            t0.elapsed().as_secs_f64() * 1e3
+        );
+        poses.push(PosePrior {
+            rig_to_world: got.rig_to_world,
+            covariance: got.covariance,
+        });
+    }
+    if graph {
+        // Every pair of captures that registers to each other constrains their relative
+        // pose; all poses are then solved together, the loop closing where it comes round.
+        let priors: Vec<PosePrior> = (0..priors.len()).map(prior).collect();
+        let mut relative = Vec::new();
+        for from in 0..priors.len() {
+            for to in 0..from {
+                if let Some(r) = map::poses::relative_pose(
+                    from,
+                    to,
+                    measured,
+                    &poses,
+                    &RegisterParams::default(),
+                ) {
+                    relative.push(r);
+                }
+            }
+        }
+        let links: Vec<String> = relative
+            .iter()
+            .map(|r| format!("{}-{} ({})", r.to, r.from, r.inliers))
+            .collect();
+        eprintln!(
+            "pose graph: {} relative poses: {}",
+            relative.len(),
+            links.join(", ")
+        );
+        poses = map::poses::optimise(&priors, &relative);
+    }
+    poses.iter().map(|p| p.rig_to_world).collect()
+}
+
+/// The prior a robot that knows its odometry's noise would give: the simulated heading and
+/// floor errors (no less than 0.25° and 1 cm), tilt and height as the defaults.
+fn prior_of(pose: Isometry3<f64>, yaw_sigma_deg: f64, xy_sigma_m: f64) -> PosePrior {
+    PosePrior::odometry(
+        pose,
+        yaw_sigma_deg.max(0.25),
+        map::register::DEFAULT_TILT_SIGMA_DEG,
+        xy_sigma_m.max(0.01),
+        map::register::DEFAULT_Z_SIGMA_M,
+    )
 }

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""Scores a session map (examples/session_map.rs) on ../shared/data/office with ../shared/eval.
+"""Scores a session map (examples/session_map.rs) on a room of ../shared/data with ../shared/eval.
 
-    /tmp/ev/bin/python tools/eval_map.py [--shared ../shared] [--images]
+    /tmp/ev/bin/python tools/eval_map.py [--shared ../shared] [--room office|lab] [--images]
         [--options '{"maxDirectionSigmaDeg": 2}'] [--min-observations 2]
         [--fuse '--lateral-m 0.02 --angle-deg 3'] [--out DIR] [--no-run]
 
@@ -25,6 +25,7 @@ def main():
     here = os.path.dirname(os.path.abspath(__file__))
     ap = argparse.ArgumentParser()
     ap.add_argument("--shared", default=os.path.join(here, "..", "..", "shared"))
+    ap.add_argument("--room", default="office")
     ap.add_argument("--images", action="store_true")
     ap.add_argument("--options", default=None, help="MatchOptions, proto3 JSON")
     ap.add_argument("--min-observations", default=None)
@@ -32,7 +33,7 @@ def main():
     ap.add_argument("--out", default=os.path.join("target", "eval_map"))
     ap.add_argument("--no-run", action="store_true")
     a = ap.parse_args()
-    data = os.path.join(a.shared, "data", "office")
+    data = os.path.join(a.shared, "data", a.room)
     if not a.no_run:
         cmd = ["cargo", "run", "--release", "--quiet", "--example", "session_map", "--",
                "--data", data, "--out", a.out]
@@ -83,6 +84,7 @@ def main():
     summary["covered_edges"] = len(groups)
     summary["segs_per_edge"] = round(n_correct / len(groups), 3) if groups else None
     summary["overlap_ratio"] = round(summed / union, 3) if union > 0 else None
+    summary["pose_error"] = json.load(open(map_path)).get("pose_error")
     print(json.dumps(summary))
 
 

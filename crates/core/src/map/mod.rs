@@ -12,6 +12,8 @@
 
 pub mod export;
 mod fuse;
+pub mod poses;
+pub mod register;
 #[cfg(test)]
 mod tests;
 
@@ -21,6 +23,9 @@ use crate::params::{check_all, Rule};
 use crate::segment::Segment3;
 
 pub use fuse::fuse;
+pub use register::{
+    register, Measured, PosePrior, RegisterParams, Registration, RegistrationStatus,
+};
 
 /// One capture of a session: its 3D segments in the rig frame and the pose of the rig.
 #[derive(Debug, Clone, Copy)]

@@ -1,0 +1,256 @@
+//! The poses of a whole session at once: a small pose graph.
+//!
+//! Registering each capture to the map as it arrives chains its errors: a capture that finds
+//! little in common with the map keeps its odometry, and the captures after it are registered
+//! to it, error and all. And independent references from one capture share that capture's
+//! pose error, so counting them as independent would make a doubtful capture outvote a sure
+//! one. The graph keeps the two apart: each pair of captures that see the same edges gives one
+//! constraint on their *relative* pose (registration of one to the other, with only the
+//! information the segments bring), each capture's odometry gives its prior, and all poses
+//! are solved together by Gauss–Newton — so where a panoramic session comes back to its start,
+//! the loop closes and the correction spreads along it.
+//!
+//! Poses are perturbed as in [`super::register`]: a rotation vector about the rig's origin
+//! (world axes), then a translation.
+
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, UnitQuaternion, Vector6};
+
+use super::register::{register, Measured, PosePrior, RegisterParams, RegistrationStatus};
+
+/// What two captures' segments say about where one rig was in the other's frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelativePose {
+    /// The capture whose rig is placed…
+    pub from: usize,
+    /// …in this capture's rig frame.
+    pub to: usize,
+    /// `from`'s rig-to-`to`'s-rig transform.
+    pub pose: Isometry3<f64>,
+    /// The information (inverse covariance) of that pose from the segments alone, in the
+    /// perturbation of [`PosePrior::covariance`] taken in `to`'s frame.
+    pub information: Matrix6<f64>,
+    pub inliers: u32,
+}
+
+/// The relative pose of captures `from` and `to` (rig-frame segments, world priors), or `None`
+/// when registration finds too little in common.
+pub fn relative_pose(
+    from: usize,
+    to: usize,
+    segments: &[Vec<Measured>],
+    priors: &[PosePrior],
+    params: &RegisterParams,
+) -> Option<RelativePose> {
+    let (pi, pj) = (&priors[from], &priors[to]);
+    let predicted = pj.rig_to_world.inverse() * pi.rig_to_world;
+    let prior = PosePrior {
+        rig_to_world: predicted,
+        covariance: relative_covariance(pi, pj),
+    };
+    let got = register(&segments[to], &segments[from], &prior, params);
+    if got.status != RegistrationStatus::Registered {
+        return None;
+    }
+    // The registration's information is the prior's plus the segments'; the graph adds the
+    // priors itself, so only the segments' is kept.
+    let posterior = got.covariance.try_inverse()?;
+    let prior_information = prior.covariance.try_inverse()?;
+    let information = positive_part(&(posterior - prior_information));
+    Some(RelativePose {
+        from,
+        to,
+        pose: got.rig_to_world,
+        information,
+        inliers: got.inliers,
+    })
+}
+
+/// The covariance of `i`'s pose in `j`'s frame when both world poses carry their priors'
+/// independent errors (first order; rotation–translation cross terms left out).
+fn relative_covariance(i: &PosePrior, j: &PosePrior) -> Matrix6<f64> {
+    let rj = j.rig_to_world.rotation.to_rotation_matrix().into_inner();
+    let lever = i.rig_to_world.translation.vector - j.rig_to_world.translation.vector;
+    let cross = lever.cross_matrix();
+    let rotation = i.covariance.fixed_view::<3, 3>(0, 0) + j.covariance.fixed_view::<3, 3>(0, 0);
+    let translation = i.covariance.fixed_view::<3, 3>(3, 3)
+        + j.covariance.fixed_view::<3, 3>(3, 3)
+        + cross * j.covariance.fixed_view::<3, 3>(0, 0) * cross.transpose();
+    let mut c = Matrix6::zeros();
+    c.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(rj.transpose() * rotation * rj));
+    c.fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&(rj.transpose() * translation * rj));
+    c
+}
+
+/// A symmetric matrix with its negative eigenvalues (round-off of a difference) set to 0.
+fn positive_part(m: &Matrix6<f64>) -> Matrix6<f64> {
+    let eig = nalgebra::SymmetricEigen::new((m + m.transpose()) * 0.5);
+    let values = eig.eigenvalues.map(|v| v.max(0.0));
+    eig.eigenvectors * Matrix6::from_diagonal(&values) * eig.eigenvectors.transpose()
+}
+
+/// The difference `a ⊖ b` in the perturbation's terms: the rotation vector taking `b`'s
+/// rotation to `a`'s, then the translation from `b`'s origin to `a`'s.
+fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> Vector6<f64> {
+    let rotation = (a.rotation * b.rotation.inverse()).scaled_axis();
+    let translation = a.translation.vector - b.translation.vector;
+    Vector6::new(
+        rotation.x,
+        rotation.y,
+        rotation.z,
+        translation.x,
+        translation.y,
+        translation.z,
+    )
+}
+
+fn perturbed(pose: &Isometry3<f64>, xi: &Vector6<f64>) -> Isometry3<f64> {
+    let rotation = UnitQuaternion::from_scaled_axis(xi.fixed_rows::<3>(0).into_owned());
+    Isometry3::from_parts(
+        (pose.translation.vector + xi.fixed_rows::<3>(3)).into(),
+        rotation * pose.rotation,
+    )
+}
+
+/// Gauss–Newton steps of [`optimise`].
+const STEPS: usize = 10;
+/// Step of the numerical derivatives: radians and metres.
+const DELTA: f64 = 1e-7;
+
+/// The poses that best agree with the priors and the relative poses, each with its marginal
+/// covariance. A capture with a (nearly) exact prior anchors the others.
+pub fn optimise(priors: &[PosePrior], relative: &[RelativePose]) -> Vec<PosePrior> {
+    let n = priors.len();
+    let informations: Vec<Option<Matrix6<f64>>> =
+        priors.iter().map(|p| p.covariance.try_inverse()).collect();
+    let mut poses: Vec<Isometry3<f64>> = priors.iter().map(|p| p.rig_to_world).collect();
+    let residual = |poses: &[Isometry3<f64>], r: &RelativePose| {
+        let predicted = poses[r.to].inverse() * poses[r.from];
+        difference(&r.pose, &predicted)
+    };
+    let mut hessian = DMatrix::<f64>::zeros(6 * n, 6 * n);
+    for _ in 0..STEPS {
+        hessian = DMatrix::zeros(6 * n, 6 * n);
+        let mut gradient = DVector::<f64>::zeros(6 * n);
+        for (i, (p, info)) in priors.iter().zip(&informations).enumerate() {
+            let Some(info) = info else { continue };
+            let e = difference(&poses[i], &p.rig_to_world);
+            // d e / d ξᵢ is the identity to first order.
+            add_block(&mut hessian, i, i, info);
+            let g = info * e;
+            let mut rows = gradient.rows_mut(6 * i, 6);
+            rows -= g;
+        }
+        for r in relative {
+            let e0 = residual(&poses, r);
+            let mut jacobian = nalgebra::SMatrix::<f64, 6, 12>::zeros();
+            for (block, node) in [r.from, r.to].into_iter().enumerate() {
+                for k in 0..6 {
+                    let mut xi = Vector6::zeros();
+                    xi[k] = DELTA;
+                    let mut moved = poses.clone();
+                    moved[node] = perturbed(&poses[node], &xi);
+                    let column = (residual(&moved, r) - e0) / DELTA;
+                    jacobian.set_column(6 * block + k, &column);
+                }
+            }
+            let jt_i = jacobian.transpose() * r.information;
+            let h = jt_i * jacobian;
+            let g = jt_i * e0;
+            for (a, na) in [r.from, r.to].into_iter().enumerate() {
+                let mut rows = gradient.rows_mut(6 * na, 6);
+                rows -= g.fixed_rows::<6>(6 * a);
+                for (b, nb) in [r.from, r.to].into_iter().enumerate() {
+                    let block: Matrix6<f64> = h.fixed_view::<6, 6>(6 * a, 6 * b).into_owned();
+                    add_block(&mut hessian, na, nb, &block);
+                }
+            }
+        }
+        let Some(step) = hessian.clone().cholesky().map(|c| c.solve(&gradient)) else {
+            break;
+        };
+        for (i, pose) in poses.iter_mut().enumerate() {
+            let xi = Vector6::from_iterator(step.rows(6 * i, 6).iter().copied());
+            *pose = perturbed(pose, &xi);
+        }
+        if step.amax() < 1e-10 {
+            break;
+        }
+    }
+    let covariance = hessian.clone().try_inverse();
+    poses
+        .into_iter()
+        .enumerate()
+        .map(|(i, rig_to_world)| PosePrior {
+            rig_to_world,
+            covariance: covariance
+                .as_ref()
+                .map(|c| Matrix6::from_fn(|r, k| c[(6 * i + r, 6 * i + k)]))
+                .unwrap_or(priors[i].covariance),
+        })
+        .collect()
+}
+
+/// Adds `m` to the 6x6 block of `h` at block row `r`, block column `c`.
+fn add_block(h: &mut DMatrix<f64>, r: usize, c: usize, m: &Matrix6<f64>) {
+    let mut view = h.view_mut((6 * r, 6 * c), (6, 6));
+    view += m;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn pose(x: f64, y: f64, angle: f64) -> Isometry3<f64> {
+        Isometry3::new(Vector3::new(x, y, 1.0), Vector3::z() * angle)
+    }
+
+    #[test]
+    fn a_loop_of_exact_relative_poses_corrects_noisy_priors() {
+        let truth: Vec<Isometry3<f64>> = (0..8)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 8.0;
+                pose(a.cos(), a.sin(), a)
+            })
+            .collect();
+        let noise = [0.0, 0.03, -0.02, 0.04, -0.05, 0.02, 0.01, -0.03];
+        let priors: Vec<PosePrior> = truth
+            .iter()
+            .zip(noise)
+            .enumerate()
+            .map(|(k, (t, e))| {
+                let off = Isometry3::rotation(Vector3::z() * e) * *t;
+                let prior = PosePrior::odometry(off, 3.0, 0.3, 0.05, 0.01);
+                if k == 0 {
+                    PosePrior {
+                        rig_to_world: *t,
+                        covariance: Matrix6::identity() * 1e-12,
+                    }
+                } else {
+                    prior
+                }
+            })
+            .collect();
+        let strong = Matrix6::identity() * 1e8;
+        let relative: Vec<RelativePose> = (0..8)
+            .map(|k| {
+                let (from, to) = ((k + 1) % 8, k);
+                RelativePose {
+                    from,
+                    to,
+                    pose: truth[to].inverse() * truth[from],
+                    information: strong,
+                    inliers: 10,
+                }
+            })
+            .collect();
+        let got = optimise(&priors, &relative);
+        for (g, t) in got.iter().zip(&truth) {
+            let angle = (g.rig_to_world.rotation * t.rotation.inverse()).angle();
+            let shift = (g.rig_to_world.translation.vector - t.translation.vector).norm();
+            assert!(angle < 1e-4 && shift < 1e-4, "{angle} {shift}");
+        }
+    }
+}

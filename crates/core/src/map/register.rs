@@ -1,0 +1,753 @@
+//! Registration of a capture to the map: where was the rig, given where the robot thinks it
+//! was and the 3D segments already seen?
+//!
+//! A robot's pose is a prior, not a fact: wheel odometry drifts by a degree or more per turn
+//! and centimetres per metre. [`register`] finds the rigid pose that best explains the
+//! capture's 3D segments as segments already in the map, weighted by both sides'
+//! covariances, and pulled towards the prior by the prior's own covariance — a maximum a
+//! posteriori estimate.
+//!
+//! The steps:
+//! 1. **Candidates.** Each capture segment is paired with the reference segments it may be
+//!    under the prior: the χ² of its endpoints' distances to the reference's line, under the
+//!    measurement noise *and* the spread the prior's uncertainty gives them there, within a
+//!    wide gate; the segments must also overlap along the line.
+//! 2. **Hypotheses.** Two candidate pairs of non-parallel segments fix all six degrees of
+//!    freedom; each such pair of pairs, among the longest segments, is solved with the prior
+//!    and scored by a truncated χ² over every capture segment (MSAC). A scene of many
+//!    parallel edges, where the nearest reference is often the wrong one, is why
+//!    association is not simply nearest-neighbour from the prior.
+//! 3. **Refinement.** From the best hypothesis: associate each segment with its best
+//!    reference within the measurement gate, solve by Gauss–Newton, re-associate, until the
+//!    inliers no longer change. The covariance is the inverse of the information of the
+//!    inliers and the prior.
+//!
+//! The pose is perturbed about the rig's origin, not the world's: a yaw error then moves no
+//! point of the rig, as odometry's does, and the prior's rotation and translation are
+//! independent.
+
+use nalgebra::{
+    Isometry3, Matrix2x3, Matrix3, Matrix4, Matrix6, Point3, SMatrix, Translation3, UnitQuaternion,
+    Vector3, Vector4, Vector6,
+};
+
+use crate::geometry::across_basis;
+
+/// A 3D segment with the covariance of its endpoints stacked (x1 y1 z1 x2 y2 z2), metres².
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Measured {
+    pub start: Point3<f64>,
+    pub end: Point3<f64>,
+    pub covariance: Matrix6<f64>,
+}
+
+impl Measured {
+    /// The segment moved by `pose`, its covariance rotated with it.
+    pub fn transformed(&self, pose: &Isometry3<f64>) -> Measured {
+        let r = pose.rotation.to_rotation_matrix().into_inner();
+        let big = block_diag(&r);
+        Measured {
+            start: pose * self.start,
+            end: pose * self.end,
+            covariance: big * self.covariance * big.transpose(),
+        }
+    }
+
+    /// The segment moved by `pose`, whose own uncertainty (`pose_covariance`, as
+    /// [`PosePrior::covariance`]) is added to the endpoints': a reference from a capture
+    /// whose pose is doubtful is doubtful by as much.
+    pub fn transformed_with(
+        &self,
+        pose: &Isometry3<f64>,
+        pose_covariance: &Matrix6<f64>,
+    ) -> Measured {
+        let mut moved = self.transformed(pose);
+        let origin = pose.translation.vector;
+        let mut jacobian = Matrix6::zeros();
+        for (i, p) in [moved.start, moved.end].into_iter().enumerate() {
+            let lever = p.coords - origin;
+            jacobian
+                .fixed_view_mut::<3, 3>(3 * i, 0)
+                .copy_from(&(-lever.cross_matrix()));
+            jacobian
+                .fixed_view_mut::<3, 3>(3 * i, 3)
+                .copy_from(&Matrix3::identity());
+        }
+        moved.covariance += jacobian * pose_covariance * jacobian.transpose();
+        moved
+    }
+
+    fn length(&self) -> f64 {
+        (self.end - self.start).norm()
+    }
+
+    /// The covariance across the line only, with `floor` metres of isotropic noise across it.
+    /// Registration measures how far endpoints are from lines, wherever along them they fall:
+    /// where a segment ends is no measurement of the pose, and its along-line spread, seen
+    /// from a line at an angle, would excuse any distance.
+    fn across_only(&self, floor: f64) -> Measured {
+        let d = (self.end - self.start) / self.length();
+        let across = Matrix3::identity() - d * d.transpose();
+        let project = block_diag(&across);
+        let mut covariance = project * self.covariance * project.transpose();
+        covariance += project * (floor * floor);
+        Measured {
+            covariance,
+            ..*self
+        }
+    }
+}
+
+/// Where the robot believes the rig was, and how sure it is: the covariance of a small
+/// rotation vector about the rig's origin (world axes, radians) then of the translation
+/// (world axes, metres), 6x6.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PosePrior {
+    pub rig_to_world: Isometry3<f64>,
+    pub covariance: Matrix6<f64>,
+}
+
+/// The prior's standard deviations when a client gives none: a wheeled robot's odometry on
+/// a flat floor — 3° of heading and 5 cm across the floor, but its tilt (0.3°) and height
+/// (1 cm) barely change, as the floor holds them.
+pub const DEFAULT_YAW_SIGMA_DEG: f64 = 3.0;
+pub const DEFAULT_TILT_SIGMA_DEG: f64 = 0.3;
+pub const DEFAULT_XY_SIGMA_M: f64 = 0.05;
+pub const DEFAULT_Z_SIGMA_M: f64 = 0.01;
+
+impl PosePrior {
+    /// A prior of independent errors: heading (about world z), tilt (about world x and y),
+    /// across the floor (x, y) and height (z), as standard deviations.
+    pub fn odometry(
+        rig_to_world: Isometry3<f64>,
+        yaw_sigma_deg: f64,
+        tilt_sigma_deg: f64,
+        xy_sigma_m: f64,
+        z_sigma_m: f64,
+    ) -> PosePrior {
+        let (tilt, yaw) = (tilt_sigma_deg.to_radians(), yaw_sigma_deg.to_radians());
+        let diagonal = Vector6::new(
+            tilt * tilt,
+            tilt * tilt,
+            yaw * yaw,
+            xy_sigma_m * xy_sigma_m,
+            xy_sigma_m * xy_sigma_m,
+            z_sigma_m * z_sigma_m,
+        );
+        PosePrior {
+            rig_to_world,
+            covariance: Matrix6::from_diagonal(&diagonal),
+        }
+    }
+
+    /// [`PosePrior::odometry`] with the documented defaults.
+    pub fn with_default_covariance(rig_to_world: Isometry3<f64>) -> PosePrior {
+        PosePrior::odometry(
+            rig_to_world,
+            DEFAULT_YAW_SIGMA_DEG,
+            DEFAULT_TILT_SIGMA_DEG,
+            DEFAULT_XY_SIGMA_M,
+            DEFAULT_Z_SIGMA_M,
+        )
+    }
+
+    /// True when the pose is finite and the covariance symmetric positive definite.
+    pub fn is_valid(&self) -> bool {
+        let finite = self
+            .rig_to_world
+            .translation
+            .vector
+            .iter()
+            .all(|v| v.is_finite())
+            && self
+                .rig_to_world
+                .rotation
+                .coords
+                .iter()
+                .all(|v| v.is_finite());
+        let symmetric = (self.covariance - self.covariance.transpose()).abs().max()
+            <= 1e-12 * self.covariance.abs().max().max(1e-300);
+        finite && symmetric && self.covariance.cholesky().is_some()
+    }
+}
+
+/// How registration went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RegistrationStatus {
+    /// The pose was refined against the map.
+    Registered,
+    /// The map was empty (the session's first capture): the prior is kept.
+    EmptyMap,
+    /// Too few of the capture's segments were found in the map: the prior is kept.
+    TooFewInCommon,
+}
+
+/// The outcome of [`register`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Registration {
+    /// The refined pose, or the prior's when not [`RegistrationStatus::Registered`].
+    pub rig_to_world: Isometry3<f64>,
+    /// Its covariance, as [`PosePrior::covariance`].
+    pub covariance: Matrix6<f64>,
+    pub status: RegistrationStatus,
+    /// Capture segments matched to a map segment.
+    pub inliers: u32,
+    /// How far the refined pose is from the prior: the angle of the rotation between them,
+    /// degrees, and the distance between the rig origins, metres.
+    pub rotation_change_deg: f64,
+    pub translation_change_m: f64,
+}
+
+/// Tunables of [`register`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RegisterParams {
+    /// Fewest inliers for a registration; with fewer the prior is kept.
+    pub min_inliers: u32,
+    /// Isotropic noise added to every endpoint's covariance, metres: what the segments'
+    /// covariances do not model (a map built from slightly misplaced captures, ends of lines
+    /// cut differently in each view).
+    pub noise_floor_m: f64,
+    /// Capture segments shorter than this take no part, metres.
+    pub min_length_m: f64,
+}
+
+impl Default for RegisterParams {
+    fn default() -> Self {
+        RegisterParams {
+            min_inliers: 6,
+            noise_floor_m: 0.002,
+            min_length_m: 0.05,
+        }
+    }
+}
+
+/// χ² with 4 degrees of freedom (two endpoints, two directions across the line each) at
+/// 0.999: the gate of a candidate under the prior.
+const CANDIDATE_GATE: f64 = 18.467;
+/// … at 0.99: the gate of an inlier under a hypothesis, and the truncation of its cost.
+const INLIER_GATE: f64 = 13.277;
+/// Candidates kept per capture segment, best first.
+const MAX_CANDIDATES: usize = 6;
+/// Capture segments (longest first) whose candidates seed hypotheses.
+const SEED_SEGMENTS: usize = 10;
+/// Two seeds must differ in direction by this much to fix the rotation, degrees.
+const MIN_SEED_ANGLE_DEG: f64 = 20.0;
+/// A hypothesis from two pairs is itself uncertain: this much rotation (radians) and
+/// translation (metres), as standard deviations, widen the gate while scoring it.
+const HYPOTHESIS_SLACK_RAD: f64 = 0.003;
+const HYPOTHESIS_SLACK_M: f64 = 0.005;
+/// Farthest a capture segment may reach past a reference's end along the line, metres.
+const MAX_GAP_M: f64 = 0.2;
+/// Gauss–Newton steps per solve, and rounds of re-association.
+const SOLVE_STEPS: usize = 5;
+const REFINE_ROUNDS: usize = 8;
+
+/// Registers `capture` (rig frame) to `map` (world frame) from `prior`: see the module
+/// documentation. Deterministic: the same inputs give the same pose.
+pub fn register(
+    map: &[Measured],
+    capture: &[Measured],
+    prior: &PosePrior,
+    params: &RegisterParams,
+) -> Registration {
+    let kept = Registration {
+        rig_to_world: prior.rig_to_world,
+        covariance: prior.covariance,
+        status: RegistrationStatus::EmptyMap,
+        inliers: 0,
+        rotation_change_deg: 0.0,
+        translation_change_m: 0.0,
+    };
+    let references: Vec<Reference> = map
+        .iter()
+        .filter_map(|m| Reference::new(&m.across_only(params.noise_floor_m)))
+        .collect();
+    if references.is_empty() {
+        return kept;
+    }
+    let too_few = Registration {
+        status: RegistrationStatus::TooFewInCommon,
+        ..kept
+    };
+    let Some(prior_information) = prior.covariance.try_inverse() else {
+        return too_few;
+    };
+    let segments: Vec<Measured> = capture
+        .iter()
+        .filter(|s| s.length() >= params.min_length_m && s.length().is_finite())
+        .map(|s| s.across_only(params.noise_floor_m))
+        .collect();
+    let problem = Problem {
+        prior,
+        prior_information,
+        references: &references,
+        segments: &segments,
+    };
+    let candidates = problem.candidates();
+    let Some(best) = problem.best_hypothesis(&candidates) else {
+        return too_few;
+    };
+    let (xi, inliers, information) = problem.refine(best, &candidates);
+    if (inliers.len() as u32) < params.min_inliers {
+        return Registration {
+            inliers: inliers.len() as u32,
+            ..too_few
+        };
+    }
+    let pose = problem.pose(&xi);
+    let change = pose * prior.rig_to_world.inverse();
+    Registration {
+        rig_to_world: pose,
+        covariance: information
+            .try_inverse()
+            .map(|c| (c + c.transpose()) * 0.5)
+            .unwrap_or(prior.covariance),
+        status: RegistrationStatus::Registered,
+        inliers: inliers.len() as u32,
+        rotation_change_deg: change.rotation.angle().to_degrees(),
+        translation_change_m: (pose.translation.vector - prior.rig_to_world.translation.vector)
+            .norm(),
+    }
+}
+
+/// A map segment as a line to measure against.
+struct Reference {
+    a: Point3<f64>,
+    direction: Vector3<f64>,
+    length: f64,
+    /// Across the line: two unit vectors, as rows.
+    across: Matrix2x3<f64>,
+    covariance: Matrix6<f64>,
+}
+
+impl Reference {
+    fn new(m: &Measured) -> Option<Reference> {
+        let length = m.length();
+        let finite = m.start.iter().chain(m.end.iter()).all(|v| v.is_finite())
+            && m.covariance.iter().all(|v| v.is_finite());
+        if !finite || length < 1e-6 {
+            return None;
+        }
+        let direction = (m.end - m.start) / length;
+        let (e1, e2) = across_basis(&direction);
+        Some(Reference {
+            a: m.start,
+            direction,
+            length,
+            across: Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]),
+            covariance: m.covariance,
+        })
+    }
+
+    /// Where `p` falls along the line, as a fraction of the segment (0 at `a`, 1 at the end).
+    fn fraction(&self, p: &Point3<f64>) -> f64 {
+        (p - self.a).dot(&self.direction) / self.length
+    }
+}
+
+/// One pairing of a capture segment with a reference.
+#[derive(Debug, Clone, Copy)]
+struct Pair {
+    segment: usize,
+    reference: usize,
+}
+
+struct Problem<'a> {
+    prior: &'a PosePrior,
+    prior_information: Matrix6<f64>,
+    references: &'a [Reference],
+    segments: &'a [Measured],
+}
+
+/// The residual of a pairing (both endpoints, across the reference's line), its Jacobian in
+/// the pose perturbation, and the covariance of the residual from both sides' noise.
+struct Linearised {
+    residual: Vector4<f64>,
+    jacobian: SMatrix<f64, 4, 6>,
+    covariance: Matrix4<f64>,
+}
+
+impl Problem<'_> {
+    /// The pose at perturbation `xi` (rotation vector about the rig's origin, translation)
+    /// of the prior.
+    fn pose(&self, xi: &Vector6<f64>) -> Isometry3<f64> {
+        let rotation = UnitQuaternion::from_scaled_axis(xi.fixed_rows::<3>(0).into_owned());
+        let translation = self.prior.rig_to_world.translation.vector + xi.fixed_rows::<3>(3);
+        Isometry3::from_parts(
+            Translation3::from(translation),
+            rotation * self.prior.rig_to_world.rotation,
+        )
+    }
+
+    fn linearise(&self, pair: Pair, pose: &Isometry3<f64>) -> Option<Linearised> {
+        let s = &self.segments[pair.segment];
+        let r = &self.references[pair.reference];
+        let world = s.transformed(pose);
+        let (f0, f1) = (r.fraction(&world.start), r.fraction(&world.end));
+        // The ends must overlap the reference along the line, up to a gap.
+        let gap = MAX_GAP_M / r.length;
+        if f0.max(f1) < -gap || f0.min(f1) > 1.0 + gap {
+            return None;
+        }
+        let origin = pose.translation.vector;
+        let mut residual = Vector4::zeros();
+        let mut jacobian = SMatrix::<f64, 4, 6>::zeros();
+        // Maps the capture's endpoints, then the reference's, to the four residuals.
+        let mut from_capture = SMatrix::<f64, 4, 6>::zeros();
+        let mut from_reference = SMatrix::<f64, 4, 6>::zeros();
+        for (i, (q, f)) in [(world.start, f0), (world.end, f1)].into_iter().enumerate() {
+            let f = f.clamp(0.0, 1.0);
+            let foot = r.a + r.direction * (f * r.length);
+            let e = r.across * (q - foot);
+            residual.fixed_rows_mut::<2>(2 * i).copy_from(&e);
+            let lever = q.coords - origin;
+            let d_rotation = -(r.across * lever.cross_matrix());
+            jacobian
+                .fixed_view_mut::<2, 3>(2 * i, 0)
+                .copy_from(&d_rotation);
+            jacobian
+                .fixed_view_mut::<2, 3>(2 * i, 3)
+                .copy_from(&r.across);
+            from_capture
+                .fixed_view_mut::<2, 3>(2 * i, 3 * i)
+                .copy_from(&r.across);
+            from_reference
+                .fixed_view_mut::<2, 3>(2 * i, 0)
+                .copy_from(&(r.across * (1.0 - f)));
+            from_reference
+                .fixed_view_mut::<2, 3>(2 * i, 3)
+                .copy_from(&(r.across * f));
+        }
+        let covariance = from_capture * world.covariance * from_capture.transpose()
+            + from_reference * r.covariance * from_reference.transpose();
+        Some(Linearised {
+            residual,
+            jacobian,
+            covariance,
+        })
+    }
+
+    /// χ² of a pairing at `pose`, its covariance widened by the pose's own `uncertainty`.
+    fn chi2(&self, pair: Pair, pose: &Isometry3<f64>, uncertainty: &Matrix6<f64>) -> Option<f64> {
+        let l = self.linearise(pair, pose)?;
+        let s = l.covariance + l.jacobian * uncertainty * l.jacobian.transpose();
+        let chol = s.cholesky()?;
+        Some(l.residual.dot(&chol.solve(&l.residual)))
+    }
+
+    /// Per capture segment, the references it may be under the prior, best first.
+    fn candidates(&self) -> Vec<Vec<(usize, f64)>> {
+        let pose = self.prior.rig_to_world;
+        let origin = Point3::from(pose.translation.vector);
+        // How far the prior's uncertainty may move a point at range ρ: 3σ of translation
+        // plus 3σ of rotation times ρ; a cheap distance test before any χ².
+        let sigma_t = self
+            .prior
+            .covariance
+            .fixed_view::<3, 3>(3, 3)
+            .trace()
+            .sqrt();
+        let sigma_r = self
+            .prior
+            .covariance
+            .fixed_view::<3, 3>(0, 0)
+            .trace()
+            .sqrt();
+        self.segments
+            .iter()
+            .enumerate()
+            .map(|(k, s)| {
+                let world = s.transformed(&pose);
+                let mid = nalgebra::center(&world.start, &world.end);
+                let reach =
+                    3.0 * (sigma_t + sigma_r * (mid - origin).norm()) + 0.5 * s.length() + 0.1;
+                let mut found: Vec<(usize, f64)> = self
+                    .references
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, r)| {
+                        let rmid = r.a + r.direction * (0.5 * r.length);
+                        (rmid - mid).norm() <= reach + 0.5 * r.length
+                    })
+                    .filter_map(|(j, _)| {
+                        let pair = Pair {
+                            segment: k,
+                            reference: j,
+                        };
+                        self.chi2(pair, &pose, &self.prior.covariance)
+                            .filter(|c| *c <= CANDIDATE_GATE)
+                            .map(|c| (j, c))
+                    })
+                    .collect();
+                found.sort_by(|x, y| x.1.total_cmp(&y.1).then(x.0.cmp(&y.0)));
+                found.truncate(MAX_CANDIDATES);
+                found
+            })
+            .collect()
+    }
+
+    /// Gauss–Newton from `xi` on `pairs` with the prior; returns the perturbation and the
+    /// information matrix at it.
+    fn solve(&self, mut xi: Vector6<f64>, pairs: &[Pair]) -> (Vector6<f64>, Matrix6<f64>) {
+        let mut information = self.prior_information;
+        for _ in 0..SOLVE_STEPS {
+            let pose = self.pose(&xi);
+            let mut h = self.prior_information;
+            let mut g = -(self.prior_information * xi);
+            for &pair in pairs {
+                let Some(l) = self.linearise(pair, &pose) else {
+                    continue;
+                };
+                let Some(w) = l.covariance.try_inverse() else {
+                    continue;
+                };
+                let jt_w = l.jacobian.transpose() * w;
+                h += jt_w * l.jacobian;
+                g -= jt_w * l.residual;
+            }
+            information = h;
+            let Some(step) = h.cholesky().map(|c| c.solve(&g)) else {
+                break;
+            };
+            xi += step;
+            if step.norm() < 1e-9 {
+                break;
+            }
+        }
+        (xi, information)
+    }
+
+    /// MSAC cost of a pose: every capture segment's best χ² among its candidates, truncated
+    /// at the inlier gate.
+    fn cost(&self, pose: &Isometry3<f64>, candidates: &[Vec<(usize, f64)>]) -> f64 {
+        let slack = slack();
+        candidates
+            .iter()
+            .enumerate()
+            .map(|(k, list)| {
+                list.iter()
+                    .filter_map(|&(j, _)| {
+                        self.chi2(
+                            Pair {
+                                segment: k,
+                                reference: j,
+                            },
+                            pose,
+                            &slack,
+                        )
+                    })
+                    .fold(INLIER_GATE, f64::min)
+            })
+            .sum()
+    }
+
+    /// The best pose of two non-parallel pairings among the longest segments, or `None`
+    /// when no two such segments have candidates.
+    fn best_hypothesis(&self, candidates: &[Vec<(usize, f64)>]) -> Option<Vector6<f64>> {
+        let mut seeds: Vec<usize> = (0..self.segments.len())
+            .filter(|&k| !candidates[k].is_empty())
+            .collect();
+        seeds.sort_by(|&a, &b| {
+            self.segments[b]
+                .length()
+                .total_cmp(&self.segments[a].length())
+                .then(a.cmp(&b))
+        });
+        seeds.truncate(SEED_SEGMENTS);
+        let direction = |k: usize| {
+            let s = &self.segments[k];
+            (s.end - s.start).normalize()
+        };
+        let cos_min = MIN_SEED_ANGLE_DEG.to_radians().cos();
+        // The prior itself is a hypothesis: with exact odometry it should win.
+        let mut best = (
+            self.cost(&self.prior.rig_to_world, candidates),
+            Vector6::zeros(),
+        );
+        for (n, &k1) in seeds.iter().enumerate() {
+            for &k2 in &seeds[n + 1..] {
+                if direction(k1).dot(&direction(k2)).abs() > cos_min {
+                    continue;
+                }
+                for &(j1, _) in &candidates[k1] {
+                    for &(j2, _) in &candidates[k2] {
+                        if j1 == j2 {
+                            continue;
+                        }
+                        let pairs = [
+                            Pair {
+                                segment: k1,
+                                reference: j1,
+                            },
+                            Pair {
+                                segment: k2,
+                                reference: j2,
+                            },
+                        ];
+                        let (xi, _) = self.solve(Vector6::zeros(), &pairs);
+                        let cost = self.cost(&self.pose(&xi), candidates);
+                        if cost < best.0 {
+                            best = (cost, xi);
+                        }
+                    }
+                }
+            }
+        }
+        Some(best.1)
+    }
+
+    /// Associates and solves until the inliers settle: the perturbation, the inliers and
+    /// the information matrix.
+    fn refine(
+        &self,
+        mut xi: Vector6<f64>,
+        candidates: &[Vec<(usize, f64)>],
+    ) -> (Vector6<f64>, Vec<Pair>, Matrix6<f64>) {
+        let slack = slack();
+        let mut inliers: Vec<Pair> = Vec::new();
+        let mut information = self.prior_information;
+        for _ in 0..REFINE_ROUNDS {
+            let pose = self.pose(&xi);
+            let associated: Vec<Pair> = candidates
+                .iter()
+                .enumerate()
+                .filter_map(|(k, list)| {
+                    list.iter()
+                        .filter_map(|&(j, _)| {
+                            let pair = Pair {
+                                segment: k,
+                                reference: j,
+                            };
+                            self.chi2(pair, &pose, &slack).map(|c| (pair, c))
+                        })
+                        .filter(|(_, c)| *c <= INLIER_GATE)
+                        .min_by(|x, y| x.1.total_cmp(&y.1))
+                        .map(|(pair, _)| pair)
+                })
+                .collect();
+            let settled = associated.len() == inliers.len()
+                && associated
+                    .iter()
+                    .zip(&inliers)
+                    .all(|(a, b)| a.segment == b.segment && a.reference == b.reference);
+            inliers = associated;
+            let (next, info) = self.solve(xi, &inliers);
+            xi = next;
+            information = info;
+            if settled {
+                break;
+            }
+        }
+        (xi, inliers, information)
+    }
+}
+
+/// The uncertainty a hypothesis is scored with.
+fn slack() -> Matrix6<f64> {
+    let (r, t) = (
+        HYPOTHESIS_SLACK_RAD * HYPOTHESIS_SLACK_RAD,
+        HYPOTHESIS_SLACK_M * HYPOTHESIS_SLACK_M,
+    );
+    Matrix6::from_diagonal(&Vector6::new(r, r, r, t, t, t))
+}
+
+/// `r` on both 3x3 diagonal blocks of a 6x6.
+fn block_diag(r: &Matrix3<f64>) -> Matrix6<f64> {
+    let mut m = Matrix6::zeros();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(r);
+    m.fixed_view_mut::<3, 3>(3, 3).copy_from(r);
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A box room's edges around the origin: floor and ceiling rectangles and the four
+    /// vertical corners, plus a few shelves, each with an isotropic 5 mm covariance.
+    fn room() -> Vec<Measured> {
+        let (x, y, z) = (2.5, 3.0, 2.4);
+        let corners = [(-x, -y), (x, -y), (x, y), (-x, y)];
+        let mut edges = Vec::new();
+        for i in 0..4 {
+            let (a, b) = (corners[i], corners[(i + 1) % 4]);
+            for h in [0.0, z] {
+                edges.push((Point3::new(a.0, a.1, h), Point3::new(b.0, b.1, h)));
+            }
+            edges.push((Point3::new(a.0, a.1, 0.0), Point3::new(a.0, a.1, z)));
+        }
+        for (k, h) in [0.6, 1.1, 1.7].into_iter().enumerate() {
+            let x0 = -1.5 + 0.7 * k as f64;
+            edges.push((Point3::new(x0, y, h), Point3::new(x0 + 1.2, y, h)));
+            edges.push((
+                Point3::new(x, -1.0 + k as f64, h),
+                Point3::new(x, k as f64, h),
+            ));
+        }
+        let covariance = Matrix6::identity() * 0.005f64.powi(2);
+        edges
+            .into_iter()
+            .map(|(start, end)| Measured {
+                start,
+                end,
+                covariance,
+            })
+            .collect()
+    }
+
+    fn rotation_error_deg(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+        (a.rotation * b.rotation.inverse()).angle().to_degrees()
+    }
+
+    #[test]
+    fn recovers_a_pose_several_degrees_and_centimetres_off() {
+        let map = room();
+        let truth = Isometry3::new(Vector3::new(0.3, -0.2, 1.2), Vector3::z() * 0.4);
+        let capture: Vec<Measured> = map
+            .iter()
+            .map(|m| m.transformed(&truth.inverse()))
+            .collect();
+        let off = Isometry3::new(Vector3::new(0.04, -0.05, 0.01), Vector3::z() * 0.05);
+        let prior = PosePrior::with_default_covariance(off * truth);
+        let got = register(&map, &capture, &prior, &RegisterParams::default());
+        assert_eq!(got.status, RegistrationStatus::Registered);
+        assert!(got.inliers as usize >= map.len() - 2, "{}", got.inliers);
+        assert!(rotation_error_deg(&got.rig_to_world, &truth) < 0.05);
+        let dt = (got.rig_to_world.translation.vector - truth.translation.vector).norm();
+        assert!(dt < 0.005, "{dt}");
+        assert!(got.rotation_change_deg > 2.0);
+        // The refined pose is far surer than the prior.
+        assert!(got.covariance[(2, 2)] < 0.1 * prior.covariance[(2, 2)]);
+    }
+
+    #[test]
+    fn keeps_the_prior_without_a_map_or_anything_in_common() {
+        let map = room();
+        let prior = PosePrior::with_default_covariance(Isometry3::identity());
+        let empty = register(&[], &map, &prior, &RegisterParams::default());
+        assert_eq!(empty.status, RegistrationStatus::EmptyMap);
+        assert_eq!(empty.rig_to_world, prior.rig_to_world);
+        // The capture's segments are 50 m away from everything in the map.
+        let far = Isometry3::translation(50.0, 0.0, 0.0);
+        let capture: Vec<Measured> = map.iter().map(|m| m.transformed(&far)).collect();
+        let none = register(&map, &capture, &prior, &RegisterParams::default());
+        assert_eq!(none.status, RegistrationStatus::TooFewInCommon);
+        assert_eq!(none.rig_to_world, prior.rig_to_world);
+        assert_eq!(none.covariance, prior.covariance);
+    }
+
+    #[test]
+    fn an_exact_prior_stays_put() {
+        let map = room();
+        let truth = Isometry3::new(Vector3::new(-0.4, 0.5, 1.0), Vector3::z() * -1.1);
+        let capture: Vec<Measured> = map
+            .iter()
+            .map(|m| m.transformed(&truth.inverse()))
+            .collect();
+        let prior = PosePrior::with_default_covariance(truth);
+        let got = register(&map, &capture, &prior, &RegisterParams::default());
+        assert_eq!(got.status, RegistrationStatus::Registered);
+        assert!(got.rotation_change_deg < 1e-6);
+        assert!(got.translation_change_m < 1e-6);
+    }
+}

@@ -749,6 +749,42 @@ fn request_ids_are_echoed_on_both_transports() {
         bad.calibration = None;
         let status = grpc.r#match(bad).await.unwrap_err();
         assert!(status.metadata().get("x-request-id").is_some());
+
+        // An id that is not 1 to 128 printable characters is replaced by a new one, on both
+        // transports; a call without one gets one too.
+        for unacceptable in ["has spaces", &"x".repeat(129)] {
+            let replaced = http
+                .post(&url)
+                .header("x-request-id", unacceptable)
+                .body("{")
+                .send()
+                .await
+                .unwrap();
+            let id = replaced.headers()["x-request-id"].to_str().unwrap();
+            assert!(
+                !id.is_empty() && id != unacceptable && !id.contains(' '),
+                "{id}"
+            );
+            let mut call = tonic::Request::new(example_request());
+            call.metadata_mut()
+                .insert("x-request-id", unacceptable.parse().unwrap());
+            let reply = grpc.r#match(call).await.unwrap();
+            let id = reply
+                .metadata()
+                .get("x-request-id")
+                .unwrap()
+                .to_str()
+                .unwrap();
+            assert!(!id.is_empty() && id != unacceptable, "{id}");
+        }
+        let reply = grpc.r#match(example_request()).await.unwrap();
+        let made = reply
+            .metadata()
+            .get("x-request-id")
+            .unwrap()
+            .to_str()
+            .unwrap();
+        assert!(!made.is_empty() && made != "robot-43");
         running.shutdown().await;
     });
 }

@@ -40,7 +40,7 @@ use prost::Message;
 use serde::Deserialize;
 
 use crate::http_server::timed_out_body;
-use crate::request_id;
+use crate::observe;
 use crate::service::auth::Caller;
 use crate::service::sessions::{map_to_pb, SessionMap};
 use crate::service::{Service, ServiceError};
@@ -77,7 +77,8 @@ pub fn router(service: Arc<Service>) -> Router {
             Arc::clone(&service),
             admit,
         ))
-        .layer(axum::middleware::from_fn(with_request_id))
+        // Outermost: every request, refused ones too, has its id and span.
+        .layer(observe::http())
         .with_state(service)
 }
 
@@ -154,27 +155,6 @@ async fn admit(
     };
     let response = next.run(request).await;
     drop(reservation);
-    response
-}
-
-/// Gives every request an id (the client's `x-request-id`, or a new one), runs it inside a
-/// span carrying it, and echoes it in the response.
-async fn with_request_id(
-    request: axum::extract::Request,
-    next: axum::middleware::Next,
-) -> Response {
-    use tracing::Instrument;
-    let id = request_id::request_id(
-        request
-            .headers()
-            .get(request_id::HEADER)
-            .and_then(|v| v.to_str().ok()),
-    );
-    let span = tracing::info_span!("http", request_id = %id, path = %request.uri().path());
-    let mut response = next.run(request).instrument(span).await;
-    if let Ok(value) = header::HeaderValue::from_str(&id) {
-        response.headers_mut().insert(request_id::HEADER, value);
-    }
     response
 }
 

@@ -27,7 +27,7 @@ use std::sync::Arc;
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{
-    DefaultBodyLimit, Extension, FromRequest, FromRequestParts, Multipart, Path, Query, State,
+    DefaultBodyLimit, FromRequest, FromRequestParts, Multipart, Path, Query, State,
 };
 use std::time::Duration;
 
@@ -85,8 +85,8 @@ pub fn router(service: Arc<Service>) -> Router {
 /// Largest body read (and dropped) before a refusal for lack of compute, bytes.
 const DRAIN_BEFORE_REFUSING: usize = 64 << 10;
 
-/// Authentication, then admission before a body is read: a request that declares a body larger than the limit
-/// gets 413, one that needs a compute slot when none is free gets 429, and every body
+/// Authentication ([`Caller`]), then admission before a body is read: a request that
+/// declares a body larger than the limit gets 413, one that needs a compute slot when none is free gets 429, and every body
 /// reserves its bytes (declared, or the largest message when not declared) from the
 /// service's body budget — 429 when the bodies in flight hold it all. Refused requests cost
 /// no body reading and no memory.
@@ -95,26 +95,16 @@ async fn admit(
     mut request: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
-    let path = request.uri().path();
-    if !matches!(path, "/healthz" | "/readyz" | "/metrics") {
-        let authorization = request
-            .headers()
-            .get(header::AUTHORIZATION)
-            .and_then(|v| v.to_str().ok());
-        match service.caller(authorization) {
-            Ok(caller) => {
-                request.extensions_mut().insert(caller);
-            }
-            Err(e) => {
-                service.record_refused("http", &e, 0.0);
-                let mut response = error_response(&e);
-                response.headers_mut().insert(
-                    header::WWW_AUTHENTICATE,
-                    header::HeaderValue::from_static("Bearer"),
-                );
-                return response;
-            }
+    if !matches!(request.uri().path(), "/healthz" | "/readyz" | "/metrics") {
+        // The key is checked before anything else, by the handlers' own extractor: an
+        // unknown caller costs no admission and reads no body. The caller it finds is kept in
+        // the request for the handler's extraction.
+        let (mut parts, body) = request.into_parts();
+        if let Err(rejection) = Caller::from_request_parts(&mut parts, &service).await {
+            service.record_refused("http", &rejection.0, 0.0);
+            return rejection.into_response();
         }
+        request = axum::extract::Request::from_parts(parts, body);
     }
     if request.method() != axum::http::Method::POST {
         return next.run(request).await;
@@ -224,6 +214,47 @@ impl<S: Send + Sync> FromRequestParts<S> for AnswerFormat {
 
     async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, Self::Rejection> {
         Ok(AnswerFormat::of(&parts.headers))
+    }
+}
+
+/// The caller, from `Authorization: Bearer <key>` (anyone, when the service has no keys): an
+/// extractor, like [`BodyFormat`], so that no handler reads the header itself. A request
+/// without a valid key is rejected with the service's error mapping ([`CallerRejected`]).
+/// [`admit`] extracts it first, before admission; the handler's extraction then finds it in
+/// the request's extensions rather than checking the key twice.
+impl FromRequestParts<Arc<Service>> for Caller {
+    type Rejection = CallerRejected;
+
+    async fn from_request_parts(
+        parts: &mut Parts,
+        service: &Arc<Service>,
+    ) -> Result<Self, Self::Rejection> {
+        if let Some(caller) = parts.extensions.get::<Caller>() {
+            return Ok(caller.clone());
+        }
+        let authorization = parts
+            .headers
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok());
+        let caller = service.caller(authorization).map_err(CallerRejected)?;
+        parts.extensions.insert(caller.clone());
+        Ok(caller)
+    }
+}
+
+/// A caller without a valid key: 401 UNAUTHENTICATED in the service's error format, with
+/// `WWW-Authenticate: Bearer`.
+#[derive(Debug)]
+pub struct CallerRejected(pub ServiceError);
+
+impl IntoResponse for CallerRejected {
+    fn into_response(self) -> Response {
+        let mut response = error_response(&self.0);
+        response.headers_mut().insert(
+            header::WWW_AUTHENTICATE,
+            header::HeaderValue::from_static("Bearer"),
+        );
+        response
     }
 }
 
@@ -397,6 +428,7 @@ impl std::str::FromStr for MapFormat {
 
 async fn match_handler(
     State(service): State<Arc<Service>>,
+    _: Caller,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
     format: BodyFormat,
     request: axum::extract::Request,
@@ -534,6 +566,7 @@ async fn read_body(
 
 async fn calibrate(
     State(service): State<Arc<Service>>,
+    _: Caller,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
     format: BodyFormat,
     request: axum::extract::Request,
@@ -562,7 +595,7 @@ async fn calibrate(
 
 async fn create_session(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
@@ -579,7 +612,7 @@ async fn create_session(
 
 async fn list_sessions(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     params: Result<Query<ListQuery>, QueryRejection>,
     answer_format: AnswerFormat,
 ) -> Response {
@@ -593,7 +626,7 @@ async fn list_sessions(
 
 async fn get_session(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     answer_format: AnswerFormat,
 ) -> Response {
@@ -605,7 +638,7 @@ async fn get_session(
 
 async fn delete_session(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     answer_format: AnswerFormat,
 ) -> Response {
@@ -618,7 +651,7 @@ async fn delete_session(
 
 async fn add_capture(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
     format: BodyFormat,
@@ -661,7 +694,7 @@ async fn add_capture(
 
 async fn get_map(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     params: Result<Query<MapQuery>, QueryRejection>,
     answer_format: AnswerFormat,
@@ -952,6 +985,72 @@ mod tests {
         );
         assert!(AnswerFormat::of(&headers(&[(header::ACCEPT, PROTOBUF)])).protobuf);
         assert!(!AnswerFormat::of(&HeaderMap::new()).protobuf);
+    }
+
+    /// A service with one key, `robot`'s.
+    fn keyed_service() -> Arc<Service> {
+        use crate::service::{auth::ApiKeys, store::memory::MemoryStore, Limits};
+        let keys = ApiKeys::parse(Some("robot 0123456789abcdef0123"), None).unwrap();
+        let store = Arc::new(MemoryStore::new(Duration::from_secs(60)));
+        let limits = Limits {
+            threads: 1,
+            max_jobs: 1,
+            ..Limits::default()
+        };
+        let service = Service::new(limits, store, Duration::from_secs(60)).unwrap();
+        Arc::new(service.with_api_keys(keys, 10))
+    }
+
+    fn parts(authorization: Option<&str>) -> Parts {
+        let mut request = axum::http::Request::builder();
+        if let Some(value) = authorization {
+            request = request.header(header::AUTHORIZATION, value);
+        }
+        request.body(()).unwrap().into_parts().0
+    }
+
+    #[tokio::test]
+    async fn the_caller_comes_from_a_bearer_key_and_a_bad_key_is_refused_as_before() {
+        let service = keyed_service();
+        let mut given = parts(Some("Bearer 0123456789abcdef0123"));
+        let caller = Caller::from_request_parts(&mut given, &service)
+            .await
+            .unwrap();
+        assert_eq!(caller.tenant.as_deref(), Some("robot"));
+        // Kept for the handler's extraction, which then reads no header.
+        given.headers.clear();
+        let again = Caller::from_request_parts(&mut given, &service)
+            .await
+            .unwrap();
+        assert_eq!(again, caller);
+
+        for (authorization, message) in [
+            (
+                None,
+                "an API key is required: send 'authorization: Bearer <key>'",
+            ),
+            (
+                Some("Bearer not-a-key-not-a-key"),
+                "the API key is not valid",
+            ),
+        ] {
+            let rejected = Caller::from_request_parts(&mut parts(authorization), &service)
+                .await
+                .unwrap_err()
+                .into_response();
+            assert_eq!(rejected.status(), StatusCode::UNAUTHORIZED);
+            assert_eq!(rejected.headers()[header::WWW_AUTHENTICATE], "Bearer");
+            assert_eq!(rejected.headers()[header::CONTENT_TYPE], JSON);
+            let body = axum::body::to_bytes(rejected.into_body(), 1 << 16)
+                .await
+                .unwrap();
+            assert_eq!(
+                std::str::from_utf8(&body).unwrap(),
+                format!(
+                    "{{\"error\":{{\"code\":\"UNAUTHENTICATED\",\"message\":\"{message}\"}}}}\n"
+                )
+            );
+        }
     }
 
     #[test]

@@ -4,6 +4,7 @@ use std::sync::Arc;
 
 use std::time::Duration;
 
+use tonic::codegen::http::request::Parts;
 use tonic::{Request, Response, Status};
 use tonic_types::{ErrorDetails, StatusExt};
 
@@ -26,15 +27,39 @@ impl GrpcApi {
 /// input errors). An input error also carries the field as a `google.rpc.BadRequest` field
 /// violation, the gRPC richer error model's standard detail, so a client reads which field
 /// is at fault without parsing the message, as an HTTP client reads the JSON error's `field`.
+/// The error itself is the status's source, which tonic keeps in the answer's extensions for
+/// the observation layer to log and count ([`crate::observe`]).
 pub fn status(e: &ServiceError) -> Status {
-    match e {
+    let mut status = match e {
         ServiceError::Input(input) => Status::with_error_details(
             e.code(),
             e.to_string(),
             ErrorDetails::with_bad_request_violation(input.field.clone(), input.message.clone()),
         ),
         _ => Status::new(e.code(), e.to_string()),
-    }
+    };
+    status.set_source(Arc::new(e.clone()));
+    status
+}
+
+/// The route of a call in the metrics and the log: the method of `trinocular.v1.Trinocular`,
+/// in snake case as the HTTP routes are named (`None`: health, reflection, an unknown method).
+pub fn route(parts: &Parts) -> Option<&'static str> {
+    let method = parts
+        .uri
+        .path()
+        .strip_prefix("/trinocular.v1.Trinocular/")?;
+    Some(match method {
+        "Match" => "match",
+        "Calibrate" => "calibrate",
+        "CreateSession" => "create_session",
+        "AddCapture" => "add_capture",
+        "GetMap" => "get_map",
+        "GetSession" => "get_session",
+        "ListSessions" => "list_sessions",
+        "DeleteSession" => "delete_session",
+        _ => return None,
+    })
 }
 
 /// The `grpc-timeout` header's duration (`<digits><unit>`, unit one of H M S m u n).
@@ -99,11 +124,17 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         let timeout = deadline_of(&request);
         self.caller(&request)?;
         let request = request.into_inner();
-        let answer = self
+        let (answer, ()) = self
             .service
-            .match_within(move || Ok(request), |_| (), timeout, "grpc")
-            .await;
-        respond(answer.map(|(r, ())| r))
+            .match_within(move || Ok(request), |_| (), timeout)
+            .await
+            .map_err(|e| status(&e))?;
+        let segments_3d = answer.segments_3d.len();
+        let mut response = Response::new(answer);
+        response
+            .extensions_mut()
+            .insert(crate::observe::Matched { segments_3d });
+        Ok(response)
     }
 
     async fn create_session(
@@ -113,7 +144,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         let caller = self.caller(&request)?;
         let answer = self
             .service
-            .create_session(&caller, request.into_inner(), "grpc")
+            .create_session(&caller, request.into_inner())
             .await;
         respond(answer)
     }
@@ -126,7 +157,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         let caller = self.caller(&request)?;
         let answer = self
             .service
-            .add_capture(&caller, request.into_inner(), timeout, "grpc")
+            .add_capture(&caller, request.into_inner(), timeout)
             .await;
         respond(answer)
     }
@@ -142,7 +173,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         } = request.into_inner();
         let answer = self
             .service
-            .get_map(&caller, &session_id, min_observations, "grpc")
+            .get_map(&caller, &session_id, min_observations)
             .await;
         respond(answer.map(|m| map_to_pb(&m)))
     }
@@ -153,7 +184,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
     ) -> Result<Response<pb::Session>, Status> {
         let caller = self.caller(&request)?;
         let pb::GetSessionRequest { session_id } = request.into_inner();
-        let answer = self.service.get_session(&caller, &session_id, "grpc").await;
+        let answer = self.service.get_session(&caller, &session_id).await;
         respond(answer)
     }
 
@@ -164,7 +195,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         let caller = self.caller(&request)?;
         let answer = self
             .service
-            .list_sessions(&caller, request.into_inner(), "grpc")
+            .list_sessions(&caller, request.into_inner())
             .await;
         respond(answer)
     }
@@ -176,10 +207,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         let timeout = deadline_of(&request);
         self.caller(&request)?;
         let request = request.into_inner();
-        let answer = self
-            .service
-            .calibrate(move || Ok(request), timeout, "grpc")
-            .await;
+        let answer = self.service.calibrate(move || Ok(request), timeout).await;
         respond(answer)
     }
 
@@ -189,10 +217,7 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
     ) -> Result<Response<pb::DeleteSessionResponse>, Status> {
         let caller = self.caller(&request)?;
         let pb::DeleteSessionRequest { session_id } = request.into_inner();
-        let answer = self
-            .service
-            .delete_session(&caller, &session_id, "grpc")
-            .await;
+        let answer = self.service.delete_session(&caller, &session_id).await;
         respond(answer.map(|()| pb::DeleteSessionResponse {}))
     }
 }

@@ -27,7 +27,8 @@ use std::sync::Arc;
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{
-    DefaultBodyLimit, FromRequest, FromRequestParts, Multipart, Path, Query, State,
+    DefaultBodyLimit, Extension, FromRequest, FromRequestParts, MatchedPath, Multipart, Path,
+    Query, State,
 };
 use std::time::Duration;
 
@@ -78,8 +79,27 @@ pub fn router(service: Arc<Service>) -> Router {
             admit,
         ))
         // Outermost: every request, refused ones too, has its id and span.
-        .layer(observe::http())
+        .layer(observe::http(Arc::clone(&service), route))
         .with_state(service)
+}
+
+/// A request's route in the metrics and the log (`None`: not observed: the probes, the
+/// metrics, a method or path not served), from the router's pattern and the method, so
+/// `/v1/sessions/{id}` is one route whatever the id.
+fn route(parts: &Parts) -> Option<&'static str> {
+    use axum::http::Method;
+    let path = parts.extensions.get::<MatchedPath>()?.as_str();
+    Some(match (&parts.method, path) {
+        (&Method::POST, "/v1/match") => "match",
+        (&Method::POST, "/v1/calibrate") => "calibrate",
+        (&Method::POST, "/v1/sessions") => "create_session",
+        (&Method::GET, "/v1/sessions") => "list_sessions",
+        (&Method::GET, "/v1/sessions/{id}") => "get_session",
+        (&Method::DELETE, "/v1/sessions/{id}") => "delete_session",
+        (&Method::POST, "/v1/sessions/{id}/captures") => "add_capture",
+        (&Method::GET, "/v1/sessions/{id}/map") => "get_map",
+        _ => return None,
+    })
 }
 
 /// Largest body read (and dropped) before a refusal for lack of compute, bytes.
@@ -101,7 +121,6 @@ async fn admit(
         // the request for the handler's extraction.
         let (mut parts, body) = request.into_parts();
         if let Err(rejection) = Caller::from_request_parts(&mut parts, &service).await {
-            service.record_refused("http", &rejection.0, 0.0);
             return rejection.into_response();
         }
         request = axum::extract::Request::from_parts(parts, body);
@@ -115,10 +134,7 @@ async fn admit(
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<usize>().ok());
-    let refuse = |e: ServiceError| {
-        service.record_refused("http", &e, 0.0);
-        error_response(&e)
-    };
+    let refuse = |e: ServiceError| error_response(&e);
     if declared.is_some_and(|n| n > max) {
         return refuse(ServiceError::TooLarge { limit_bytes: max });
     }
@@ -258,7 +274,9 @@ impl IntoResponse for CallerRejected {
     }
 }
 
-/// An error response, in JSON whatever the request's format (clients read it as text).
+/// An error response, in JSON whatever the request's format (clients read it as text). The
+/// error itself rides along in the response's extensions, for the observation layer to log
+/// and count ([`observe`]).
 pub fn error_response(e: &ServiceError) -> Response {
     let mut body = serde_json::json!({
         "error": {"code": code_name(e.code()), "message": e.to_string()}
@@ -272,12 +290,7 @@ pub fn error_response(e: &ServiceError) -> Response {
         body.to_string() + "\n",
     )
         .into_response();
-    if matches!(
-        e,
-        ServiceError::Busy { .. }
-            | ServiceError::BodiesInFlight { .. }
-            | ServiceError::MemoryBusy { .. }
-    ) {
+    if e.is_overload() {
         response
             .headers_mut()
             .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
@@ -435,12 +448,8 @@ async fn match_handler(
 ) -> Response {
     let protobuf = format == BodyFormat::Protobuf;
     let multipart = format == BodyFormat::Multipart;
-    let start = std::time::Instant::now();
     let max_bytes = service.limits().max_message_bytes;
-    let refuse = |e: ServiceError| {
-        service.record_refused("http", &e, start.elapsed().as_secs_f64());
-        error_response(&e)
-    };
+    let refuse = |e: ServiceError| error_response(&e);
     let timeout = match query(params).and_then(|q| q.timeout()) {
         Ok(t) => t,
         Err(e) => return refuse(ServiceError::Input(e)),
@@ -480,10 +489,18 @@ async fn match_handler(
             (to_json(r) + "\n").into_bytes()
         }
     };
-    match service.match_within(read, encode, timeout, "http").await {
-        Ok((_, body)) => {
+    match service.match_within(read, encode, timeout).await {
+        Ok((response, body)) => {
             let content_type = if protobuf { PROTOBUF } else { JSON };
-            ([(header::CONTENT_TYPE, content_type)], body).into_response()
+            let matched = observe::Matched {
+                segments_3d: response.segments_3d.len(),
+            };
+            (
+                [(header::CONTENT_TYPE, content_type)],
+                Extension(matched),
+                body,
+            )
+                .into_response()
         }
         Err(e) => error_response(&e),
     }
@@ -587,7 +604,7 @@ async fn calibrate(
             let body = read_body(request, max_bytes).await?;
             Box::new(move || decode_body_with(&body, protobuf, calibrate_request_from_json))
         };
-        service.calibrate(read, timeout, "http").await
+        service.calibrate(read, timeout).await
     }
     .await;
     answer(result, protobuf)
@@ -604,7 +621,7 @@ async fn create_session(
     let result = async {
         let body = read_body(request, max_bytes).await?;
         let request: pb::CreateSessionRequest = decode_body(&body, protobuf)?;
-        service.create_session(&caller, request, "http").await
+        service.create_session(&caller, request).await
     }
     .await;
     answer(result, protobuf)
@@ -618,7 +635,7 @@ async fn list_sessions(
 ) -> Response {
     let result = async {
         let request = query(params)?.request()?;
-        service.list_sessions(&caller, request, "http").await
+        service.list_sessions(&caller, request).await
     }
     .await;
     answer(result, answer_format.protobuf)
@@ -631,7 +648,7 @@ async fn get_session(
     answer_format: AnswerFormat,
 ) -> Response {
     answer(
-        service.get_session(&caller, &id, "http").await,
+        service.get_session(&caller, &id).await,
         answer_format.protobuf,
     )
 }
@@ -642,7 +659,7 @@ async fn delete_session(
     Path(id): Path<String>,
     answer_format: AnswerFormat,
 ) -> Response {
-    let result = service.delete_session(&caller, &id, "http").await;
+    let result = service.delete_session(&caller, &id).await;
     answer(
         result.map(|()| pb::DeleteSessionResponse {}),
         answer_format.protobuf,
@@ -686,7 +703,7 @@ async fn add_capture(
             )));
         }
         capture.session_id = id;
-        service.add_capture(&caller, capture, timeout, "http").await
+        service.add_capture(&caller, capture, timeout).await
     }
     .await;
     answer(result, protobuf)
@@ -703,9 +720,7 @@ async fn get_map(
         let params = query(params)?;
         let min_observations = params.min_observations()?;
         let format = params.format()?;
-        let map = service
-            .get_map(&caller, &id, min_observations, "http")
-            .await?;
+        let map = service.get_map(&caller, &id, min_observations).await?;
         // Drawing and writing a large map is CPU work too.
         service
             .pool()

@@ -78,7 +78,6 @@ async fn session(service: &Service, f: &Fixture, captures: usize) -> String {
                 options: None,
                 map_options: None,
             },
-            "bench",
         )
         .await
         .expect("session");
@@ -88,7 +87,7 @@ async fn session(service: &Service, f: &Fixture, captures: usize) -> String {
             ..f.captures[k % f.captures.len()].clone()
         };
         service
-            .add_capture(&Caller::default(), capture, None, "bench")
+            .add_capture(&Caller::default(), capture, None)
             .await
             .expect("capture");
     }
@@ -140,7 +139,7 @@ fn bench(c: &mut Criterion) {
                             }
                             let r = request.clone();
                             let t = Instant::now();
-                            rt.block_on(service.match_within(move || Ok(r), |_| (), None, "bench"))
+                            rt.block_on(service.match_within(move || Ok(r), |_| (), None))
                                 .expect("match");
                             if timed == "match" {
                                 total += t.elapsed();
@@ -150,13 +149,8 @@ fn bench(c: &mut Criterion) {
                                 ..capture.clone()
                             };
                             let t = Instant::now();
-                            rt.block_on(service.add_capture(
-                                &Caller::default(),
-                                capture,
-                                None,
-                                "bench",
-                            ))
-                            .expect("capture");
+                            rt.block_on(service.add_capture(&Caller::default(), capture, None))
+                                .expect("capture");
                             if timed == "add_capture" {
                                 total += t.elapsed();
                             }
@@ -172,7 +166,7 @@ fn bench(c: &mut Criterion) {
     let id = rt.block_on(session(&service, &f, 50));
     group.bench_function("get_map/50", |b| {
         b.iter(|| {
-            rt.block_on(service.get_map(&Caller::default(), &id, None, "bench"))
+            rt.block_on(service.get_map(&Caller::default(), &id, None))
                 .expect("map")
         })
     });

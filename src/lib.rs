@@ -33,7 +33,7 @@ pub mod api {
 /// request ids, TLS and configuration.
 pub mod service {
     pub use trinocular_server::service::*;
-    pub use trinocular_server::{config, http_server, request_id, serve, server, tls};
+    pub use trinocular_server::{config, http_server, observe, serve, server, tls};
 }
 
 pub mod demo;

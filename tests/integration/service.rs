@@ -721,6 +721,62 @@ fn metrics_count_requests_by_transport_and_code() {
 }
 
 #[test]
+fn each_request_is_counted_once_under_its_transport_route_and_code() {
+    runtime().block_on(async {
+        let running = start(small_limits()).await;
+        let mut grpc = grpc_client(&running).await;
+        grpc.create_session(pb::CreateSessionRequest {
+            name: "room".into(),
+            calibration: example_request().calibration,
+            options: None,
+            map_options: None,
+        })
+        .await
+        .unwrap();
+        let bad_id = pb::GetSessionRequest {
+            session_id: "not an id!".into(),
+        };
+        assert_eq!(
+            grpc.get_session(bad_id).await.unwrap_err().code(),
+            tonic::Code::InvalidArgument
+        );
+        let http = reqwest::Client::new();
+        let url = |path: &str| format!("http://{}{path}", running.http_addr);
+        let status = |r: reqwest::Response| r.status().as_u16();
+        assert_eq!(status(http.get(url("/v1/sessions")).send().await.unwrap()), 200);
+        let missing = http.get(url("/v1/sessions/nope")).send().await.unwrap();
+        assert_eq!(status(missing), 404);
+        let unread = http.post(url("/v1/calibrate")).body("{").send().await.unwrap();
+        assert_eq!(status(unread), 400);
+        // Off the API: the probes, and paths the router does not serve, are not counted.
+        assert_eq!(status(http.get(url("/healthz")).send().await.unwrap()), 200);
+        assert_eq!(status(http.get(url("/v2/nothing")).send().await.unwrap()), 404);
+
+        let text = http.get(url("/metrics")).send().await.unwrap().text().await.unwrap();
+        let counted: Vec<&str> = text
+            .lines()
+            .filter(|l| l.starts_with("trinocular_requests_total{"))
+            .collect();
+        let mut expected = [
+            r#"trinocular_requests_total{code="Ok",route="create_session",transport="grpc"} 1"#,
+            r#"trinocular_requests_total{code="InvalidArgument",route="get_session",transport="grpc"} 1"#,
+            r#"trinocular_requests_total{code="Ok",route="list_sessions",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="NotFound",route="get_session",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="InvalidArgument",route="calibrate",transport="http"} 1"#,
+        ];
+        let mut counted_sorted = counted.clone();
+        counted_sorted.sort_unstable();
+        expected.sort_unstable();
+        assert_eq!(counted_sorted, expected, "{text}");
+        assert!(
+            text.contains(r#"trinocular_request_duration_seconds_count{route="get_session",transport="http"} 1"#),
+            "{text}"
+        );
+        running.shutdown().await;
+    });
+}
+
+#[test]
 fn request_ids_are_echoed_on_both_transports() {
     runtime().block_on(async {
         let running = start(small_limits()).await;
@@ -749,6 +805,42 @@ fn request_ids_are_echoed_on_both_transports() {
         bad.calibration = None;
         let status = grpc.r#match(bad).await.unwrap_err();
         assert!(status.metadata().get("x-request-id").is_some());
+
+        // An id that is not 1 to 128 printable characters is replaced by a new one, on both
+        // transports; a call without one gets one too.
+        for unacceptable in ["has spaces", &"x".repeat(129)] {
+            let replaced = http
+                .post(&url)
+                .header("x-request-id", unacceptable)
+                .body("{")
+                .send()
+                .await
+                .unwrap();
+            let id = replaced.headers()["x-request-id"].to_str().unwrap();
+            assert!(
+                !id.is_empty() && id != unacceptable && !id.contains(' '),
+                "{id}"
+            );
+            let mut call = tonic::Request::new(example_request());
+            call.metadata_mut()
+                .insert("x-request-id", unacceptable.parse().unwrap());
+            let reply = grpc.r#match(call).await.unwrap();
+            let id = reply
+                .metadata()
+                .get("x-request-id")
+                .unwrap()
+                .to_str()
+                .unwrap();
+            assert!(!id.is_empty() && id != unacceptable, "{id}");
+        }
+        let reply = grpc.r#match(example_request()).await.unwrap();
+        let made = reply
+            .metadata()
+            .get("x-request-id")
+            .unwrap()
+            .to_str()
+            .unwrap();
+        assert!(!made.is_empty() && made != "robot-43");
         running.shutdown().await;
     });
 }

@@ -169,7 +169,7 @@ impl Client {
             Client::InProcess(service) => {
                 let request = request.clone();
                 match service
-                    .match_within(move || Ok(request), |_| (), None, "inproc")
+                    .match_within(move || Ok(request), |_| (), None)
                     .await
                 {
                     Ok(_) => "OK".to_string(),

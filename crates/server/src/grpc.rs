@@ -4,12 +4,10 @@ use std::sync::Arc;
 
 use std::time::Duration;
 
-use tonic::metadata::MetadataValue;
+use tonic::codegen::http::request::Parts;
 use tonic::{Request, Response, Status};
 use tonic_types::{ErrorDetails, StatusExt};
-use tracing::Instrument;
 
-use crate::request_id;
 use crate::service::auth::Caller;
 use crate::service::sessions::map_to_pb;
 use crate::service::{Service, ServiceError};
@@ -29,15 +27,39 @@ impl GrpcApi {
 /// input errors). An input error also carries the field as a `google.rpc.BadRequest` field
 /// violation, the gRPC richer error model's standard detail, so a client reads which field
 /// is at fault without parsing the message, as an HTTP client reads the JSON error's `field`.
+/// The error itself is the status's source, which tonic keeps in the answer's extensions for
+/// the observation layer to log and count ([`crate::observe`]).
 pub fn status(e: &ServiceError) -> Status {
-    match e {
+    let mut status = match e {
         ServiceError::Input(input) => Status::with_error_details(
             e.code(),
             e.to_string(),
             ErrorDetails::with_bad_request_violation(input.field.clone(), input.message.clone()),
         ),
         _ => Status::new(e.code(), e.to_string()),
-    }
+    };
+    status.set_source(Arc::new(e.clone()));
+    status
+}
+
+/// The route of a call in the metrics and the log: the method of `trinocular.v1.Trinocular`,
+/// in snake case as the HTTP routes are named (`None`: health, reflection, an unknown method).
+pub fn route(parts: &Parts) -> Option<&'static str> {
+    let method = parts
+        .uri
+        .path()
+        .strip_prefix("/trinocular.v1.Trinocular/")?;
+    Some(match method {
+        "Match" => "match",
+        "Calibrate" => "calibrate",
+        "CreateSession" => "create_session",
+        "AddCapture" => "add_capture",
+        "GetMap" => "get_map",
+        "GetSession" => "get_session",
+        "ListSessions" => "list_sessions",
+        "DeleteSession" => "delete_session",
+        _ => return None,
+    })
 }
 
 /// The `grpc-timeout` header's duration (`<digits><unit>`, unit one of H M S m u n).
@@ -63,16 +85,6 @@ fn with_margin(timeout: Duration) -> Duration {
     timeout.saturating_sub(timeout / 10 + Duration::from_millis(2))
 }
 
-/// The request's id (the client's `x-request-id`, or a new one).
-fn id_of<T>(request: &Request<T>) -> String {
-    request_id::request_id(
-        request
-            .metadata()
-            .get(request_id::HEADER)
-            .and_then(|v| v.to_str().ok()),
-    )
-}
-
 /// The call's deadline, from `grpc-timeout`, less the margin.
 fn deadline_of<T>(request: &Request<T>) -> Option<Duration> {
     request
@@ -83,52 +95,24 @@ fn deadline_of<T>(request: &Request<T>) -> Option<Duration> {
         .map(with_margin)
 }
 
-/// The answer, with the request id echoed in its metadata either way.
-fn respond<T>(id: &str, answer: Result<T, ServiceError>) -> Result<Response<T>, Status> {
-    let value = MetadataValue::try_from(id).ok();
-    match answer {
-        Ok(r) => {
-            let mut response = Response::new(r);
-            if let Some(v) = value {
-                response.metadata_mut().insert(request_id::HEADER, v);
-            }
-            Ok(response)
-        }
-        Err(e) => {
-            let mut s = status(&e);
-            if let Some(v) = value {
-                s.metadata_mut().insert(request_id::HEADER, v);
-            }
-            Err(s)
-        }
-    }
+/// The answer to a call: the use case's answer, or the status of its error.
+fn respond<T>(answer: Result<T, ServiceError>) -> Result<Response<T>, Status> {
+    answer.map(Response::new).map_err(|e| status(&e))
 }
 
 impl GrpcApi {
     /// The caller, from the `authorization` metadata (UNAUTHENTICATED without a valid key
     /// when keys are configured).
-    fn caller<T>(&self, request: &Request<T>) -> Result<Caller, ServiceError> {
-        self.service.caller(
-            request
-                .metadata()
-                .get("authorization")
-                .and_then(|v| v.to_str().ok()),
-        )
+    fn caller<T>(&self, request: &Request<T>) -> Result<Caller, Status> {
+        self.service
+            .caller(
+                request
+                    .metadata()
+                    .get("authorization")
+                    .and_then(|v| v.to_str().ok()),
+            )
+            .map_err(|e| status(&e))
     }
-}
-
-/// Answers the call with the error of a caller that is not let in.
-macro_rules! caller_or_refuse {
-    ($api:expr, $request:expr, $id:expr) => {
-        match $api.caller(&$request) {
-            Ok(caller) => caller,
-            Err(e) => return respond(&$id, Err(e)),
-        }
-    };
-}
-
-fn span(id: &str, rpc: &'static str) -> tracing::Span {
-    tracing::info_span!("grpc", request_id = %id, rpc)
 }
 
 #[tonic::async_trait]
@@ -137,120 +121,104 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         &self,
         request: Request<pb::MatchRequest>,
     ) -> Result<Response<pb::MatchResponse>, Status> {
-        let (id, timeout) = (id_of(&request), deadline_of(&request));
-        caller_or_refuse!(self, request, id);
+        let timeout = deadline_of(&request);
+        self.caller(&request)?;
         let request = request.into_inner();
-        let answer = self
+        let (answer, ()) = self
             .service
-            .match_within(move || Ok(request), |_| (), timeout, "grpc")
-            .instrument(span(&id, "Match"))
-            .await;
-        respond(&id, answer.map(|(r, ())| r))
+            .match_within(move || Ok(request), |_| (), timeout)
+            .await
+            .map_err(|e| status(&e))?;
+        let segments_3d = answer.segments_3d.len();
+        let mut response = Response::new(answer);
+        response
+            .extensions_mut()
+            .insert(crate::observe::Matched { segments_3d });
+        Ok(response)
     }
 
     async fn create_session(
         &self,
         request: Request<pb::CreateSessionRequest>,
     ) -> Result<Response<pb::Session>, Status> {
-        let id = id_of(&request);
-        let caller = caller_or_refuse!(self, request, id);
+        let caller = self.caller(&request)?;
         let answer = self
             .service
-            .create_session(&caller, request.into_inner(), "grpc")
-            .instrument(span(&id, "CreateSession"))
+            .create_session(&caller, request.into_inner())
             .await;
-        respond(&id, answer)
+        respond(answer)
     }
 
     async fn add_capture(
         &self,
         request: Request<pb::AddCaptureRequest>,
     ) -> Result<Response<pb::AddCaptureResponse>, Status> {
-        let (id, timeout) = (id_of(&request), deadline_of(&request));
-        let caller = caller_or_refuse!(self, request, id);
+        let timeout = deadline_of(&request);
+        let caller = self.caller(&request)?;
         let answer = self
             .service
-            .add_capture(&caller, request.into_inner(), timeout, "grpc")
-            .instrument(span(&id, "AddCapture"))
+            .add_capture(&caller, request.into_inner(), timeout)
             .await;
-        respond(&id, answer)
+        respond(answer)
     }
 
     async fn get_map(
         &self,
         request: Request<pb::GetMapRequest>,
     ) -> Result<Response<pb::Map>, Status> {
-        let id = id_of(&request);
-        let caller = caller_or_refuse!(self, request, id);
+        let caller = self.caller(&request)?;
         let pb::GetMapRequest {
             session_id,
             min_observations,
         } = request.into_inner();
         let answer = self
             .service
-            .get_map(&caller, &session_id, min_observations, "grpc")
-            .instrument(span(&id, "GetMap"))
+            .get_map(&caller, &session_id, min_observations)
             .await;
-        respond(&id, answer.map(|m| map_to_pb(&m)))
+        respond(answer.map(|m| map_to_pb(&m)))
     }
 
     async fn get_session(
         &self,
         request: Request<pb::GetSessionRequest>,
     ) -> Result<Response<pb::Session>, Status> {
-        let id = id_of(&request);
-        let caller = caller_or_refuse!(self, request, id);
+        let caller = self.caller(&request)?;
         let pb::GetSessionRequest { session_id } = request.into_inner();
-        let answer = self
-            .service
-            .get_session(&caller, &session_id, "grpc")
-            .instrument(span(&id, "GetSession"))
-            .await;
-        respond(&id, answer)
+        let answer = self.service.get_session(&caller, &session_id).await;
+        respond(answer)
     }
 
     async fn list_sessions(
         &self,
         request: Request<pb::ListSessionsRequest>,
     ) -> Result<Response<pb::ListSessionsResponse>, Status> {
-        let id = id_of(&request);
-        let caller = caller_or_refuse!(self, request, id);
+        let caller = self.caller(&request)?;
         let answer = self
             .service
-            .list_sessions(&caller, request.into_inner(), "grpc")
-            .instrument(span(&id, "ListSessions"))
+            .list_sessions(&caller, request.into_inner())
             .await;
-        respond(&id, answer)
+        respond(answer)
     }
 
     async fn calibrate(
         &self,
         request: Request<pb::CalibrateRequest>,
     ) -> Result<Response<pb::CalibrateResponse>, Status> {
-        let (id, timeout) = (id_of(&request), deadline_of(&request));
-        caller_or_refuse!(self, request, id);
+        let timeout = deadline_of(&request);
+        self.caller(&request)?;
         let request = request.into_inner();
-        let answer = self
-            .service
-            .calibrate(move || Ok(request), timeout, "grpc")
-            .instrument(span(&id, "Calibrate"))
-            .await;
-        respond(&id, answer)
+        let answer = self.service.calibrate(move || Ok(request), timeout).await;
+        respond(answer)
     }
 
     async fn delete_session(
         &self,
         request: Request<pb::DeleteSessionRequest>,
     ) -> Result<Response<pb::DeleteSessionResponse>, Status> {
-        let id = id_of(&request);
-        let caller = caller_or_refuse!(self, request, id);
+        let caller = self.caller(&request)?;
         let pb::DeleteSessionRequest { session_id } = request.into_inner();
-        let answer = self
-            .service
-            .delete_session(&caller, &session_id, "grpc")
-            .instrument(span(&id, "DeleteSession"))
-            .await;
-        respond(&id, answer.map(|()| pb::DeleteSessionResponse {}))
+        let answer = self.service.delete_session(&caller, &session_id).await;
+        respond(answer.map(|()| pb::DeleteSessionResponse {}))
     }
 }
 

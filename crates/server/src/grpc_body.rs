@@ -7,7 +7,10 @@
 //! So this layer watches each request body go by and, at each prefix, reserves that many bytes
 //! before tonic reads the message: refused, the call ends with RESOURCE_EXHAUSTED at once,
 //! like an HTTP upload past the budget. The bytes are returned when the call is answered, as
-//! HTTP's are: the decoded message, about as large, lives until then.
+//! HTTP's are: the decoded message, about as large, lives until then. The refusal goes into
+//! the answer's extensions as the service's error, as every other refusal's does, for the
+//! observation layer to log (at debug: an overload) and count (tonic keeps only the code and
+//! message of a status that fails a body).
 
 use std::future::Future;
 use std::pin::Pin;
@@ -19,7 +22,7 @@ use prost::bytes::Bytes;
 use tonic::body::Body;
 
 use crate::grpc::status;
-use crate::service::{BodyReservation, Service};
+use crate::service::{BodyReservation, Service, ServiceError};
 
 /// Bytes of a gRPC message prefix: a compression flag, then the length (big-endian u32).
 const PREFIX_BYTES: usize = 5;
@@ -54,12 +57,23 @@ pub struct BodyBudget<S> {
     service: Arc<Service>,
 }
 
-/// Reservations of one call, held by its body as it reads and by its answer until it is ready.
-type Held = Arc<Mutex<Vec<BodyReservation>>>;
+/// What one call's body did, shared by the body as it reads and the call until it is answered.
+#[derive(Default)]
+struct Call {
+    /// The reservations of its messages.
+    reservations: Vec<BodyReservation>,
+    /// Why the budget refused it.
+    refused: Option<ServiceError>,
+}
 
-impl<S> tower_service::Service<tonic::codegen::http::Request<Body>> for BodyBudget<S>
+type Held = Arc<Mutex<Call>>;
+
+impl<S, ResBody> tower_service::Service<tonic::codegen::http::Request<Body>> for BodyBudget<S>
 where
-    S: tower_service::Service<tonic::codegen::http::Request<Body>>,
+    S: tower_service::Service<
+        tonic::codegen::http::Request<Body>,
+        Response = tonic::codegen::http::Response<ResBody>,
+    >,
     S::Future: Send + 'static,
 {
     type Response = S::Response;
@@ -82,7 +96,15 @@ where
             .inner
             .call(tonic::codegen::http::Request::from_parts(parts, body));
         Box::pin(async move {
-            let answer = answer.await;
+            let mut answer = answer.await;
+            let refused = held
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .refused
+                .take();
+            if let (Ok(response), Some(e)) = (&mut answer, refused) {
+                response.extensions_mut().insert(e);
+            }
             drop(held);
             answer
         })
@@ -151,10 +173,12 @@ impl BudgetedBody {
                     .held
                     .lock()
                     .unwrap_or_else(|e| e.into_inner())
+                    .reservations
                     .push(reservation),
                 Err(e) => {
-                    self.service.record_refused("grpc", &e, 0.0);
-                    return Err(status(&e));
+                    let refused = status(&e);
+                    self.held.lock().unwrap_or_else(|e| e.into_inner()).refused = Some(e);
+                    return Err(refused);
                 }
             }
         }
@@ -232,18 +256,22 @@ mod tests {
         for piece in stream.chunks(3) {
             body.account(piece).unwrap();
         }
-        assert_eq!(body.held.lock().unwrap().len(), 2);
+        assert_eq!(body.held.lock().unwrap().reservations.len(), 2);
         assert_eq!(body.message_left, 200_000 - 10);
         // 300,000 + 200,000 bytes of the 1 MiB budget are held: 600,000 more are not free.
         let mut other = BudgetedBody::new(Body::empty(), Arc::clone(&service), Held::default());
         let refused = other.account(&prefixed(600_000)).unwrap_err();
         assert_eq!(refused.code(), tonic::Code::ResourceExhausted);
         assert!(refused.message().contains("bod"), "{}", refused.message());
+        assert!(matches!(
+            other.held.lock().unwrap().refused,
+            Some(ServiceError::BodiesInFlight { .. })
+        ));
         // Dropped with its answer, the first call gives its bytes back.
         drop(body);
         let mut again = BudgetedBody::new(Body::empty(), service, Held::default());
         again.account(&prefixed(600_000)).unwrap();
-        assert_eq!(again.held.lock().unwrap().len(), 1);
+        assert_eq!(again.held.lock().unwrap().reservations.len(), 1);
     }
 
     #[test]
@@ -251,6 +279,6 @@ mod tests {
         let service = service(1 << 20, 1000);
         let mut body = BudgetedBody::new(Body::empty(), service, Held::default());
         body.account(&prefixed(u32::MAX)).unwrap();
-        assert!(body.held.lock().unwrap().is_empty());
+        assert!(body.held.lock().unwrap().reservations.is_empty());
     }
 }

@@ -27,7 +27,8 @@ use std::sync::Arc;
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{
-    DefaultBodyLimit, Extension, FromRequest, FromRequestParts, Multipart, Path, Query, State,
+    DefaultBodyLimit, Extension, FromRequest, FromRequestParts, MatchedPath, Multipart, Path,
+    Query, State,
 };
 use std::time::Duration;
 
@@ -40,7 +41,7 @@ use prost::Message;
 use serde::Deserialize;
 
 use crate::http_server::timed_out_body;
-use crate::request_id;
+use crate::observe;
 use crate::service::auth::Caller;
 use crate::service::sessions::{map_to_pb, SessionMap};
 use crate::service::{Service, ServiceError};
@@ -77,15 +78,35 @@ pub fn router(service: Arc<Service>) -> Router {
             Arc::clone(&service),
             admit,
         ))
-        .layer(axum::middleware::from_fn(with_request_id))
+        // Outermost: every request, refused ones too, has its id and span.
+        .layer(observe::http(Arc::clone(&service), route))
         .with_state(service)
+}
+
+/// A request's route in the metrics and the log (`None`: not observed: the probes, the
+/// metrics, a method or path not served), from the router's pattern and the method, so
+/// `/v1/sessions/{id}` is one route whatever the id.
+fn route(parts: &Parts) -> Option<&'static str> {
+    use axum::http::Method;
+    let path = parts.extensions.get::<MatchedPath>()?.as_str();
+    Some(match (&parts.method, path) {
+        (&Method::POST, "/v1/match") => "match",
+        (&Method::POST, "/v1/calibrate") => "calibrate",
+        (&Method::POST, "/v1/sessions") => "create_session",
+        (&Method::GET, "/v1/sessions") => "list_sessions",
+        (&Method::GET, "/v1/sessions/{id}") => "get_session",
+        (&Method::DELETE, "/v1/sessions/{id}") => "delete_session",
+        (&Method::POST, "/v1/sessions/{id}/captures") => "add_capture",
+        (&Method::GET, "/v1/sessions/{id}/map") => "get_map",
+        _ => return None,
+    })
 }
 
 /// Largest body read (and dropped) before a refusal for lack of compute, bytes.
 const DRAIN_BEFORE_REFUSING: usize = 64 << 10;
 
-/// Authentication, then admission before a body is read: a request that declares a body larger than the limit
-/// gets 413, one that needs a compute slot when none is free gets 429, and every body
+/// Authentication ([`Caller`]), then admission before a body is read: a request that
+/// declares a body larger than the limit gets 413, one that needs a compute slot when none is free gets 429, and every body
 /// reserves its bytes (declared, or the largest message when not declared) from the
 /// service's body budget — 429 when the bodies in flight hold it all. Refused requests cost
 /// no body reading and no memory.
@@ -94,26 +115,15 @@ async fn admit(
     mut request: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
-    let path = request.uri().path();
-    if !matches!(path, "/healthz" | "/readyz" | "/metrics") {
-        let authorization = request
-            .headers()
-            .get(header::AUTHORIZATION)
-            .and_then(|v| v.to_str().ok());
-        match service.caller(authorization) {
-            Ok(caller) => {
-                request.extensions_mut().insert(caller);
-            }
-            Err(e) => {
-                service.record_refused("http", &e, 0.0);
-                let mut response = error_response(&e);
-                response.headers_mut().insert(
-                    header::WWW_AUTHENTICATE,
-                    header::HeaderValue::from_static("Bearer"),
-                );
-                return response;
-            }
+    if !matches!(request.uri().path(), "/healthz" | "/readyz" | "/metrics") {
+        // The key is checked before anything else, by the handlers' own extractor: an
+        // unknown caller costs no admission and reads no body. The caller it finds is kept in
+        // the request for the handler's extraction.
+        let (mut parts, body) = request.into_parts();
+        if let Err(rejection) = Caller::from_request_parts(&mut parts, &service).await {
+            return rejection.into_response();
         }
+        request = axum::extract::Request::from_parts(parts, body);
     }
     if request.method() != axum::http::Method::POST {
         return next.run(request).await;
@@ -124,10 +134,7 @@ async fn admit(
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<usize>().ok());
-    let refuse = |e: ServiceError| {
-        service.record_refused("http", &e, 0.0);
-        error_response(&e)
-    };
+    let refuse = |e: ServiceError| error_response(&e);
     if declared.is_some_and(|n| n > max) {
         return refuse(ServiceError::TooLarge { limit_bytes: max });
     }
@@ -154,27 +161,6 @@ async fn admit(
     };
     let response = next.run(request).await;
     drop(reservation);
-    response
-}
-
-/// Gives every request an id (the client's `x-request-id`, or a new one), runs it inside a
-/// span carrying it, and echoes it in the response.
-async fn with_request_id(
-    request: axum::extract::Request,
-    next: axum::middleware::Next,
-) -> Response {
-    use tracing::Instrument;
-    let id = request_id::request_id(
-        request
-            .headers()
-            .get(request_id::HEADER)
-            .and_then(|v| v.to_str().ok()),
-    );
-    let span = tracing::info_span!("http", request_id = %id, path = %request.uri().path());
-    let mut response = next.run(request).instrument(span).await;
-    if let Ok(value) = header::HeaderValue::from_str(&id) {
-        response.headers_mut().insert(request_id::HEADER, value);
-    }
     response
 }
 
@@ -247,7 +233,50 @@ impl<S: Send + Sync> FromRequestParts<S> for AnswerFormat {
     }
 }
 
-/// An error response, in JSON whatever the request's format (clients read it as text).
+/// The caller, from `Authorization: Bearer <key>` (anyone, when the service has no keys): an
+/// extractor, like [`BodyFormat`], so that no handler reads the header itself. A request
+/// without a valid key is rejected with the service's error mapping ([`CallerRejected`]).
+/// [`admit`] extracts it first, before admission; the handler's extraction then finds it in
+/// the request's extensions rather than checking the key twice.
+impl FromRequestParts<Arc<Service>> for Caller {
+    type Rejection = CallerRejected;
+
+    async fn from_request_parts(
+        parts: &mut Parts,
+        service: &Arc<Service>,
+    ) -> Result<Self, Self::Rejection> {
+        if let Some(caller) = parts.extensions.get::<Caller>() {
+            return Ok(caller.clone());
+        }
+        let authorization = parts
+            .headers
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok());
+        let caller = service.caller(authorization).map_err(CallerRejected)?;
+        parts.extensions.insert(caller.clone());
+        Ok(caller)
+    }
+}
+
+/// A caller without a valid key: 401 UNAUTHENTICATED in the service's error format, with
+/// `WWW-Authenticate: Bearer`.
+#[derive(Debug)]
+pub struct CallerRejected(pub ServiceError);
+
+impl IntoResponse for CallerRejected {
+    fn into_response(self) -> Response {
+        let mut response = error_response(&self.0);
+        response.headers_mut().insert(
+            header::WWW_AUTHENTICATE,
+            header::HeaderValue::from_static("Bearer"),
+        );
+        response
+    }
+}
+
+/// An error response, in JSON whatever the request's format (clients read it as text). The
+/// error itself rides along in the response's extensions, for the observation layer to log
+/// and count ([`observe`]).
 pub fn error_response(e: &ServiceError) -> Response {
     let mut body = serde_json::json!({
         "error": {"code": code_name(e.code()), "message": e.to_string()}
@@ -261,12 +290,7 @@ pub fn error_response(e: &ServiceError) -> Response {
         body.to_string() + "\n",
     )
         .into_response();
-    if matches!(
-        e,
-        ServiceError::Busy { .. }
-            | ServiceError::BodiesInFlight { .. }
-            | ServiceError::MemoryBusy { .. }
-    ) {
+    if e.is_overload() {
         response
             .headers_mut()
             .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
@@ -417,18 +441,15 @@ impl std::str::FromStr for MapFormat {
 
 async fn match_handler(
     State(service): State<Arc<Service>>,
+    _: Caller,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
     format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
     let protobuf = format == BodyFormat::Protobuf;
     let multipart = format == BodyFormat::Multipart;
-    let start = std::time::Instant::now();
     let max_bytes = service.limits().max_message_bytes;
-    let refuse = |e: ServiceError| {
-        service.record_refused("http", &e, start.elapsed().as_secs_f64());
-        error_response(&e)
-    };
+    let refuse = |e: ServiceError| error_response(&e);
     let timeout = match query(params).and_then(|q| q.timeout()) {
         Ok(t) => t,
         Err(e) => return refuse(ServiceError::Input(e)),
@@ -468,10 +489,18 @@ async fn match_handler(
             (to_json(r) + "\n").into_bytes()
         }
     };
-    match service.match_within(read, encode, timeout, "http").await {
-        Ok((_, body)) => {
+    match service.match_within(read, encode, timeout).await {
+        Ok((response, body)) => {
             let content_type = if protobuf { PROTOBUF } else { JSON };
-            ([(header::CONTENT_TYPE, content_type)], body).into_response()
+            let matched = observe::Matched {
+                segments_3d: response.segments_3d.len(),
+            };
+            (
+                [(header::CONTENT_TYPE, content_type)],
+                Extension(matched),
+                body,
+            )
+                .into_response()
         }
         Err(e) => error_response(&e),
     }
@@ -554,6 +583,7 @@ async fn read_body(
 
 async fn calibrate(
     State(service): State<Arc<Service>>,
+    _: Caller,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
     format: BodyFormat,
     request: axum::extract::Request,
@@ -574,7 +604,7 @@ async fn calibrate(
             let body = read_body(request, max_bytes).await?;
             Box::new(move || decode_body_with(&body, protobuf, calibrate_request_from_json))
         };
-        service.calibrate(read, timeout, "http").await
+        service.calibrate(read, timeout).await
     }
     .await;
     answer(result, protobuf)
@@ -582,7 +612,7 @@ async fn calibrate(
 
 async fn create_session(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
@@ -591,7 +621,7 @@ async fn create_session(
     let result = async {
         let body = read_body(request, max_bytes).await?;
         let request: pb::CreateSessionRequest = decode_body(&body, protobuf)?;
-        service.create_session(&caller, request, "http").await
+        service.create_session(&caller, request).await
     }
     .await;
     answer(result, protobuf)
@@ -599,13 +629,13 @@ async fn create_session(
 
 async fn list_sessions(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     params: Result<Query<ListQuery>, QueryRejection>,
     answer_format: AnswerFormat,
 ) -> Response {
     let result = async {
         let request = query(params)?.request()?;
-        service.list_sessions(&caller, request, "http").await
+        service.list_sessions(&caller, request).await
     }
     .await;
     answer(result, answer_format.protobuf)
@@ -613,23 +643,23 @@ async fn list_sessions(
 
 async fn get_session(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     answer_format: AnswerFormat,
 ) -> Response {
     answer(
-        service.get_session(&caller, &id, "http").await,
+        service.get_session(&caller, &id).await,
         answer_format.protobuf,
     )
 }
 
 async fn delete_session(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     answer_format: AnswerFormat,
 ) -> Response {
-    let result = service.delete_session(&caller, &id, "http").await;
+    let result = service.delete_session(&caller, &id).await;
     answer(
         result.map(|()| pb::DeleteSessionResponse {}),
         answer_format.protobuf,
@@ -638,7 +668,7 @@ async fn delete_session(
 
 async fn add_capture(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
     format: BodyFormat,
@@ -673,7 +703,7 @@ async fn add_capture(
             )));
         }
         capture.session_id = id;
-        service.add_capture(&caller, capture, timeout, "http").await
+        service.add_capture(&caller, capture, timeout).await
     }
     .await;
     answer(result, protobuf)
@@ -681,7 +711,7 @@ async fn add_capture(
 
 async fn get_map(
     State(service): State<Arc<Service>>,
-    Extension(caller): Extension<Caller>,
+    caller: Caller,
     Path(id): Path<String>,
     params: Result<Query<MapQuery>, QueryRejection>,
     answer_format: AnswerFormat,
@@ -690,9 +720,7 @@ async fn get_map(
         let params = query(params)?;
         let min_observations = params.min_observations()?;
         let format = params.format()?;
-        let map = service
-            .get_map(&caller, &id, min_observations, "http")
-            .await?;
+        let map = service.get_map(&caller, &id, min_observations).await?;
         // Drawing and writing a large map is CPU work too.
         service
             .pool()
@@ -972,6 +1000,72 @@ mod tests {
         );
         assert!(AnswerFormat::of(&headers(&[(header::ACCEPT, PROTOBUF)])).protobuf);
         assert!(!AnswerFormat::of(&HeaderMap::new()).protobuf);
+    }
+
+    /// A service with one key, `robot`'s.
+    fn keyed_service() -> Arc<Service> {
+        use crate::service::{auth::ApiKeys, store::memory::MemoryStore, Limits};
+        let keys = ApiKeys::parse(Some("robot 0123456789abcdef0123"), None).unwrap();
+        let store = Arc::new(MemoryStore::new(Duration::from_secs(60)));
+        let limits = Limits {
+            threads: 1,
+            max_jobs: 1,
+            ..Limits::default()
+        };
+        let service = Service::new(limits, store, Duration::from_secs(60)).unwrap();
+        Arc::new(service.with_api_keys(keys, 10))
+    }
+
+    fn parts(authorization: Option<&str>) -> Parts {
+        let mut request = axum::http::Request::builder();
+        if let Some(value) = authorization {
+            request = request.header(header::AUTHORIZATION, value);
+        }
+        request.body(()).unwrap().into_parts().0
+    }
+
+    #[tokio::test]
+    async fn the_caller_comes_from_a_bearer_key_and_a_bad_key_is_refused_as_before() {
+        let service = keyed_service();
+        let mut given = parts(Some("Bearer 0123456789abcdef0123"));
+        let caller = Caller::from_request_parts(&mut given, &service)
+            .await
+            .unwrap();
+        assert_eq!(caller.tenant.as_deref(), Some("robot"));
+        // Kept for the handler's extraction, which then reads no header.
+        given.headers.clear();
+        let again = Caller::from_request_parts(&mut given, &service)
+            .await
+            .unwrap();
+        assert_eq!(again, caller);
+
+        for (authorization, message) in [
+            (
+                None,
+                "an API key is required: send 'authorization: Bearer <key>'",
+            ),
+            (
+                Some("Bearer not-a-key-not-a-key"),
+                "the API key is not valid",
+            ),
+        ] {
+            let rejected = Caller::from_request_parts(&mut parts(authorization), &service)
+                .await
+                .unwrap_err()
+                .into_response();
+            assert_eq!(rejected.status(), StatusCode::UNAUTHORIZED);
+            assert_eq!(rejected.headers()[header::WWW_AUTHENTICATE], "Bearer");
+            assert_eq!(rejected.headers()[header::CONTENT_TYPE], JSON);
+            let body = axum::body::to_bytes(rejected.into_body(), 1 << 16)
+                .await
+                .unwrap();
+            assert_eq!(
+                std::str::from_utf8(&body).unwrap(),
+                format!(
+                    "{{\"error\":{{\"code\":\"UNAUTHENTICATED\",\"message\":\"{message}\"}}}}\n"
+                )
+            );
+        }
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! configuration, with the gRPC and HTTP transports on top.
 //!
 //! ```text
-//! serve ─▶ server ─▶ grpc, grpc_body, http, http_server, request_id, tls     (transports)
+//! serve ─▶ server ─▶ grpc, grpc_body, http, http_server, observe, tls        (transports)
 //!    │                          │
 //!    │                          ▼
 //!    └──── config ─────▶ service: Match, sessions, Calibrate, pool,  (use cases)
@@ -21,7 +21,7 @@ pub mod grpc;
 pub mod grpc_body;
 pub mod http;
 pub mod http_server;
-pub mod request_id;
+pub mod observe;
 pub mod serve;
 pub mod server;
 pub mod service;

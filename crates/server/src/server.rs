@@ -92,6 +92,8 @@ pub async fn start_with_tls(
     let grpc = tokio::spawn(
         grpc_server
             .timeout(call_timeout)
+            // Outermost: every call, refused ones too, has its id and span.
+            .layer(crate::observe::grpc(Arc::clone(&service), grpc::route))
             // Each message's bytes come out of the same budget as HTTP bodies.
             .layer(crate::grpc_body::BodyBudgetLayer::new(Arc::clone(&service)))
             .http2_keepalive_interval(Some(connections.header_timeout))

@@ -22,16 +22,13 @@ use trinocular_schema::calibrate::{CalibrateInput, CalibrateSource};
 use trinocular_schema::{self as api, camera_to_pb, pb, InputError};
 
 impl Service {
-    /// Calibrate, recorded under `transport`. `read` produces the request on the compute
-    /// pool (so an HTTP body is parsed there); past `timeout` the answer is
-    /// DEADLINE_EXCEEDED and a queued job never runs.
+    /// Calibrate. `read` produces the request on the compute pool (so an HTTP body is parsed
+    /// there); past `timeout` the answer is DEADLINE_EXCEEDED and a queued job never runs.
     pub async fn calibrate(
         &self,
         read: impl FnOnce() -> Result<pb::CalibrateRequest, InputError> + Send + 'static,
         timeout: Option<Duration>,
-        transport: &str,
     ) -> Result<pb::CalibrateResponse, ServiceError> {
-        let start = Instant::now();
         let limits = DecodeLimits {
             max_bytes: self.limits.max_message_bytes,
             max_pixels: self.limits.max_image_pixels,
@@ -50,9 +47,7 @@ impl Service {
             Ok(api::calibrate::calibrate_request(&request, &limits)?
                 .run_until(Checkpoint::new(&stop))?)
         });
-        let result = super::within(job, self.deadline(timeout)).await;
-        self.observe(transport, "calibrate", start, &result);
-        result
+        super::within(job, self.deadline(timeout)).await
     }
 }
 

@@ -122,6 +122,28 @@ impl ServiceError {
 }
 
 impl ServiceError {
+    /// A refusal for lack of capacity now (compute slots, the body budget, working memory):
+    /// answered with a hint to retry, and logged at debug, as under overload they come by the
+    /// thousand a second and a log line each would cost more than the refusal (they are
+    /// counted, in `trinocular_rejections_total`).
+    pub fn is_overload(&self) -> bool {
+        match self {
+            ServiceError::Busy { .. }
+            | ServiceError::BodiesInFlight { .. }
+            | ServiceError::MemoryBusy { .. } => true,
+            ServiceError::Input(_)
+            | ServiceError::Unauthenticated { .. }
+            | ServiceError::QuotaExceeded { .. }
+            | ServiceError::BodyTimeout { .. }
+            | ServiceError::TooLarge { .. }
+            | ServiceError::NotFound { .. }
+            | ServiceError::Unavailable { .. }
+            | ServiceError::DeadlineExceeded { .. }
+            | ServiceError::Stopped { .. }
+            | ServiceError::Internal { .. } => false,
+        }
+    }
+
     /// The HTTP status: that of the gRPC code, except that HTTP has its own status for a body
     /// that is too large.
     pub fn http_status(&self) -> StatusCode {
@@ -153,6 +175,20 @@ pub fn http_status(code: Code) -> StatusCode {
     }
 }
 
+/// The gRPC code of an HTTP answer the service did not make (axum's own, without a
+/// [`ServiceError`]): OK for a success, else the first code whose status [`http_status`] makes
+/// it (400: INVALID_ARGUMENT), UNKNOWN for a status no code has. The inverse of the one
+/// mapping, not a second table.
+pub fn code_of_http_status(status: StatusCode) -> Code {
+    if status.is_success() {
+        return Code::Ok;
+    }
+    (1..=16)
+        .map(Code::from_i32)
+        .find(|&code| http_status(code) == status)
+        .unwrap_or(Code::Unknown)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -173,5 +209,29 @@ mod tests {
             !panic.to_string().contains("secret"),
             "details stay in the log"
         );
+    }
+
+    #[test]
+    fn an_http_status_maps_back_to_the_code_that_makes_it() {
+        assert_eq!(code_of_http_status(StatusCode::OK), Code::Ok);
+        assert_eq!(code_of_http_status(StatusCode::NO_CONTENT), Code::Ok);
+        assert_eq!(
+            code_of_http_status(StatusCode::BAD_REQUEST),
+            Code::InvalidArgument
+        );
+        assert_eq!(
+            code_of_http_status(StatusCode::TOO_MANY_REQUESTS),
+            Code::ResourceExhausted
+        );
+        assert_eq!(
+            code_of_http_status(StatusCode::METHOD_NOT_ALLOWED),
+            Code::Unknown
+        );
+        for code in (1..=16).map(Code::from_i32) {
+            assert_eq!(
+                http_status(code_of_http_status(http_status(code))),
+                http_status(code)
+            );
+        }
     }
 }

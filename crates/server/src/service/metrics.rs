@@ -2,6 +2,10 @@
 //! durations of the pipeline; jobs in flight and rejections. One registry per [`Service`],
 //! so servers in one process (tests) do not mix their counts.
 //!
+//! Two writers: each transport's observation layer records every request (count and latency,
+//! by transport, route and code: `crate::observe`), and the Match use case records its
+//! pipeline's stage times, which only it has.
+//!
 //! [`Service`]: super::Service
 
 use prometheus::{
@@ -110,15 +114,9 @@ impl Metrics {
         self.stopped.with_label_values(&[stage]).inc();
     }
 
-    /// One answered request.
-    pub fn record(
-        &self,
-        transport: &str,
-        route: &str,
-        code: tonic::Code,
-        seconds: f64,
-        response: Option<&pb::MatchResponse>,
-    ) {
+    /// One answered request, by the transport that answered it, its route and its code:
+    /// recorded by the transport's observation layer, which times the request.
+    pub fn record_request(&self, transport: &str, route: &str, code: tonic::Code, seconds: f64) {
         let code = format!("{code:?}");
         self.requests
             .with_label_values(&[transport, route, code.as_str()])
@@ -129,20 +127,26 @@ impl Metrics {
         if code == "ResourceExhausted" {
             self.rejections.inc();
         }
-        if let Some(stats) = response.and_then(|r| r.stats.as_ref()) {
-            for (stage, ms) in [
-                ("rectify", stats.rectify_ms),
-                ("predict", stats.predict_ms),
-                ("validate", stats.validate_ms),
-                ("reconstruct", stats.reconstruct_ms),
-            ] {
-                self.stages.with_label_values(&[stage]).observe(ms / 1e3);
-            }
-            for ms in &stats.extract_ms {
-                self.stages
-                    .with_label_values(&["extract"])
-                    .observe(ms / 1e3);
-            }
+    }
+
+    /// The stage times of one Match's pipeline, from its answer's statistics: recorded by the
+    /// Match use case, which has them (a layer would have to decode the answer to read them).
+    pub fn record_match(&self, response: &pb::MatchResponse) {
+        let Some(stats) = &response.stats else {
+            return;
+        };
+        for (stage, ms) in [
+            ("rectify", stats.rectify_ms),
+            ("predict", stats.predict_ms),
+            ("validate", stats.validate_ms),
+            ("reconstruct", stats.reconstruct_ms),
+        ] {
+            self.stages.with_label_values(&[stage]).observe(ms / 1e3);
+        }
+        for ms in &stats.extract_ms {
+            self.stages
+                .with_label_values(&["extract"])
+                .observe(ms / 1e3);
         }
     }
 

@@ -133,7 +133,8 @@ pub struct Service {
     metrics: Arc<metrics::Metrics>,
     store: Arc<dyn store::SessionStore>,
     store_ttl: std::time::Duration,
-    /// What stamps sessions' and captures' creation times: the store's clock, in tests.
+    /// What stamps sessions' and captures' creation times and times requests: the store's
+    /// clock, in tests.
     clock: Arc<dyn clock::Clock>,
     /// Request-body bytes held now, in KiB permits ([`Limits::max_body_bytes_in_flight`]).
     bodies: Arc<tokio::sync::Semaphore>,
@@ -183,7 +184,8 @@ impl Service {
         })
     }
 
-    /// This service, stamping sessions and captures by `clock` (give the store the same one).
+    /// This service, stamping sessions and captures and timing requests by `clock` (give the
+    /// store the same one).
     pub fn with_clock(mut self, clock: Arc<dyn clock::Clock>) -> Service {
         self.clock = clock;
         self
@@ -226,26 +228,14 @@ impl Service {
         self.store.describe()
     }
 
-    /// Logs and counts a request that failed, in [`Service::match_within`] or before it (a
-    /// transport could not read it).
-    pub fn record_refused(&self, transport: &str, error: &ServiceError, seconds: f64) {
-        if let ServiceError::Internal { detail } = error {
-            tracing::error!(detail = %detail, "match: internal error");
-        }
-        if matches!(
-            error,
-            ServiceError::Busy { .. }
-                | ServiceError::BodiesInFlight { .. }
-                | ServiceError::MemoryBusy { .. }
-        ) {
-            // Under overload these come by the thousand a second: a log line each would cost
-            // more than the refusal. They are counted (trinocular_rejections_total).
-            tracing::debug!(transport, code = ?error.code(), error = %error, "match refused");
-        } else {
-            tracing::info!(transport, code = ?error.code(), ms = seconds * 1e3, error = %error, "match");
-        }
-        self.metrics
-            .record(transport, "match", error.code(), seconds, None);
+    /// The metrics, for the transports' observation of each request.
+    pub fn metrics(&self) -> &metrics::Metrics {
+        &self.metrics
+    }
+
+    /// The clock this service reads: timestamps, and the durations of requests.
+    pub fn clock(&self) -> &dyn clock::Clock {
+        self.clock.as_ref()
     }
 
     /// The Prometheus text exposition of this service's metrics.
@@ -276,32 +266,20 @@ impl Service {
         self.ready.store(ready, Ordering::Relaxed);
     }
 
-    /// Match, recorded in the metrics and the log under `transport`: [`Service::run_match`].
+    /// Match: [`Service::run_match`], with its pipeline's stage times recorded in the
+    /// metrics. The request itself (its count, latency and log line) is the transport's to
+    /// observe, as is every request's.
     pub async fn match_within<T: Send + 'static>(
         &self,
         read: impl FnOnce() -> Result<pb::MatchRequest, InputError> + Send + 'static,
         encode: impl FnOnce(&pb::MatchResponse) -> T + Send + 'static,
         timeout: Option<std::time::Duration>,
-        transport: &str,
     ) -> Result<(pb::MatchResponse, T), ServiceError> {
-        let start = std::time::Instant::now();
-        let result = self.run_match(read, encode, timeout).await;
-        let seconds = start.elapsed().as_secs_f64();
-        match &result {
-            Ok((r, _)) => {
-                tracing::info!(
-                    transport,
-                    code = ?tonic::Code::Ok,
-                    ms = seconds * 1e3,
-                    segments_3d = r.segments_3d.len(),
-                    "match"
-                );
-                self.metrics
-                    .record(transport, "match", tonic::Code::Ok, seconds, Some(r));
-            }
-            Err(e) => self.record_refused(transport, e, seconds),
+        let answer = self.run_match(read, encode, timeout).await;
+        if let Ok((response, _)) = &answer {
+            self.metrics.record_match(response);
         }
-        result
+        answer
     }
 
     /// Match on the compute pool, not the async runtime: `read` produces the request (so an

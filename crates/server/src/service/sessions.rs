@@ -6,11 +6,13 @@
 //! answer, so an acknowledged capture is never lost. The map is fused from the stored
 //! captures when asked, on the compute pool: replicas need share nothing but the store.
 
-use std::time::{Duration, Instant};
+use std::sync::Arc;
+use std::time::Duration;
 
 use prost::Message;
 
 use super::auth::{public_id, store_id, Caller};
+use super::clock::Clock;
 use super::store::{SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
 use trinocular_core::map::{self, FuseParams};
@@ -68,32 +70,6 @@ fn check_id(id: &str) -> Result<(), ServiceError> {
 }
 
 impl Service {
-    /// Counts and logs a session call under `route`.
-    pub(super) fn observe<T>(
-        &self,
-        transport: &str,
-        route: &str,
-        start: Instant,
-        result: &Result<T, ServiceError>,
-    ) {
-        let seconds = start.elapsed().as_secs_f64();
-        match result {
-            Ok(_) => {
-                tracing::info!(transport, route, code = ?tonic::Code::Ok, ms = seconds * 1e3, "session");
-                self.metrics
-                    .record(transport, route, tonic::Code::Ok, seconds, None);
-            }
-            Err(e) => {
-                if let ServiceError::Internal { detail } = e {
-                    tracing::error!(detail = %detail, route, "internal error");
-                }
-                tracing::info!(transport, route, code = ?e.code(), ms = seconds * 1e3, error = %e, "session");
-                self.metrics
-                    .record(transport, route, e.code(), seconds, None);
-            }
-        }
-    }
-
     fn session_pb(
         &self,
         caller: &Caller,
@@ -127,10 +103,8 @@ impl Service {
         &self,
         caller: &Caller,
         request: pb::CreateSessionRequest,
-        transport: &str,
     ) -> Result<pb::Session, ServiceError> {
-        let start = Instant::now();
-        let result = async {
+        async {
             trinocular_schema::session::check_create_session(&request)?;
             if caller.tenant.is_some() {
                 let held = self.own_sessions(caller).await?.len();
@@ -165,26 +139,20 @@ impl Service {
             };
             self.session_pb(caller, &info, true)
         }
-        .await;
-        self.observe(transport, "create_session", start, &result);
-        result
+        .await
     }
 
     pub async fn get_session(
         &self,
         caller: &Caller,
         id: &str,
-        transport: &str,
     ) -> Result<pb::Session, ServiceError> {
-        let start = Instant::now();
-        let result = async {
+        async {
             check_id(id)?;
             let info = self.store.get(&store_id(caller, id)).await?;
             self.session_pb(caller, &info, true)
         }
-        .await;
-        self.observe(transport, "get_session", start, &result);
-        result
+        .await
     }
 
     /// The caller's sessions, a page at a time: at most `page_size` (0: the default, 100;
@@ -194,10 +162,8 @@ impl Service {
         &self,
         caller: &Caller,
         request: pb::ListSessionsRequest,
-        transport: &str,
     ) -> Result<pb::ListSessionsResponse, ServiceError> {
-        let start = Instant::now();
-        let result = async {
+        async {
             let pb::ListSessionsRequest {
                 page_size,
                 page_token,
@@ -242,9 +208,7 @@ impl Service {
                 next_page_token,
             })
         }
-        .await;
-        self.observe(transport, "list_sessions", start, &result);
-        result
+        .await
     }
 
     /// The caller's live sessions with their public ids, sorted by public id.
@@ -263,20 +227,12 @@ impl Service {
         Ok(own)
     }
 
-    pub async fn delete_session(
-        &self,
-        caller: &Caller,
-        id: &str,
-        transport: &str,
-    ) -> Result<(), ServiceError> {
-        let start = Instant::now();
-        let result = async {
+    pub async fn delete_session(&self, caller: &Caller, id: &str) -> Result<(), ServiceError> {
+        async {
             check_id(id)?;
             Ok(self.store.delete(&store_id(caller, id)).await?)
         }
-        .await;
-        self.observe(transport, "delete_session", start, &result);
-        result
+        .await
     }
 
     /// Matches one capture with the session's rig and options, then stores its pose and 3D
@@ -287,10 +243,8 @@ impl Service {
         caller: &Caller,
         request: pb::AddCaptureRequest,
         timeout: Option<Duration>,
-        transport: &str,
     ) -> Result<pb::AddCaptureResponse, ServiceError> {
-        let start = Instant::now();
-        let result = async {
+        async {
             let pb::AddCaptureRequest {
                 session_id,
                 rig_to_world,
@@ -342,9 +296,7 @@ impl Service {
                 }),
             })
         }
-        .await;
-        self.observe(transport, "add_capture", start, &result);
-        result
+        .await
     }
 
     /// The session's map, fused on the compute pool from its stored captures.
@@ -354,10 +306,8 @@ impl Service {
         caller: &Caller,
         id: &str,
         min_observations: Option<u32>,
-        transport: &str,
     ) -> Result<SessionMap, ServiceError> {
-        let start = Instant::now();
-        let result = async {
+        async {
             check_id(id)?;
             if min_observations == Some(0) {
                 return Err(ServiceError::Input(InputError::new(
@@ -373,26 +323,25 @@ impl Service {
             let min_observations = min_observations
                 .or(stored.map_options.and_then(|m| m.min_observations))
                 .unwrap_or(1);
-            let session_id = id.to_string();
+            let (session_id, clock) = (id.to_string(), Arc::clone(&self.clock));
             let job = self
                 .pool
-                .run(move |_| fuse_stored(session_id, &captures, min_observations));
+                .run(move |_| fuse_stored(session_id, &captures, min_observations, clock.as_ref()));
             // Fusing is compute like Match: it keeps to the service's longest request time.
             super::within(job, self.deadline(None)).await
         }
-        .await;
-        self.observe(transport, "get_map", start, &result);
-        result
+        .await
     }
 }
 
-/// Decodes the stored captures and fuses them (on the compute pool).
+/// Decodes the stored captures and fuses them (on the compute pool), timed on `clock`.
 fn fuse_stored(
     session_id: String,
     captures: &[Vec<u8>],
     min_observations: u32,
+    clock: &dyn Clock,
 ) -> Result<SessionMap, ServiceError> {
-    let t = Instant::now();
+    let start = clock.monotonic();
     let mut poses = Vec::with_capacity(captures.len());
     let mut segments = Vec::with_capacity(captures.len());
     for bytes in captures {
@@ -425,6 +374,6 @@ fn fuse_stored(
         session_id,
         segments,
         poses,
-        fuse_ms: t.elapsed().as_secs_f64() * 1e3,
+        fuse_ms: clock.since(start).as_secs_f64() * 1e3,
     })
 }

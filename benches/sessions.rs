@@ -47,6 +47,7 @@ fn fixture() -> Fixture {
         input: Some(pb::add_capture_request::Input::Images(pb::ImageTriplet {
             images,
         })),
+        rig_to_world_covariance: Vec::new(),
     };
     Fixture {
         images,

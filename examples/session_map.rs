@@ -67,6 +67,9 @@ struct Args {
     /// pair of captures that registers (`map::poses`).
     #[arg(long)]
     graph: bool,
+    /// Solve every pose from the priors at once, as GetMap does (`map::poses::solve`).
+    #[arg(long)]
+    solve: bool,
 }
 
 /// Standard normal draws from a seed (splitmix64, Box–Muller): the same noise for the same
@@ -262,6 +265,7 @@ fn main() -> Result<(), Error> {
                     start: r.segment.start,
                     end: r.segment.end,
                     covariance: r.covariance,
+                    uncertain: r.uncertain,
                 })
                 .collect(),
         );
@@ -285,7 +289,27 @@ fn main() -> Result<(), Error> {
             }
         })
         .collect();
-    let poses = if args.register {
+    let poses = if args.solve {
+        // As GetMap does: every pose from the priors and all pairs, in one solve.
+        let session_priors: Vec<PosePrior> = priors
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                if i == 0 {
+                    PosePrior {
+                        rig_to_world: *p,
+                        covariance: nalgebra::Matrix6::identity() * 1e-12,
+                    }
+                } else {
+                    prior_of(*p, args.yaw_noise_deg, args.xy_noise_m)
+                }
+            })
+            .collect();
+        let t0 = std::time::Instant::now();
+        let solved = map::poses::solve(&session_priors, &measured, &RegisterParams::default());
+        eprintln!("poses solved in {:.1} ms", t0.elapsed().as_secs_f64() * 1e3);
+        solved.iter().map(|p| p.rig_to_world).collect()
+    } else if args.register {
         register_in_order(
             &priors,
             &measured,

@@ -326,6 +326,21 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
                 },
                 "input",
             ),
+            (
+                pb::AddCaptureRequest {
+                    rig_to_world_covariance: vec![1e-4; 35],
+                    ..good.clone()
+                },
+                "rig_to_world_covariance",
+            ),
+            (
+                pb::AddCaptureRequest {
+                    // Symmetric, but not positive definite: every entry alike.
+                    rig_to_world_covariance: vec![1e-4; 36],
+                    ..good.clone()
+                },
+                "rig_to_world_covariance",
+            ),
         ] {
             let status = grpc.add_capture(bad.clone()).await.unwrap_err();
             assert_eq!(status.code(), tonic::Code::InvalidArgument, "{status:?}");
@@ -444,7 +459,8 @@ fn captures_upload_as_curl_sends_them() {
             unreachable!("the fixture sends segments")
         };
         // The pose as 16 bare numbers, the easy thing to type.
-        let pose = serde_json::to_string(&rig_to_world.unwrap().matrix).unwrap();
+        let rig_to_world_matrix = rig_to_world.unwrap().matrix;
+        let pose = serde_json::to_string(&rig_to_world_matrix).unwrap();
         let form = reqwest::multipart::Form::new()
             .text("pose", pose)
             .text("segments", api::to_json(&segments));
@@ -458,6 +474,25 @@ fn captures_upload_as_curl_sends_them() {
         let answer: pb::AddCaptureResponse =
             api::from_json("a", &reply.text().await.unwrap()).unwrap();
         assert_eq!(answer.capture_index, 0);
+        assert_eq!(
+            answer.registration.map(|r| r.status),
+            Some(pb::RegistrationStatus::EmptyMap as i32)
+        );
+
+        // The pose's covariance is a part too, 36 numbers; a wrong count names it.
+        let form = reqwest::multipart::Form::new()
+            .text("pose", serde_json::to_string(&rig_to_world_matrix).unwrap())
+            .text("pose_covariance", "[1e-4, 0, 0]")
+            .text("segments", api::to_json(&segments));
+        let reply = http
+            .post(format!("{base}/{}/captures", session.id))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        let body = reply.json_body().await;
+        assert_eq!(body["error"]["field"], "rig_to_world_covariance");
 
         // A capture upload has no calibration of its own: the session's is used.
         let form = reqwest::multipart::Form::new()
@@ -824,5 +859,203 @@ fn redis_going_away_is_unavailable_and_service_resumes_when_it_returns() {
             .unwrap()
             .into_inner();
         assert_eq!(answer.capture_index, 0);
+    });
+}
+
+/// The yaw (about world z through the rig's origin) and shift across the floor of `pose`.
+fn perturbed(pose: &pb::Pose, yaw_deg: f64, dx: f64, dy: f64) -> pb::Pose {
+    let m = &pose.matrix;
+    let (c, s) = (yaw_deg.to_radians().cos(), yaw_deg.to_radians().sin());
+    let mut out = m.clone();
+    for col in 0..3 {
+        let (x, y) = (m[col], m[4 + col]);
+        out[col] = c * x - s * y;
+        out[4 + col] = s * x + c * y;
+    }
+    out[3] += dx;
+    out[7] += dy;
+    pb::Pose { matrix: out }
+}
+
+/// Rotation angle (degrees) and distance (metres) between two poses.
+fn pose_error(a: &pb::Pose, b: &pb::Pose) -> (f64, f64) {
+    let (a, b) = (&a.matrix, &b.matrix);
+    let trace: f64 = (0..3)
+        .map(|i| (0..3).map(|k| a[4 * i + k] * b[4 * i + k]).sum::<f64>())
+        .sum();
+    let angle = ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+    let shift = [3, 7, 11]
+        .iter()
+        .map(|&i| (a[i] - b[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    (angle, shift)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+#[test]
+fn captures_are_registered_to_the_map_and_the_map_uses_the_refined_poses() {
+    // Odometry off by a few degrees and centimetres on every capture but the first.
+    // AddCapture registers each to the captures before it and must never move a pose away
+    // from the truth; GetMap with `refine_poses` solves them all and must bring the median
+    // error below the given poses'. (The issue's goal, a median of 0.2 degrees and 1 cm, is
+    // not met on this sparse panorama: 0.13 degrees but 3 cm; docs/SESSIONS.md.)
+    // 30 degrees apart, as the shared rooms' sessions.
+    let (calibration, captures) = panorama(12);
+    let offsets = [
+        (0.0, 0.0, 0.0),
+        (2.0, 0.03, -0.02),
+        (-1.5, -0.04, 0.01),
+        (2.5, 0.02, 0.04),
+        (-2.0, 0.05, -0.03),
+        (1.0, -0.03, -0.04),
+        (-2.5, 0.01, 0.05),
+        (1.5, -0.05, 0.02),
+        (2.0, 0.04, 0.03),
+        (-1.0, -0.02, -0.05),
+        (0.5, 0.05, 0.01),
+        (-2.5, -0.01, 0.03),
+    ];
+    runtime().block_on(async {
+        let running = start().await;
+        let mut grpc = connect(running.grpc_addr).await;
+        let refined = pb::CreateSessionRequest {
+            map_options: Some(pb::MapOptions {
+                refine_poses: Some(true),
+                ..Default::default()
+            }),
+            ..create_request(&calibration)
+        };
+        let session = grpc
+            .create_session(refined.clone())
+            .await
+            .unwrap()
+            .into_inner();
+        let mut requests = Vec::new();
+        let mut truths = Vec::new();
+        let mut given = Vec::new();
+        let (mut before, mut after) = (Vec::new(), Vec::new());
+        for (k, (capture, (yaw, dx, dy))) in captures.iter().zip(offsets).enumerate() {
+            let truth = capture.rig_to_world.clone().unwrap();
+            let mut request = pb::AddCaptureRequest {
+                session_id: session.id.clone(),
+                rig_to_world: Some(perturbed(&truth, yaw, dx, dy)),
+                ..capture.clone()
+            };
+            if k == 0 {
+                // The first pose is where the robot's odometry starts: exact.
+                let mut anchored = vec![0.0; 36];
+                for i in 0..6 {
+                    anchored[7 * i] = 1e-10;
+                }
+                request.rig_to_world_covariance = anchored;
+            }
+            let answer = grpc
+                .add_capture(request.clone())
+                .await
+                .unwrap()
+                .into_inner();
+            let registration = answer.registration.expect("a registration");
+            let status = pb::RegistrationStatus::try_from(registration.status).unwrap();
+            let refined = registration.rig_to_world.as_ref().unwrap();
+            let (angle, shift) = pose_error(refined, &truth);
+            eprintln!(
+                "capture {k}: {status:?}, {} inliers, {angle:.3} deg {shift:.4} m off",
+                registration.inliers
+            );
+            assert_eq!(registration.covariance.len(), 36);
+            if k == 0 {
+                assert_eq!(status, pb::RegistrationStatus::EmptyMap);
+                assert!(angle < 1e-5 && shift < 1e-9);
+            } else {
+                before.push(pose_error(request.rig_to_world.as_ref().unwrap(), &truth));
+                after.push((angle, shift));
+                if status != pb::RegistrationStatus::Registered {
+                    // The pose given is kept.
+                    let given = request.rig_to_world.as_ref().unwrap();
+                    let apart = refined
+                        .matrix
+                        .iter()
+                        .zip(&given.matrix)
+                        .map(|(x, y)| (x - y).abs());
+                    assert!(apart.fold(0.0, f64::max) < 1e-12, "{registration:?}");
+                    assert!(registration.inliers < 6, "{registration:?}");
+                }
+            }
+            truths.push(truth);
+            given.push(request.rig_to_world.clone().unwrap());
+            requests.push(request);
+        }
+        let medians = |v: &[(f64, f64)]| {
+            (
+                median(v.iter().map(|e| e.0).collect()),
+                median(v.iter().map(|e| e.1).collect()),
+            )
+        };
+        // Where AddCapture moved a pose, it moved it closer to the truth.
+        for (k, (b, a)) in before.iter().zip(&after).enumerate() {
+            assert!(
+                a.0 <= b.0 && a.1 <= b.1 + 1e-9,
+                "capture {}: {a:?} off after registration, {b:?} as given",
+                k + 1
+            );
+        }
+        let map = grpc
+            .get_map(pb::GetMapRequest {
+                session_id: session.id,
+                min_observations: None,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(map.prior_poses.len(), given.len());
+        for (a, b) in map.prior_poses.iter().zip(&given) {
+            let apart = a.matrix.iter().zip(&b.matrix).map(|(x, y)| (x - y).abs());
+            assert!(apart.fold(0.0, f64::max) < 1e-12, "{a:?} given as {b:?}");
+        }
+        let solved: Vec<(f64, f64)> = map
+            .poses
+            .iter()
+            .zip(&truths)
+            .skip(1)
+            .map(|(pose, truth)| pose_error(pose, truth))
+            .collect();
+        eprintln!("map poses: {solved:.3?}");
+        let (map_deg, map_m) = medians(&solved);
+        let (given_deg, given_m) = medians(&before);
+        assert!(
+            map_deg < given_deg && map_m < given_m,
+            "map poses: median {map_deg:.3} deg {map_m:.4} m off, given {given_deg:.3} deg \
+             {given_m:.4} m"
+        );
+        // Solved poses do not depend on the order the captures came in.
+        let reversed = grpc.create_session(refined).await.unwrap().into_inner();
+        for request in requests.iter().rev() {
+            let request = pb::AddCaptureRequest {
+                session_id: reversed.id.clone(),
+                ..request.clone()
+            };
+            grpc.add_capture(request).await.unwrap();
+        }
+        let other = grpc
+            .get_map(pb::GetMapRequest {
+                session_id: reversed.id,
+                min_observations: None,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        same_geometry(&map, &other);
+        // Fused with refined poses, the map is the exact-pose map's size, give or take.
+        let exact = map_of(&mut grpc, &calibration, &captures).await;
+        let (n, m) = (map.segments.len() as f64, exact.segments.len() as f64);
+        assert!(
+            (n - m).abs() <= 0.1 * m,
+            "{n} map segments, {m} with exact poses"
+        );
     });
 }

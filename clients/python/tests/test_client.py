@@ -290,9 +290,15 @@ def test_session_lifecycle(client, demo):
         r = client.add_capture(s.id, IDENTITY, images=_paths(demo))
         assert r.capture_index == i and r.captures == i + 1
         assert len(r.match.segments_3d) > 0
+        # The first capture anchors the map; the second, the same view again, registers to it
+        # where it was.
+        assert r.registration["status"] == ("EMPTY_MAP", "REGISTERED")[i]
+        assert r.registration["covariance"].shape == (6, 6)
+        assert r.registration["translation_change_m"] < 0.01
     m = client.get_map(s.id)
     assert m.segments.shape[1:] == (2, 3) and len(m.segments) > 0
     assert m.poses.shape == (2, 4, 4)
+    np.testing.assert_array_equal(m.prior_poses[0], IDENTITY)
     np.testing.assert_array_equal(m.poses[0], IDENTITY)
     assert m.observations.max() == 2
     assert len(client.get_map(s.id, min_observations=3).segments) == 0
@@ -313,6 +319,10 @@ def test_bad_pose_is_invalid(client, demo):
     with pytest.raises(InvalidArgument) as e:
         client.add_capture(s.id, bad, images=_paths(demo))
     assert e.value.field.startswith("rig_to_world.matrix"), e.value.message
+    with pytest.raises(InvalidArgument) as e:
+        client.add_capture(s.id, IDENTITY, images=_paths(demo),
+                           rig_to_world_covariance=np.ones((6, 6)) * 1e-4)
+    assert e.value.field == "rig_to_world_covariance", e.value.message
     client.delete_session(s.id)
 
 

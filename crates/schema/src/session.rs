@@ -6,10 +6,12 @@
 //! world frame: the map is fused from them when asked, so fusion can improve without
 //! migrating stored sessions.
 
-use nalgebra::{Isometry3, Matrix3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Matrix6, Point3, Rotation3, Translation3, UnitQuaternion,
+};
 
 use super::{match_params, pb, rig_from_calibration, InputError};
-use trinocular_core::map::MapSegment;
+use trinocular_core::map::{MapSegment, Measured, PosePrior, Registration, RegistrationStatus};
 use trinocular_core::segment::Segment3;
 
 /// How far a pose's rotation block may be from a rotation (RᵀR − I, determinant − 1).
@@ -110,6 +112,7 @@ pub fn check_create_session(request: &pb::CreateSessionRequest) -> Result<(), In
         .map_err(|e| InputError::new(format!("options.extract.{}", e.field()), e.to_string()))?;
     if let Some(pb::MapOptions {
         min_observations: Some(0),
+        ..
     }) = map_options
     {
         return Err(InputError::new(
@@ -150,27 +153,206 @@ pub fn segment_capture(
                 lists: lists.iter().map(super::segment_list_to_pb).collect(),
             },
         )),
+        rig_to_world_covariance: Vec::new(),
     }
 }
 
-/// The rig-frame 3D segments of a stored capture, and its pose.
-pub fn stored_capture_segments(
-    capture: &pb::StoredCapture,
-) -> Result<(Isometry3<f64>, Vec<Segment3>), InputError> {
-    let pose = pose_from_pb(capture.rig_to_world.as_ref(), "rig_to_world")?;
+/// Largest standard deviation a pose prior may state: 30° of rotation, 10 m of translation
+/// (beyond them a pose says nothing registration could start from).
+pub const MAX_PRIOR_ROTATION_SIGMA_DEG: f64 = 30.0;
+pub const MAX_PRIOR_TRANSLATION_SIGMA_M: f64 = 10.0;
+
+/// The prior of a capture's pose: `pose` with the 6x6 row-major `covariance` (empty for the
+/// default), or an error naming `field`.
+pub fn pose_prior(
+    pose: Isometry3<f64>,
+    covariance: &[f64],
+    field: &str,
+) -> Result<PosePrior, InputError> {
+    if covariance.is_empty() {
+        return Ok(PosePrior::with_default_covariance(pose));
+    }
+    if covariance.len() != 36 {
+        return Err(InputError::new(
+            field,
+            format!(
+                "needs 36 numbers (a row-major 6x6: rotation, then translation) or none for the \
+                 default, got {}",
+                covariance.len()
+            ),
+        ));
+    }
+    if let Some(i) = covariance.iter().position(|v| !v.is_finite()) {
+        return Err(InputError::new(
+            format!("{field}[{i}]"),
+            format!("{} is not a finite number", covariance[i]),
+        ));
+    }
+    let m = Matrix6::from_row_slice(covariance);
+    let scale = m.abs().max();
+    if (m - m.transpose()).abs().max() > 1e-9 * scale {
+        return Err(InputError::new(field, "must be symmetric"));
+    }
+    let limits = [
+        MAX_PRIOR_ROTATION_SIGMA_DEG.to_radians(),
+        MAX_PRIOR_TRANSLATION_SIGMA_M,
+    ];
+    for i in 0..6 {
+        let limit = limits[i / 3];
+        if m[(i, i)] > limit * limit {
+            return Err(InputError::new(
+                format!("{field}[{}]", 7 * i),
+                format!(
+                    "a standard deviation of {:.3} is more than the {limit:.3} a prior may state \
+                     ({MAX_PRIOR_ROTATION_SIGMA_DEG}° of rotation, \
+                     {MAX_PRIOR_TRANSLATION_SIGMA_M} m of translation)",
+                    m[(i, i)].sqrt()
+                ),
+            ));
+        }
+    }
+    if m.cholesky().is_none() {
+        return Err(InputError::new(field, "must be positive definite"));
+    }
+    Ok(PosePrior {
+        rig_to_world: pose,
+        covariance: m,
+    })
+}
+
+/// A 6x6 matrix as 36 numbers, row-major.
+pub fn matrix6_to_vec(m: &Matrix6<f64>) -> Vec<f64> {
+    m.transpose().as_slice().to_vec()
+}
+
+/// The `Registration` message.
+pub fn registration_to_pb(r: &Registration) -> pb::Registration {
+    pb::Registration {
+        status: status_to_pb(r.status) as i32,
+        rig_to_world: Some(pose_to_pb(&r.rig_to_world)),
+        covariance: matrix6_to_vec(&r.covariance),
+        inliers: r.inliers,
+        rotation_change_deg: r.rotation_change_deg,
+        translation_change_m: r.translation_change_m,
+    }
+}
+
+pub fn status_to_pb(status: RegistrationStatus) -> pb::RegistrationStatus {
+    match status {
+        RegistrationStatus::Registered => pb::RegistrationStatus::Registered,
+        RegistrationStatus::EmptyMap => pb::RegistrationStatus::EmptyMap,
+        RegistrationStatus::TooFewInCommon => pb::RegistrationStatus::TooFewInCommon,
+    }
+}
+
+/// A `MatchResponse` without its uncertain 3D segments and their triplets, renumbered: what
+/// the same match answers when `include_uncertain` is not asked for (the pipeline decides
+/// every segment alike either way and only leaves them out at the end).
+pub fn certain_only(response: &pb::MatchResponse) -> pb::MatchResponse {
+    let mut triplets = Vec::new();
+    let mut segments_3d = Vec::new();
+    for s in response.segments_3d.iter().filter(|s| !s.uncertain) {
+        let first = triplets.len() as u32;
+        triplets.extend(
+            s.triplets
+                .iter()
+                .filter_map(|&t| response.triplets.get(t as usize).cloned()),
+        );
+        segments_3d.push(pb::Segment3 {
+            triplet: first,
+            triplets: (first..triplets.len() as u32).collect(),
+            ..s.clone()
+        });
+    }
+    let mut stats = response.stats.clone();
+    if let Some(stats) = stats.as_mut() {
+        stats.segments_3d = segments_3d.len() as u32;
+    }
+    pb::MatchResponse {
+        triplets,
+        segments_3d,
+        stats,
+        extracted: response.extracted.clone(),
+    }
+}
+
+/// What the map and registration take of a stored capture.
+#[derive(Debug, Clone)]
+pub struct StoredSegments {
+    /// The pose the map uses, and its covariance.
+    pub pose: PosePrior,
+    /// The pose as given, with its covariance.
+    pub prior: PosePrior,
+    /// The segments the map fuses: those that met the gate, rig frame.
+    pub certain: Vec<Segment3>,
+    /// Every segment with its covariance, rig frame, for registration.
+    pub measured: Vec<Measured>,
+    /// How the capture was placed when it was added (unspecified: stored before
+    /// registration).
+    pub status: pb::RegistrationStatus,
+}
+
+impl StoredSegments {
+    /// The segments of a `MatchResponse` or a stored capture with their covariances (1 cm
+    /// across each endpoint where a segment has none).
+    pub fn measured_of(segments: &[pb::Segment3]) -> Vec<Measured> {
+        segments.iter().map(measured).collect()
+    }
+}
+
+fn measured(s: &pb::Segment3) -> Measured {
     let point = |p: &Option<pb::Point3>| {
         let p = p.unwrap_or_default();
         Point3::new(p.x, p.y, p.z)
     };
-    let segments = capture
+    let covariance = if s.covariance.len() == 36 && s.covariance.iter().all(|v| v.is_finite()) {
+        Matrix6::from_row_slice(&s.covariance)
+    } else {
+        Matrix6::identity() * LEGACY_SEGMENT_SIGMA_M.powi(2)
+    };
+    Measured {
+        start: point(&s.start),
+        end: point(&s.end),
+        covariance,
+        uncertain: s.uncertain,
+    }
+}
+
+/// Covariance of a stored segment that has none (stored before registration): 1 cm across
+/// each endpoint.
+const LEGACY_SEGMENT_SIGMA_M: f64 = 0.01;
+
+/// What the map and registration take of a stored capture.
+pub fn stored_capture_segments(capture: &pb::StoredCapture) -> Result<StoredSegments, InputError> {
+    let pose = pose_from_pb(capture.rig_to_world.as_ref(), "rig_to_world")?;
+    // Captures stored before registration have only the pose they were given.
+    let prior = match capture.prior_rig_to_world.as_ref() {
+        Some(p) => pose_from_pb(Some(p), "prior_rig_to_world")?,
+        None => pose,
+    };
+    let prior = pose_prior(prior, &capture.prior_covariance, "prior_covariance")?;
+    let covariance = pose_prior(pose, &capture.pose_covariance, "pose_covariance")?.covariance;
+    let measured = StoredSegments::measured_of(&capture.segments);
+    let certain = capture
         .segments
         .iter()
-        .map(|s| Segment3 {
-            start: point(&s.start),
-            end: point(&s.end),
+        .zip(&measured)
+        .filter(|(s, _)| !s.uncertain)
+        .map(|(_, m)| Segment3 {
+            start: m.start,
+            end: m.end,
         })
         .collect();
-    Ok((pose, segments))
+    Ok(StoredSegments {
+        pose: PosePrior {
+            rig_to_world: pose,
+            covariance,
+        },
+        prior,
+        certain,
+        measured,
+        status: pb::RegistrationStatus::try_from(capture.status).unwrap_or_default(),
+    })
 }
 
 /// A session's fused map, world frame.
@@ -178,8 +360,10 @@ pub fn stored_capture_segments(
 pub struct SessionMap {
     pub session_id: String,
     pub segments: Vec<MapSegment>,
-    /// Rig pose of each capture, in capture order.
+    /// Rig pose of each capture, in capture order: the one the map uses.
     pub poses: Vec<Isometry3<f64>>,
+    /// … and as the client gave it.
+    pub prior_poses: Vec<Isometry3<f64>>,
     pub fuse_ms: f64,
 }
 
@@ -204,6 +388,7 @@ pub fn map_to_pb(map: &SessionMap) -> pb::Map {
             .collect(),
         poses: map.poses.iter().map(pose_to_pb).collect(),
         fuse_ms: map.fuse_ms,
+        prior_poses: map.prior_poses.iter().map(pose_to_pb).collect(),
     }
 }
 
@@ -215,6 +400,68 @@ mod tests {
 
     fn pose(matrix: Vec<f64>) -> Option<pb::Pose> {
         Some(pb::Pose { matrix })
+    }
+
+    #[test]
+    fn pose_priors_are_checked_and_default_when_absent() {
+        let pose = Isometry3::identity();
+        let default = pose_prior(pose, &[], "c").unwrap();
+        assert_eq!(default, PosePrior::with_default_covariance(pose));
+        let field = |c: Vec<f64>| pose_prior(pose, &c, "c").unwrap_err();
+        assert!(field(vec![0.0; 35]).message.contains("36"));
+        let mut diagonal = vec![0.0; 36];
+        for i in 0..6 {
+            diagonal[7 * i] = 1e-4;
+        }
+        assert!(pose_prior(pose, &diagonal, "c").is_ok());
+        let mut nan = diagonal.clone();
+        nan[8] = f64::NAN;
+        assert_eq!(field(nan).field, "c[8]");
+        let mut skew = diagonal.clone();
+        skew[1] = 1e-5;
+        assert!(field(skew).message.contains("symmetric"));
+        let mut wide = diagonal.clone();
+        wide[21] = 200.0;
+        assert_eq!(field(wide).field, "c[21]");
+        assert!(field(vec![1e-4; 36]).message.contains("positive definite"));
+    }
+
+    #[test]
+    fn certain_only_drops_uncertain_segments_and_renumbers_their_triplets() {
+        let triplet = |s1| pb::Triplet {
+            s1,
+            ..Default::default()
+        };
+        let segment = |triplets: Vec<u32>, uncertain| pb::Segment3 {
+            triplet: triplets[0],
+            triplets,
+            uncertain,
+            ..Default::default()
+        };
+        let response = pb::MatchResponse {
+            triplets: (0..4).map(triplet).collect(),
+            segments_3d: vec![
+                segment(vec![0], true),
+                segment(vec![1, 2], false),
+                segment(vec![3], false),
+            ],
+            stats: Some(pb::MatchStats {
+                segments_3d: 3,
+                ..Default::default()
+            }),
+            extracted: Vec::new(),
+        };
+        let certain = certain_only(&response);
+        let firsts: Vec<u32> = certain.triplets.iter().map(|t| t.s1).collect();
+        assert_eq!(firsts, [1, 2, 3]);
+        let kept: Vec<Vec<u32>> = certain
+            .segments_3d
+            .iter()
+            .map(|s| s.triplets.clone())
+            .collect();
+        assert_eq!(kept, [vec![0, 1], vec![2]]);
+        assert_eq!(certain.segments_3d[1].triplet, 2);
+        assert_eq!(certain.stats.unwrap().segments_3d, 2);
     }
 
     #[test]

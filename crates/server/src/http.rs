@@ -778,7 +778,8 @@ fn map_export(
 }
 
 /// The parts of a `multipart/form-data` upload, for curl: `calibration` and `options` (JSON,
-/// for `/v1/match`), `pose` (JSON, for captures: a `Pose` or its 16 numbers), `pattern`,
+/// for `/v1/match`), `pose` (JSON, for captures: a `Pose` or its 16 numbers) and
+/// `pose_covariance` (its 36 numbers, row-major 6x6, optional), `pattern`,
 /// `options` and `pattern_to_rig` (JSON, for `/v1/calibrate`), and either `segments` (a
 /// `SegmentTriplet`, JSON) or `image1`, `image2`, `image3` (image files).
 #[derive(Default)]
@@ -789,6 +790,7 @@ struct Upload {
     pattern: Option<pb::CalibrationPattern>,
     pattern_to_rig: Option<pb::Pose>,
     pose: Option<pb::Pose>,
+    pose_covariance: Option<Vec<f64>>,
     segments: Option<pb::SegmentTriplet>,
     images: [Option<Vec<u8>>; 3],
 }
@@ -824,6 +826,12 @@ impl Upload {
                 }
                 "segments" => upload.segments = Some(from_json("segments", &text(&name, &bytes)?)?),
                 "pose" => upload.pose = Some(pose_part(&name, &text(&name, &bytes)?)?),
+                "pose_covariance" => {
+                    upload.pose_covariance = Some(
+                        serde_json::from_str::<Vec<f64>>(&text(&name, &bytes)?)
+                            .map_err(|e| bad(&name, format!("invalid JSON (36 numbers): {e}")))?,
+                    )
+                }
                 "image1" | "image2" | "image3" => {
                     let i = usize::from(name.as_bytes()[5] - b'1');
                     upload.images[i] = Some(bytes.to_vec());
@@ -831,8 +839,8 @@ impl Upload {
                 other => {
                     return Err(bad(
                         other,
-                        "unknown part: expected calibration, options, pose, pattern, \
-                         pattern_to_rig, segments or image1..image3"
+                        "unknown part: expected calibration, options, pose, pose_covariance, \
+                         pattern, pattern_to_rig, segments or image1..image3"
                             .into(),
                     ))
                 }
@@ -846,6 +854,7 @@ impl Upload {
             "calibration" => self.calibration.is_some(),
             "options" => self.options.is_some(),
             "pose" => self.pose.is_some(),
+            "pose_covariance" => self.pose_covariance.is_some(),
             "pattern" => self.pattern.is_some(),
             "pattern_to_rig" => self.pattern_to_rig.is_some(),
             "segments" => self.segments.is_some(),
@@ -895,7 +904,10 @@ impl Upload {
 
     /// The upload as a `MatchRequest`.
     fn match_request(mut self) -> Result<pb::MatchRequest, ServiceError> {
-        self.refuse(&["pose"], "a match has no pose (captures of a session do)")?;
+        self.refuse(
+            &["pose", "pose_covariance"],
+            "a match has no pose (captures of a session do)",
+        )?;
         self.refuse(
             &["pattern", "pattern_to_rig"],
             "a match has no pattern (calibrations do)",
@@ -920,6 +932,7 @@ impl Upload {
             "a session's captures use the calibration and options given when it was created",
         )?;
         let rig_to_world = self.pose.take();
+        let rig_to_world_covariance = self.pose_covariance.take().unwrap_or_default();
         let input = match self.input()? {
             Input::Segments(s) => pb::add_capture_request::Input::Segments(s),
             Input::Images(i) => pb::add_capture_request::Input::Images(i),
@@ -928,6 +941,7 @@ impl Upload {
             session_id: String::new(),
             rig_to_world,
             input: Some(input),
+            rig_to_world_covariance,
         })
     }
 }
@@ -948,7 +962,7 @@ impl Upload {
     /// `options`, `pattern_to_rig`, and the three images.
     fn calibrate_request(mut self) -> Result<pb::CalibrateRequest, ServiceError> {
         self.refuse(
-            &["calibration", "pose", "segments"],
+            &["calibration", "pose", "pose_covariance", "segments"],
             "a calibration takes pattern, options, pattern_to_rig and image1..image3",
         )?;
         let options = self.options()?;

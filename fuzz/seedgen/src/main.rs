@@ -332,6 +332,7 @@ fn main() {
         input: Some(pb::add_capture_request::Input::Segments(triplet(
             &small_lists,
         ))),
+        rig_to_world_covariance: Vec::new(),
     };
     write("protobuf_body", "capture.pb", &capture.encode_to_vec());
     let session = pb::CreateSessionRequest {

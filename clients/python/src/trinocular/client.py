@@ -258,6 +258,7 @@ class Map:
     poses: np.ndarray
     fuse_ms: float = 0.0
     raw: Any = None
+    prior_poses: Optional[np.ndarray] = None
 
     @classmethod
     def from_pb(cls, m: "pb.Map") -> "Map":
@@ -269,6 +270,8 @@ class Map:
             poses=np.array([list(p.matrix) for p in m.poses], dtype=float).reshape(-1, 4, 4),
             fuse_ms=m.fuse_ms,
             raw=m,
+            prior_poses=np.array([list(p.matrix) for p in m.prior_poses],
+                                 dtype=float).reshape(-1, 4, 4),
         )
 
     def summary(self) -> str:
@@ -313,11 +316,15 @@ class Session:
 
 @dataclass
 class CaptureResult:
-    """AddCapture's answer: this capture's match (rig frame), its index, the capture count."""
+    """AddCapture's answer: this capture's match (rig frame), its index, the capture count,
+    and its registration to the map: `status` ("REGISTERED", "EMPTY_MAP",
+    "TOO_FEW_IN_COMMON"), `rig_to_world` (4x4, refined or as given), `covariance` (6x6),
+    `inliers`, `rotation_change_deg`, `translation_change_m`."""
 
     capture_index: int
     captures: int
     match: MatchResult
+    registration: Optional[Dict[str, Any]] = None
 
 
 @dataclass
@@ -448,29 +455,49 @@ class Client:
     # -- sessions ------------------------------------------------------------------------------
 
     def create_session(self, calibration, name: str = "", options=None,
-                       min_observations: Optional[int] = None) -> Session:
+                       min_observations: Optional[int] = None,
+                       refine_poses: Optional[bool] = None) -> Session:
+        """`refine_poses`: GetMap solves every capture's pose from the poses given and the
+        segments the captures share (experimental: docs/SESSIONS.md)."""
         req = pb.CreateSessionRequest(name=name, calibration=load_calibration(calibration))
         opts = _parse(options, pb.MatchOptions)
         if opts is not None:
             req.options.CopyFrom(opts)
         if min_observations is not None:
             req.map_options.min_observations = int(min_observations)
+        if refine_poses is not None:
+            req.map_options.refine_poses = bool(refine_poses)
         return Session.from_pb(self._call("CreateSession", req))
 
     def add_capture(self, session_id: str, rig_to_world, images: Optional[Sequence[ImageLike]] = None,
-                    segments=None, oriented: bool = False) -> CaptureResult:
-        """Adds one capture taken from `rig_to_world` (4x4): `images` (three) or `segments`
-        (three lists), not both."""
+                    segments=None, oriented: bool = False,
+                    rig_to_world_covariance=None) -> CaptureResult:
+        """Adds one capture taken from `rig_to_world` (4x4, the robot's belief: a prior the
+        capture is registered from): `images` (three) or `segments` (three lists), not both.
+        `rig_to_world_covariance`: 6x6 (rotation about the rig's origin, radians, then
+        translation, metres); None for a wheeled robot's default."""
         if (images is None) == (segments is None):
             raise ValueError("give exactly one of images= or segments=")
         req = pb.AddCaptureRequest(session_id=session_id, rig_to_world=_pose(rig_to_world))
+        if rig_to_world_covariance is not None:
+            c = np.asarray(rig_to_world_covariance, dtype=float).reshape(-1)
+            req.rig_to_world_covariance.extend(c.tolist())
         if images is not None:
             req.images.CopyFrom(_images(list(images)))
         else:
             req.segments.CopyFrom(_segments(segments, oriented))
         r = self._call("AddCapture", req, "session_id")
+        g = r.registration
+        registration = {
+            "status": pb.RegistrationStatus.Name(g.status),
+            "rig_to_world": np.array(list(g.rig_to_world.matrix), dtype=float).reshape(4, 4),
+            "covariance": np.array(list(g.covariance), dtype=float).reshape(6, 6),
+            "inliers": g.inliers,
+            "rotation_change_deg": g.rotation_change_deg,
+            "translation_change_m": g.translation_change_m,
+        }
         return CaptureResult(capture_index=r.capture_index, captures=r.map.captures,
-                             match=MatchResult.from_pb(r.match))
+                             match=MatchResult.from_pb(r.match), registration=registration)
 
     def get_map(self, session_id: str, min_observations: Optional[int] = None) -> Map:
         req = pb.GetMapRequest(session_id=session_id)

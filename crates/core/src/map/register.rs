@@ -39,6 +39,11 @@ pub struct Measured {
     pub start: Point3<f64>,
     pub end: Point3<f64>,
     pub covariance: Matrix6<f64>,
+    /// The match flagged it uncertain (it missed the accuracy gate). Such segments help
+    /// refine a pose but do not choose it: among them are the wrong correspondences, whose
+    /// covariance does not describe their error, and a repetitive scene's wrong ones agree
+    /// with one another.
+    pub uncertain: bool,
 }
 
 impl Measured {
@@ -50,6 +55,7 @@ impl Measured {
             start: pose * self.start,
             end: pose * self.end,
             covariance: big * self.covariance * big.transpose(),
+            uncertain: self.uncertain,
         }
     }
 
@@ -287,7 +293,7 @@ pub fn register(
     let Some(best) = problem.best_hypothesis(&candidates) else {
         return too_few;
     };
-    let (xi, inliers, information) = problem.refine(best, &candidates);
+    let (xi, inliers, information) = problem.refine(best.0, best.1, &candidates);
     if (inliers.len() as u32) < params.min_inliers {
         return Registration {
             inliers: inliers.len() as u32,
@@ -318,6 +324,7 @@ struct Reference {
     /// Across the line: two unit vectors, as rows.
     across: Matrix2x3<f64>,
     covariance: Matrix6<f64>,
+    uncertain: bool,
 }
 
 impl Reference {
@@ -336,6 +343,7 @@ impl Reference {
             length,
             across: Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]),
             covariance: m.covariance,
+            uncertain: m.uncertain,
         })
     }
 
@@ -517,15 +525,17 @@ impl Problem<'_> {
         (xi, information)
     }
 
-    /// MSAC cost of a pose: every capture segment's best χ² among its candidates, truncated
-    /// at the inlier gate.
+    /// MSAC cost of a pose: every certain capture segment's best χ² among its certain
+    /// candidates, truncated at the inlier gate.
     fn cost(&self, pose: &Isometry3<f64>, candidates: &[Vec<(usize, f64)>]) -> f64 {
         let slack = slack();
         candidates
             .iter()
             .enumerate()
+            .filter(|(k, _)| !self.segments[*k].uncertain)
             .map(|(k, list)| {
                 list.iter()
+                    .filter(|&&(j, _)| !self.references[j].uncertain)
                     .filter_map(|&(j, _)| {
                         self.chi2(
                             Pair {
@@ -543,9 +553,12 @@ impl Problem<'_> {
 
     /// The best pose of two non-parallel pairings among the longest segments, or `None`
     /// when no two such segments have candidates.
-    fn best_hypothesis(&self, candidates: &[Vec<(usize, f64)>]) -> Option<Vector6<f64>> {
+    fn best_hypothesis(
+        &self,
+        candidates: &[Vec<(usize, f64)>],
+    ) -> Option<(Vector6<f64>, Matrix6<f64>)> {
         let mut seeds: Vec<usize> = (0..self.segments.len())
-            .filter(|&k| !candidates[k].is_empty())
+            .filter(|&k| !self.segments[k].uncertain && !candidates[k].is_empty())
             .collect();
         seeds.sort_by(|&a, &b| {
             self.segments[b]
@@ -563,6 +576,7 @@ impl Problem<'_> {
         let mut best = (
             self.cost(&self.prior.rig_to_world, candidates),
             Vector6::zeros(),
+            self.prior_information,
         );
         for (n, &k1) in seeds.iter().enumerate() {
             for &k2 in &seeds[n + 1..] {
@@ -571,7 +585,10 @@ impl Problem<'_> {
                 }
                 for &(j1, _) in &candidates[k1] {
                     for &(j2, _) in &candidates[k2] {
-                        if j1 == j2 {
+                        if j1 == j2
+                            || self.references[j1].uncertain
+                            || self.references[j2].uncertain
+                        {
                             continue;
                         }
                         let pairs = [
@@ -584,30 +601,35 @@ impl Problem<'_> {
                                 reference: j2,
                             },
                         ];
-                        let (xi, _) = self.solve(Vector6::zeros(), &pairs);
-                        let cost = self.cost(&self.pose(&xi), candidates);
+                        let (xi, information) = self.solve(Vector6::zeros(), &pairs);
+                        // A posteriori: a pose far from the prior pays for the distance.
+                        let cost = self.cost(&self.pose(&xi), candidates)
+                            + xi.dot(&(self.prior_information * xi));
                         if cost < best.0 {
-                            best = (cost, xi);
+                            best = (cost, xi, information);
                         }
                     }
                 }
             }
         }
-        Some(best.1)
+        Some((best.1, best.2))
     }
 
-    /// Associates and solves until the inliers settle: the perturbation, the inliers and
-    /// the information matrix.
+    /// Associates and solves from `xi`, whose `information` says how well it is known, until
+    /// the inliers settle: the perturbation, the inliers and the information at the end.
+    /// Association is gated under the estimate's own uncertainty as well as the segments':
+    /// a hypothesis from two pairs may be a little off, and the pairs that would correct it
+    /// must not be refused for it.
     fn refine(
         &self,
         mut xi: Vector6<f64>,
+        mut information: Matrix6<f64>,
         candidates: &[Vec<(usize, f64)>],
     ) -> (Vector6<f64>, Vec<Pair>, Matrix6<f64>) {
-        let slack = slack();
         let mut inliers: Vec<Pair> = Vec::new();
-        let mut information = self.prior_information;
         for _ in 0..REFINE_ROUNDS {
             let pose = self.pose(&xi);
+            let slack = information.try_inverse().unwrap_or(self.prior.covariance) + slack();
             let associated: Vec<Pair> = candidates
                 .iter()
                 .enumerate()
@@ -691,6 +713,7 @@ mod tests {
                 start,
                 end,
                 covariance,
+                uncertain: false,
             })
             .collect()
     }

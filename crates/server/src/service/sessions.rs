@@ -9,14 +9,19 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use nalgebra::Matrix6;
+
 use prost::Message;
 
 use super::auth::{public_id, store_id, Caller};
 use super::clock::Clock;
 use super::store::{SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
-use trinocular_core::map::{self, FuseParams};
-use trinocular_schema::session::{capture_match_request, pose_from_pb, pose_to_pb};
+use trinocular_core::map::{self, FuseParams, Measured, PosePrior, RegisterParams, Registration};
+use trinocular_schema::session::{
+    capture_match_request, certain_only, matrix6_to_vec, pose_from_pb, pose_prior, pose_to_pb,
+    registration_to_pb, status_to_pb, stored_capture_segments, StoredSegments,
+};
 use trinocular_schema::{pb, InputError};
 
 // The fused map and its message are the schema's: the transports answer with it.
@@ -235,9 +240,14 @@ impl Service {
         .await
     }
 
-    /// Matches one capture with the session's rig and options, then stores its pose and 3D
-    /// segments. A bad pose or input is refused before anything is stored; a capture whose
-    /// match failed is not stored either.
+    /// Matches one capture with the session's rig and options, registers it to the map from
+    /// the pose given (`map::register`: the pose is a prior), then stores the refined pose and
+    /// the capture's 3D segments. A bad pose or input is refused before anything is stored; a
+    /// capture whose match failed is not stored either.
+    ///
+    /// The match keeps its uncertain segments for registration (each counts by its
+    /// covariance) and for later refinements; the answer and the map leave them out unless the
+    /// session's options asked for them.
     pub async fn add_capture(
         &self,
         caller: &Caller,
@@ -245,14 +255,17 @@ impl Service {
         timeout: Option<Duration>,
     ) -> Result<pb::AddCaptureResponse, ServiceError> {
         async {
+            let started = self.clock.monotonic();
             let pb::AddCaptureRequest {
                 session_id,
                 rig_to_world,
                 input,
+                rig_to_world_covariance,
             } = request;
             check_id(&session_id)?;
             let session_id = store_id(caller, &session_id);
             let pose = pose_from_pb(rig_to_world.as_ref(), "rig_to_world")?;
+            let prior = pose_prior(pose, &rig_to_world_covariance, "rig_to_world_covariance")?;
             let info = self.store.get(&session_id).await?;
             if info.captures >= MAX_CAPTURES_PER_SESSION {
                 return Err(ServiceError::Input(InputError::new(
@@ -267,33 +280,57 @@ impl Service {
                 .map_err(|e| corrupt("calibration", e))?;
             let stored = pb::StoredOptions::decode(&info.record.options[..])
                 .map_err(|e| corrupt("options", e))?;
-            let match_request = capture_match_request(calibration, stored.options, input);
-            let (response, ()) = self
+            let mut options = stored.options.unwrap_or_default();
+            let asked_uncertain = options.include_uncertain == Some(true);
+            options.include_uncertain = Some(true);
+            let match_request = capture_match_request(calibration, Some(options), input);
+            let (everything, ()) = self
                 .run_match(move || Ok(match_request), |_| (), timeout)
                 .await?;
+            let captures = self.store.captures(&session_id).await?;
+            let segments = everything.segments_3d.clone();
+            let job = self
+                .pool
+                .run(move |_| register_capture(&captures, &segments, &prior));
+            let left = self
+                .deadline(timeout)
+                .saturating_sub(self.clock.since(started));
+            let registration = super::within(job, left).await?;
             let capture = pb::StoredCapture {
-                rig_to_world: Some(pose_to_pb(&pose)),
-                segments: response
+                rig_to_world: Some(pose_to_pb(&registration.rig_to_world)),
+                segments: everything
                     .segments_3d
                     .iter()
                     .map(|s| pb::Segment3 {
                         start: s.start,
                         end: s.end,
+                        covariance: s.covariance.clone(),
+                        uncertain: s.uncertain,
                         ..Default::default()
                     })
                     .collect(),
                 received_unix_ms: self.clock.now_unix_ms(),
+                prior_rig_to_world: Some(pose_to_pb(&pose)),
+                prior_covariance: matrix6_to_vec(&prior.covariance),
+                pose_covariance: matrix6_to_vec(&registration.covariance),
+                status: status_to_pb(registration.status) as i32,
             };
             let index = self
                 .store
                 .append_capture(&session_id, &capture.encode_to_vec())
                 .await?;
+            let response = if asked_uncertain {
+                everything
+            } else {
+                certain_only(&everything)
+            };
             Ok(pb::AddCaptureResponse {
                 r#match: Some(response),
                 capture_index: index,
                 map: Some(pb::MapSummary {
                     captures: index + 1,
                 }),
+                registration: Some(registration_to_pb(&registration)),
             })
         }
         .await
@@ -320,13 +357,22 @@ impl Service {
             let stored = pb::StoredOptions::decode(&info.record.options[..])
                 .map_err(|e| corrupt("options", e))?;
             let captures = self.store.captures(&stored_id).await?;
+            let refine_poses = stored
+                .map_options
+                .as_ref()
+                .and_then(|m| m.refine_poses)
+                .unwrap_or(false);
             let min_observations = min_observations
                 .or(stored.map_options.and_then(|m| m.min_observations))
                 .unwrap_or(1);
             let (session_id, clock) = (id.to_string(), Arc::clone(&self.clock));
-            let job = self
-                .pool
-                .run(move |_| fuse_stored(session_id, &captures, min_observations, clock.as_ref()));
+            let job = self.pool.run(move |_| {
+                let options = MapBuild {
+                    min_observations,
+                    refine_poses,
+                };
+                fuse_stored(session_id, &captures, options, clock.as_ref())
+            });
             // Fusing is compute like Match: it keeps to the service's longest request time.
             super::within(job, self.deadline(None)).await
         }
@@ -338,23 +384,26 @@ impl Service {
 fn fuse_stored(
     session_id: String,
     captures: &[Vec<u8>],
-    min_observations: u32,
+    options: MapBuild,
     clock: &dyn Clock,
 ) -> Result<SessionMap, ServiceError> {
     let start = clock.monotonic();
-    let mut poses = Vec::with_capacity(captures.len());
-    let mut segments = Vec::with_capacity(captures.len());
-    for bytes in captures {
-        let capture = pb::StoredCapture::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
-        let (pose, s) =
-            trinocular_schema::session::stored_capture_segments(&capture).map_err(|e| {
-                ServiceError::Internal {
-                    detail: format!("stored capture: {e}"),
-                }
-            })?;
-        poses.push(pose);
-        segments.push(s);
-    }
+    let stored = decode_captures(captures)?;
+    // Refined, the poses are solved from the priors and the segments of all captures, not
+    // taken from what each AddCapture found (that depends on the order they came in): the
+    // map stays a function of the set of captures.
+    let priors: Vec<PosePrior> = stored.iter().map(|s| s.prior).collect();
+    let poses: Vec<_> = if options.refine_poses {
+        let measured: Vec<Vec<Measured>> = stored.iter().map(|s| s.measured.clone()).collect();
+        map::poses::solve(&priors, &measured, &RegisterParams::default())
+            .iter()
+            .map(|p| p.rig_to_world)
+            .collect()
+    } else {
+        priors.iter().map(|p| p.rig_to_world).collect()
+    };
+    let prior_poses: Vec<_> = priors.iter().map(|p| p.rig_to_world).collect();
+    let segments: Vec<Vec<_>> = stored.into_iter().map(|s| s.certain).collect();
     let inputs: Vec<map::Capture> = segments
         .iter()
         .zip(&poses)
@@ -366,7 +415,7 @@ fn fuse_stored(
         })
         .collect();
     let params = FuseParams {
-        min_observations,
+        min_observations: options.min_observations,
         ..FuseParams::default()
     };
     let segments = map::fuse(&inputs, &params);
@@ -374,6 +423,80 @@ fn fuse_stored(
         session_id,
         segments,
         poses,
+        prior_poses,
         fuse_ms: clock.since(start).as_secs_f64() * 1e3,
     })
+}
+
+/// How GetMap builds a map, from the session's map options and the call.
+#[derive(Debug, Clone, Copy)]
+struct MapBuild {
+    min_observations: u32,
+    /// Solve the poses (`map::poses::solve`) rather than take them as given.
+    refine_poses: bool,
+}
+
+fn decode_captures(captures: &[Vec<u8>]) -> Result<Vec<StoredSegments>, ServiceError> {
+    captures
+        .iter()
+        .map(|bytes| {
+            let capture =
+                pb::StoredCapture::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
+            stored_capture_segments(&capture).map_err(|e| ServiceError::Internal {
+                detail: format!("stored capture: {e}"),
+            })
+        })
+        .collect()
+}
+
+/// Captures a registration looks at: the nearest to the prior, no farther than
+/// [`REGISTRATION_REACH_M`] (a robot's local map; the whole session is the map's).
+const REGISTRATION_CAPTURES: usize = 64;
+const REGISTRATION_REACH_M: f64 = 10.0;
+
+/// Registers a capture's segments (rig frame, as the match answered them) to the stored
+/// captures near its prior (on the compute pool).
+///
+/// The map it registers to is the session's first capture, whose pose defines the map's
+/// frame, and the captures registered since, each as uncertain as its refined pose. Captures
+/// whose pose is only the one given are left out: a reference's pose error is shared by all
+/// its segments, and many segments each given that error's spread as if independent would
+/// let wrong pairs in by the dozen (the session's map still places them: GetMap solves every
+/// pose together).
+fn register_capture(
+    captures: &[Vec<u8>],
+    segments: &[pb::Segment3],
+    prior: &PosePrior,
+) -> Result<Registration, ServiceError> {
+    let here = prior.rig_to_world.translation.vector;
+    let mut stored: Vec<(f64, StoredSegments)> = decode_captures(captures)?
+        .into_iter()
+        .filter_map(|mut s| {
+            match s.status {
+                pb::RegistrationStatus::EmptyMap => s.pose.covariance = Matrix6::zeros(),
+                pb::RegistrationStatus::TooFewInCommon => return None,
+                _ => {}
+            }
+            Some(s)
+        })
+        .map(|s| ((s.pose.rig_to_world.translation.vector - here).norm(), s))
+        .filter(|(d, _)| *d <= REGISTRATION_REACH_M)
+        .collect();
+    stored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    stored.truncate(REGISTRATION_CAPTURES);
+    let references: Vec<Measured> = stored
+        .iter()
+        .flat_map(|(_, s)| {
+            s.measured
+                .iter()
+                .map(|m| m.transformed_with(&s.pose.rig_to_world, &s.pose.covariance))
+        })
+        .collect();
+    let capture = StoredSegments::measured_of(segments);
+    Ok(map::register(
+        &references,
+        &capture,
+        prior,
+        &RegisterParams::default(),
+    ))
 }

@@ -70,6 +70,16 @@ fn service(store: Arc<dyn SessionStore>) -> Service {
 
 /// A session holding `captures` of the fixture's captures (cycling through them).
 async fn session(service: &Service, f: &Fixture, captures: usize) -> String {
+    refined_session(service, f, captures, false).await
+}
+
+/// … with the map option `refine_poses` as given.
+async fn refined_session(
+    service: &Service,
+    f: &Fixture,
+    captures: usize,
+    refine_poses: bool,
+) -> String {
     let created = service
         .create_session(
             &Caller::default(),
@@ -77,7 +87,10 @@ async fn session(service: &Service, f: &Fixture, captures: usize) -> String {
                 name: "bench".into(),
                 calibration: Some(f.calibration.clone()),
                 options: None,
-                map_options: None,
+                map_options: Some(pb::MapOptions {
+                    refine_poses: Some(refine_poses),
+                    ..Default::default()
+                }),
             },
         )
         .await
@@ -168,6 +181,13 @@ fn bench(c: &mut Criterion) {
     group.bench_function("get_map/50", |b| {
         b.iter(|| {
             rt.block_on(service.get_map(&Caller::default(), &id, None))
+                .expect("map")
+        })
+    });
+    let refined = rt.block_on(refined_session(&service, &f, 50, true));
+    group.bench_function("get_map_refined/50", |b| {
+        b.iter(|| {
+            rt.block_on(service.get_map(&Caller::default(), &refined, None))
                 .expect("map")
         })
     });

@@ -388,9 +388,19 @@ impl Problem<'_> {
     }
 
     fn linearise(&self, pair: Pair, pose: &Isometry3<f64>) -> Option<Linearised> {
-        let s = &self.segments[pair.segment];
+        let world = self.segments[pair.segment].transformed(pose);
+        self.linearise_moved(pair, &world, pose)
+    }
+
+    /// [`Problem::linearise`] with the capture segment already moved by `pose` (`world`):
+    /// scoring a pose moves each segment once for all its candidates.
+    fn linearise_moved(
+        &self,
+        pair: Pair,
+        world: &Measured,
+        pose: &Isometry3<f64>,
+    ) -> Option<Linearised> {
         let r = &self.references[pair.reference];
-        let world = s.transformed(pose);
         let (f0, f1) = (r.fraction(&world.start), r.fraction(&world.end));
         // The ends must overlap the reference along the line, up to a gap.
         let gap = MAX_GAP_M / r.length;
@@ -437,7 +447,18 @@ impl Problem<'_> {
 
     /// χ² of a pairing at `pose`, its covariance widened by the pose's own `uncertainty`.
     fn chi2(&self, pair: Pair, pose: &Isometry3<f64>, uncertainty: &Matrix6<f64>) -> Option<f64> {
-        let l = self.linearise(pair, pose)?;
+        let world = self.segments[pair.segment].transformed(pose);
+        self.chi2_moved(pair, &world, pose, uncertainty)
+    }
+
+    fn chi2_moved(
+        &self,
+        pair: Pair,
+        world: &Measured,
+        pose: &Isometry3<f64>,
+        uncertainty: &Matrix6<f64>,
+    ) -> Option<f64> {
+        let l = self.linearise_moved(pair, world, pose)?;
         let s = l.covariance + l.jacobian * uncertainty * l.jacobian.transpose();
         let chol = s.cholesky()?;
         Some(l.residual.dot(&chol.solve(&l.residual)))
@@ -532,23 +553,28 @@ impl Problem<'_> {
         candidates
             .iter()
             .enumerate()
-            .filter(|(k, _)| !self.segments[*k].uncertain)
+            .filter(|(k, list)| !self.segments[*k].uncertain && !list.is_empty())
             .map(|(k, list)| {
+                let world = self.segments[k].transformed(pose);
                 list.iter()
                     .filter(|&&(j, _)| !self.references[j].uncertain)
                     .filter_map(|&(j, _)| {
-                        self.chi2(
-                            Pair {
-                                segment: k,
-                                reference: j,
-                            },
-                            pose,
-                            &slack,
-                        )
+                        let pair = Pair {
+                            segment: k,
+                            reference: j,
+                        };
+                        self.chi2_moved(pair, &world, pose, &slack)
                     })
                     .fold(INLIER_GATE, f64::min)
             })
-            .sum()
+            .sum::<f64>()
+            // Segments without candidates cost the full truncation, as before.
+            + INLIER_GATE
+                * candidates
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, list)| !self.segments[*k].uncertain && list.is_empty())
+                    .count() as f64
     }
 
     /// The best pose of two non-parallel pairings among the longest segments, or `None`

@@ -161,6 +161,8 @@ pub fn segment_capture(
 /// (beyond them a pose says nothing registration could start from).
 pub const MAX_PRIOR_ROTATION_SIGMA_DEG: f64 = 30.0;
 pub const MAX_PRIOR_TRANSLATION_SIGMA_M: f64 = 10.0;
+/// Smallest variance a prior may state (radians², metres²): its inverse must stay finite.
+pub const MIN_PRIOR_VARIANCE: f64 = 1e-20;
 
 /// The prior of a capture's pose: `pose` with the 6x6 row-major `covariance` (empty for the
 /// default), or an error naming `field`.
@@ -210,6 +212,16 @@ pub fn pose_prior(
                 ),
             ));
         }
+    }
+    if let Some(i) = (0..6).find(|&i| m[(i, i)] < MIN_PRIOR_VARIANCE) {
+        return Err(InputError::new(
+            format!("{field}[{}]", 7 * i),
+            format!(
+                "a variance of {:e} is below {MIN_PRIOR_VARIANCE:e}: an exact pose has a tiny \
+                 variance, not none",
+                m[(i, i)]
+            ),
+        ));
     }
     if m.cholesky().is_none() {
         return Err(InputError::new(field, "must be positive definite"));
@@ -424,6 +436,9 @@ mod tests {
         wide[21] = 200.0;
         assert_eq!(field(wide).field, "c[21]");
         assert!(field(vec![1e-4; 36]).message.contains("positive definite"));
+        let mut zero = diagonal.clone();
+        zero[35] = 0.0;
+        assert_eq!(field(zero).field, "c[35]");
     }
 
     #[test]

@@ -301,6 +301,14 @@ pub fn register(
         };
     }
     let pose = problem.pose(&xi);
+    let finite = xi.iter().chain(information.iter()).all(|v| v.is_finite());
+    if !finite {
+        // A prior or covariances beyond floating point: nothing learnt, the prior kept.
+        return Registration {
+            inliers: inliers.len() as u32,
+            ..too_few
+        };
+    }
     let change = pose * prior.rig_to_world.inverse();
     Registration {
         rig_to_world: pose,

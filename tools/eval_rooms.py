@@ -16,6 +16,15 @@ well the reported covariances describe the true errors of the segments that lie 
 true edge: the share of squared Mahalanobis errors of direction and position (2 degrees of
 freedom each) within the chi-square 95% and 99% quantiles.
 
+Which segments are "on their true edge" is decided in the images, not by the 3D error that
+is being tested: a 3D segment is on ground-truth edge j when each of its three image
+segments lies along j's projection in that view (both ends within 1.5 px of it, within 4
+degrees, inside its visible part). Its errors are then measured against j however large
+they are. (Choosing the population by the scorer's verdict instead, i.e. among segments
+within 5 degrees and the position tolerance, cuts off exactly the tail the test is about:
+it reported 96.7% of the office's directions within q95 where the whole population gives
+95.1%.)
+
 Error classes, against the nearest ground-truth edge with the scorer's tolerance
 max(2 cm, 1% of the distance to the rig):
   ok        correct (both ends and the midpoint within tolerance of one edge, direction within 5 deg);
@@ -78,6 +87,74 @@ def perp_basis(u):
     e1 = np.cross(u, a)
     e1 /= np.linalg.norm(e1)
     return np.stack([e1, np.cross(u, e1)])
+
+
+ALONG_PX = 1.5
+ALONG_DEG = 4.0
+
+
+def edges_along(cdir, E, lists):
+    """Per camera, per 2D segment of `lists` (dicts with u1 v1 u2 v2): the set of ground-truth
+    edges whose visible projection it lies along (both ends within ALONG_PX, direction within
+    ALONG_DEG, inside the visible interval with 5% slack)."""
+    calib = json.load(open(os.path.join(cdir, "calib_world.json")))
+    vis = json.load(open(os.path.join(cdir, "visibility.json")))
+    out = []
+    for cam in range(3):
+        P = np.asarray(calib["cameras"][cam]["P"], float)
+        la, lb, ids = [], [], []
+        for r in vis["edges"]:
+            A, B = E[r["i"], :3], E[r["i"], 3:]
+            for lo, hi in r["vis"][cam]:
+                pa = P @ np.append(A + lo * (B - A), 1)
+                pb = P @ np.append(A + hi * (B - A), 1)
+                if pa[2] <= 0 or pb[2] <= 0:
+                    continue
+                pa, pb = pa[:2] / pa[2], pb[:2] / pb[2]
+                if np.linalg.norm(pb - pa) >= 1:
+                    la.append(pa), lb.append(pb), ids.append(r["i"])
+        sets = []
+        if not la:
+            out.append([set() for _ in lists[cam]])
+            continue
+        LA, LB, ids = np.array(la), np.array(lb), np.array(ids)
+        LL = np.linalg.norm(LB - LA, axis=1)
+        LU = (LB - LA) / LL[:, None]
+        LN = np.stack([-LU[:, 1], LU[:, 0]], 1)
+        for s in lists[cam]:
+            p = np.array([s.get("u1", 0.0), s.get("v1", 0.0)])
+            q = np.array([s.get("u2", 0.0), s.get("v2", 0.0)])
+            L = np.linalg.norm(q - p)
+            if L <= 0:
+                sets.append(set())
+                continue
+            u = (q - p) / L
+            dp = np.abs(np.einsum("ij,ij->i", p - LA, LN))
+            dq = np.abs(np.einsum("ij,ij->i", q - LA, LN))
+            ang = np.degrees(np.arccos(np.clip(np.abs(LU @ u), 0, 1)))
+            tp = np.einsum("ij,ij->i", p - LA, LU) / LL
+            tq = np.einsum("ij,ij->i", q - LA, LU) / LL
+            ok = (dp < ALONG_PX) & (dq < ALONG_PX) & (ang < ALONG_DEG) & \
+                 (np.minimum(tp, tq) > -0.05) & (np.maximum(tp, tq) < 1.05)
+            sets.append(set(ids[ok].tolist()))
+        out.append(sets)
+    return out
+
+
+def true_edge(triplet, along, seg_w, E):
+    """The ground-truth edge a triplet's three image segments all lie along (the nearest to
+    the 3D segment's midpoint if several), or None."""
+    common = along[0][triplet["s1"]] & along[1][triplet["s2"]] & along[2][triplet["s3"]]
+    if not common:
+        return None
+    m = 0.5 * (seg_w[:3] + seg_w[3:])
+
+    def dist(j):
+        a, b = E[j, :3], E[j, 3:]
+        u = (b - a) / np.linalg.norm(b - a)
+        w = m - a
+        return np.linalg.norm(w - (w @ u) * u)
+    return min(common, key=dist)
 
 
 def classify(S, E, c, S_mod):
@@ -152,6 +229,10 @@ def main():
     import score as S_mod  # the shared scorer, imported as is
 
     options = json.loads(a.options) if a.options else None
+    if a.calibration:
+        # The image segments, to decide which edge each 3D segment is on (adds to the answer
+        # only; the 3D output is the same).
+        options = dict(options or {}, returnExtracted=True)
     inputs = ["images", "lsd"] if a.input == "both" else [a.input]
     work = a.keep or tempfile.mkdtemp()
     os.makedirs(work, exist_ok=True)
@@ -185,7 +266,6 @@ def main():
                 c = np.asarray(pose["rig_centre_world"], float)
                 seg_w = np.hstack([seg_rig[:, :3] @ T[:3, :3].T + T[:3, 3], seg_rig[:, 3:] @ T[:3, :3].T + T[:3, 3]])
                 cls = classify(seg_w, E, c, S_mod)
-                nearest = extra["match"]
                 classes_all += cls
                 if a.wrong:
                     for i, (s, sr, k) in enumerate(zip(segs3, seg_rig, cls)):
@@ -199,10 +279,18 @@ def main():
                 lengths += list(np.linalg.norm(seg_rig[:, 3:] - seg_rig[:, :3], axis=1))
                 if a.calibration:
                     Tinv = np.linalg.inv(T)
-                    for s, sr, k, j in zip(segs3, seg_rig, cls, nearest):
+                    cdir = os.path.join(data, "capture_" + cap)
+                    if images:
+                        lists2d = [l.get("segments", []) for l in out.get("extracted", [])]
+                    else:
+                        req = json.load(open(os.path.join(work, f"request_{room}_{inp}_{cap}.json")))
+                        lists2d = [l["segments"] for l in req["segments"]["lists"]]
+                    along = edges_along(cdir, E, lists2d)
+                    for s, sr, sw in zip(segs3, seg_rig, seg_w):
                         cov = s.get("covariance")
-                        # Segments on their true edge: the scorer's match.
-                        if j < 0 or not cov:
+                        # Segments on their true edge: decided in the images (see above).
+                        j = true_edge(out["triplets"][s.get("triplet", 0)], along, sw, E) if cov else None
+                        if j is None:
                             continue
                         e = E[j]
                         e_rig = np.concatenate([Tinv[:3, :3] @ e[:3] + Tinv[:3, 3], Tinv[:3, :3] @ e[3:] + Tinv[:3, 3]])

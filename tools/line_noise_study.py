@@ -11,7 +11,8 @@ the projection of a visible ground-truth edge (both ends within 1.5 px of it, di
 its direction error, each divided by the segment's reported 1σ (image input: the extractor's
 `offsetSigmaPx` / `angleSigmaDeg`; LSD lists: the matcher's list model, computed here the same
 way). Prints, by segment length, the median squared normalised error (1 dof: 0.455 when
-calibrated) and the share within 1.96σ and 2.58σ (95% and 99% when calibrated).
+calibrated) and the share within 1.96σ and 2.58σ (95% and 99% when calibrated); then the same by the
+distance of the nearest parallel neighbour segment and of the nearest other true edge.
 """
 import argparse
 import json
@@ -69,7 +70,7 @@ def main():
                             continue
                         pa, pb = pa[:2] / pa[2], pb[:2] / pb[2]
                         if np.linalg.norm(pb - pa) >= 5:
-                            lines.append((pa, pb))
+                            lines.append((pa, pb, r["i"]))
                 if not lines:
                     continue
                 LA = np.array([l[0] for l in lines])
@@ -78,6 +79,7 @@ def main():
                 LL = np.linalg.norm(LD, axis=1)
                 LU = LD / LL[:, None]
                 LN = np.stack([-LU[:, 1], LU[:, 0]], 1)
+                edge_ids = np.array([l[2] for l in lines])
                 segs_np = np.array([[t.get("u1", 0.0), t.get("v1", 0.0), t.get("u2", 0.0), t.get("v2", 0.0)] for t in lists[cam]])
                 for s in lists[cam]:
                     p = np.array([s.get("u1", 0.0), s.get("v1", 0.0)])
@@ -117,7 +119,13 @@ def main():
                     across = np.abs((om - m) @ np.array([u[1], -u[0]]))
                     near = par & (along > 0) & (along < L) & (across > 0.3)
                     crowd = across[near].min() if near.any() else 99.0
-                    rows.append((L, e_off / so, e_ang / sa, s.get("gradient", 0.0), e_signed, so, math.degrees(e_ang), abs(u[1]), (m - (LA[k] + ((m - LA[k]) @ LU[k]) * LU[k]))[0], cam, crowd))
+                    # Nearest other true edge alongside: parallel within 6 degrees, its projection
+                    # passing the midpoint; two edges that close blur into one in the image.
+                    dm = np.abs(np.einsum("ij,ij->i", m - LA, LN))
+                    tm = np.einsum("ij,ij->i", m - LA, LU) / LL
+                    other = (ang < 6) & (tm > -0.1) & (tm < 1.1) & (edge_ids != edge_ids[k])
+                    other_px = dm[other].min() if other.any() else 99.0
+                    rows.append((L, e_off / so, e_ang / sa, s.get("gradient", 0.0), e_signed, so, math.degrees(e_ang), abs(u[1]), (m - (LA[k] + ((m - LA[k]) @ LU[k]) * LU[k]))[0], cam, crowd, other_px))
     R = np.array(rows)
     print(f"{len(R)} segments on a true edge ({a.input}, rooms {a.rooms})")
     for lo, hi in BINS + [(0, 1e9)]:
@@ -139,6 +147,12 @@ def main():
             print(f"nearest parallel neighbour {lo}-{hi} px: n={sel.sum():5} |offset| median {np.median(np.abs(R[sel, 4])):.3f} "
                   f"p90 {np.percentile(np.abs(R[sel, 4]), 90):.3f} reported {np.median(R[sel, 5]):.3f} "
                   f"in1.96={np.mean(zo < 1.96):.3f} in2.58={np.mean(zo < 2.58):.3f} vertical share {np.mean(R[sel, 7] > 0.9):.2f}")
+    for lo, hi in [(0, 1), (1, 2), (2, 3), (3, 5), (5, 10), (10, 100)]:
+        sel = (R[:, 11] >= lo) & (R[:, 11] < hi)
+        if sel.any():
+            print(f"another true edge {lo}-{hi} px alongside: n={sel.sum():5} |offset| median "
+                  f"{np.median(np.abs(R[sel, 4])):.3f} p90 {np.percentile(np.abs(R[sel, 4]), 90):.3f} "
+                  f"offset in1.96={np.mean(R[sel, 1] < 1.96):.3f} angle in1.96={np.mean(R[sel, 2] < 1.96):.3f}")
     if os.environ.get("BY_ORIENTATION"):
         vert = R[:, 7] > 0.9
         for cam in range(3):

@@ -5,7 +5,8 @@
 //!    least `low_gradient`. Comparing along an axis rather than along the quantised diagonal
 //!    keeps the chain one pixel thin and makes the sub-pixel step below unbiased.
 //! 2. **Sub-pixel localisation**: a parabola through the three magnitudes along that axis puts
-//!    the point at the parabola's peak (within half a pixel of the pixel centre).
+//!    the point at the parabola's peak (within half a pixel of the pixel centre). A pixel
+//!    whose neighbour along that axis is in the gradient's zero frame gives no point.
 //! 3. **Hysteresis**: points at least `high_gradient` are edges, and so are points connected to
 //!    them through 8-connected edge points; isolated weak responses (noise) go.
 
@@ -112,6 +113,18 @@ fn suppress_pixel(
         return;
     }
     let along_u = gu[x].abs() >= gv[x].abs();
+    // The gradient's one-pixel frame is zero, not measured: a point next to it along the
+    // suppression axis would be a maximum against a made-up neighbour, and its sub-pixel
+    // step pulled off the edge (a line running along the border came out 0.3–0.5 px off, and
+    // its 3D segment up to 60σ away).
+    let beside_frame = if along_u {
+        x == 1 || x + 2 == map.width
+    } else {
+        y == 1 || y + 2 == map.height
+    };
+    if beside_frame {
+        return;
+    }
     let (before, after) = if along_u {
         (row[x - 1], row[x + 1])
     } else {
@@ -325,6 +338,23 @@ mod tests {
                 assert!(p.gu > 0.0 && p.gv.abs() < 1e-3);
             }
         }
+    }
+
+    #[test]
+    fn no_point_is_located_against_the_zero_frame() {
+        // An edge 0.2 px past the first gradient column: its magnitude peaks at x = 1,
+        // whose left neighbour is the frame's made-up zero.
+        let img = step(24, 12, 1.2);
+        let g = gradient(&smooth(&img, 0.0), 24, 12);
+        assert!(g.magnitude[5 * 24 + 1] > g.magnitude[5 * 24 + 2]);
+        let map = non_maximum_suppression(&g, 2.0);
+        assert!(map.points.iter().all(|p| p.x != 1), "{:?}", map.points);
+        assert_eq!(map, edge_points(&smooth(&img, 0.0), 24, 12, 2.0));
+        // The same edge a pixel further in is found, in every row but the frame's.
+        let img = step(24, 12, 2.2);
+        let map = non_maximum_suppression(&gradient(&smooth(&img, 0.0), 24, 12), 2.0);
+        assert_eq!(map.points.len(), 10);
+        assert!(map.points.iter().all(|p| (p.u - 2.2).abs() < 0.1));
     }
 
     #[test]

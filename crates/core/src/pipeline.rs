@@ -745,7 +745,10 @@ struct Quality {
 
 /// The largest and smallest variance across the line of a 3x3 covariance whose part along
 /// the line is not asked for: its eigenvalues in the plane `basis` spans (closed form, 2x2).
-fn principal_variances(m: &nalgebra::Matrix3<f64>, basis: &nalgebra::Matrix3x2<f64>) -> (f64, f64) {
+pub(crate) fn principal_variances(
+    m: &nalgebra::Matrix3<f64>,
+    basis: &nalgebra::Matrix3x2<f64>,
+) -> (f64, f64) {
     let c = basis.transpose() * m * basis;
     let (a, b, d) = (c[(0, 0)], 0.5 * (c[(0, 1)] + c[(1, 0)]), c[(1, 1)]);
     let (mean, spread) = (0.5 * (a + d), (0.25 * (a - d) * (a - d) + b * b).sqrt());
@@ -757,7 +760,7 @@ fn principal_variances(m: &nalgebra::Matrix3<f64>, basis: &nalgebra::Matrix3x2<f
 /// error is two-dimensional, and an elongated ellipse (a line's depth is known far worse than
 /// its sideways position) holds more of its probability inside the disc than a round one of
 /// the same major axis: the round bound refused half the segments it need not have.
-fn within_radius(variances: (f64, f64), radius: f64, confidence: f64) -> bool {
+pub(crate) fn within_radius(variances: (f64, f64), radius: f64, confidence: f64) -> bool {
     let (major, minor) = variances;
     let round_bound = (-2.0 * (1.0 - confidence).ln()).sqrt();
     if round_bound * major.sqrt() <= radius {

@@ -1,7 +1,8 @@
 //! A map in files people and tools open: ASCII PLY and OBJ (vertices joined by edges, for
 //! MeshLab, CloudCompare, Blender), and the paper's figure 7 — the map seen from above as a
 //! floor plan (x right, y up), segments darker and thicker the more captures saw them, each
-//! rig pose as a marker with its viewing direction, and a scale bar — as SVG or PNG.
+//! rig pose as a marker with its viewing direction (and, in orange, where the robot said it
+//! was), and a scale bar — as SVG or PNG.
 
 use std::fmt::Write;
 
@@ -53,6 +54,8 @@ const MARGIN_PX: f64 = 40.0;
 /// Length of a pose's viewing-direction tick, pixels.
 const POSE_TICK_PX: f64 = 16.0;
 const POSE_COLOUR: [u8; 3] = [31, 95, 208];
+/// The poses as the robot gave them, where they differ from the ones the map uses.
+const PRIOR_COLOUR: [u8; 3] = [230, 120, 20];
 
 /// Where world (x, y) goes on a top view.
 struct Layout {
@@ -66,11 +69,11 @@ struct Layout {
 }
 
 impl Layout {
-    fn new(map: &[MapSegment], poses: &[Isometry3<f64>]) -> Layout {
+    fn new(map: &[MapSegment], poses: &[Isometry3<f64>], priors: &[Isometry3<f64>]) -> Layout {
         let points = map
             .iter()
             .flat_map(|m| [m.start.coords, m.end.coords])
-            .chain(poses.iter().map(|p| p.translation.vector))
+            .chain(poses.iter().chain(priors).map(|p| p.translation.vector))
             .filter(|p| p.x.is_finite() && p.y.is_finite());
         let (mut xmin, mut xmax, mut ymin, mut ymax) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
         for p in points {
@@ -142,9 +145,15 @@ fn style(observations: u32, most: u32) -> (u8, f64) {
 }
 
 /// Figure 7 as SVG: one `<line>` per map segment (and no other `<line>`), poses as circles
-/// with a viewing-direction tick, a scale bar labelled in metres.
-pub fn top_view_svg(map: &[MapSegment], poses: &[Isometry3<f64>]) -> String {
-    let l = Layout::new(map, poses);
+/// with a viewing-direction tick, a scale bar labelled in metres. `priors` (empty, or one
+/// per pose) are the poses as given: each is drawn in orange, joined to the pose the map
+/// uses, so what registration moved shows.
+pub fn top_view_svg(
+    map: &[MapSegment],
+    poses: &[Isometry3<f64>],
+    priors: &[Isometry3<f64>],
+) -> String {
+    let l = Layout::new(map, poses, priors);
     let most = map.iter().map(|m| m.observations).max().unwrap_or(1);
     let mut out = String::new();
     let _ = writeln!(
@@ -166,10 +175,30 @@ pub fn top_view_svg(map: &[MapSegment], poses: &[Isometry3<f64>]) -> String {
         );
     }
     let _ = writeln!(out, "</g>");
-    let colour = format!(
-        "rgb({},{},{})",
-        POSE_COLOUR[0], POSE_COLOUR[1], POSE_COLOUR[2]
-    );
+    let rgb = |c: [u8; 3]| format!("rgb({},{},{})", c[0], c[1], c[2]);
+    let prior_colour = rgb(PRIOR_COLOUR);
+    for (prior, pose) in priors.iter().zip(poses) {
+        let (c, tick) = l.pose(prior);
+        let to = l.pose(pose).0;
+        let _ = writeln!(
+            out,
+            "<g class=\"prior\" stroke=\"{prior_colour}\" fill=\"none\"><circle cx=\"{:.1}\" \
+             cy=\"{:.1}\" r=\"4\" stroke-width=\"1.5\"/><path d=\"M{:.1} {:.1} L{:.1} {:.1}\" \
+             stroke-dasharray=\"2 2\"/>{}</g>",
+            c.x,
+            c.y,
+            c.x,
+            c.y,
+            to.x,
+            to.y,
+            tick.map(|t| format!(
+                "<path d=\"M{:.1} {:.1} L{:.1} {:.1}\" stroke-width=\"1.5\"/>",
+                c.x, c.y, t.x, t.y
+            ))
+            .unwrap_or_default()
+        );
+    }
+    let colour = rgb(POSE_COLOUR);
     for p in poses {
         let (c, tick) = l.pose(p);
         let _ = writeln!(
@@ -212,8 +241,9 @@ pub fn top_view_svg(map: &[MapSegment], poses: &[Isometry3<f64>]) -> String {
 pub fn top_view_png(
     map: &[MapSegment],
     poses: &[Isometry3<f64>],
+    priors: &[Isometry3<f64>],
 ) -> Result<Vec<u8>, image::ImageError> {
-    let l = Layout::new(map, poses);
+    let l = Layout::new(map, poses, priors);
     let most = map.iter().map(|m| m.observations).max().unwrap_or(1);
     let mut pic = Picture::new(l.width, l.height, [255, 255, 255]);
     // Faint first, so well-observed segments are drawn on top.
@@ -227,6 +257,14 @@ pub fn top_view_png(
             [g, g, g],
             w.round() as i64,
         );
+    }
+    for (prior, pose) in priors.iter().zip(poses) {
+        let (c, tick) = l.pose(prior);
+        pic.line(c, l.pose(pose).0, PRIOR_COLOUR, 1);
+        pic.line(c, c, PRIOR_COLOUR, 5);
+        if let Some(t) = tick {
+            pic.line(c, t, PRIOR_COLOUR, 1);
+        }
     }
     for p in poses {
         let (c, tick) = l.pose(p);
@@ -254,6 +292,10 @@ mod tests {
             end: Point3::from(b),
             observations: obs,
             captures: (0..obs).collect(),
+            covariance: nalgebra::Matrix6::zeros(),
+            direction_sigma_deg: 0.0,
+            position_sigma_m: 0.0,
+            uncertain: false,
         };
         vec![
             seg([0.0, 3.0, 1.0], [2.0, 3.0, 1.0], 1),
@@ -298,19 +340,20 @@ mod tests {
 
     #[test]
     fn svg_draws_one_line_per_segment_and_every_pose() {
-        let svg = top_view_svg(&map(), &poses());
+        let svg = top_view_svg(&map(), &poses(), &[]);
         assert!(svg.starts_with("<svg ") && svg.trim_end().ends_with("</svg>"));
         assert_eq!(svg.matches("<line ").count(), 3);
         assert_eq!(svg.matches("<circle ").count(), 4);
+        assert!(!svg.contains("class=\"prior\""));
         assert!(svg.contains(" m</text>"), "scale bar label");
         assert_eq!(svg.matches('<').count(), svg.matches('>').count());
     }
 
     #[test]
     fn png_decodes_with_north_up_and_darker_lines_for_more_observations() {
-        let png = top_view_png(&map(), &poses()).unwrap();
+        let png = top_view_png(&map(), &poses(), &[]).unwrap();
         let img = image::load_from_memory(&png).unwrap().to_rgb8();
-        let l = Layout::new(&map(), &poses());
+        let l = Layout::new(&map(), &poses(), &[]);
         assert_eq!((img.width(), img.height()), (l.width, l.height));
         let grey_at = |x: f64, y: f64| {
             let q = l.px(x, y);
@@ -322,9 +365,30 @@ mod tests {
     }
 
     #[test]
+    fn the_poses_as_given_are_drawn_joined_to_the_ones_the_map_uses() {
+        let refined = poses();
+        let given: Vec<Isometry3<f64>> = refined
+            .iter()
+            .map(|p| Translation3::new(0.3, -0.2, 0.0) * p)
+            .collect();
+        let svg = top_view_svg(&map(), &refined, &given);
+        assert_eq!(svg.matches("class=\"prior\"").count(), refined.len());
+        assert_eq!(svg.matches("<circle ").count(), 2 * refined.len());
+        let png = top_view_png(&map(), &refined, &given).unwrap();
+        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+        let l = Layout::new(&map(), &refined, &given);
+        let t = given[0].translation.vector;
+        let q = l.px(t.x, t.y);
+        assert_eq!(
+            img.get_pixel(q.x.round() as u32, q.y.round() as u32).0,
+            PRIOR_COLOUR
+        );
+    }
+
+    #[test]
     fn an_empty_map_still_draws() {
-        assert!(top_view_svg(&[], &[]).contains("</svg>"));
-        image::load_from_memory(&top_view_png(&[], &[]).unwrap()).unwrap();
+        assert!(top_view_svg(&[], &[], &[]).contains("</svg>"));
+        image::load_from_memory(&top_view_png(&[], &[], &[]).unwrap()).unwrap();
         assert!(to_ply(&[]).contains("element vertex 0\n"));
     }
 }

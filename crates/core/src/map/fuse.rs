@@ -14,12 +14,17 @@
 //! greedy growth from the longest unassigned member (longest first, then canonical order),
 //! re-fitting the line as members join, so a map segment never strays from a straight line.
 
-use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
+use nalgebra::{
+    Matrix2x3, Matrix2x4, Matrix3, Matrix3x2, Matrix4, Matrix6, Point3, SymmetricEigen, Vector3,
+    Vector4,
+};
 use rayon::prelude::*;
 use rstar::primitives::{GeomWithData, Rectangle};
 use rstar::RTree;
 
-use super::{Capture, FuseParams, MapSegment};
+use super::{Capture, FuseParams, MapGate, MapSegment, Measured};
+use crate::geometry::across_basis;
+use crate::pipeline::{principal_variances, within_radius};
 
 /// A member may lie this many times its own lateral tolerance from the fitted line: the line
 /// is itself uncertain, by about as much again (quadrature).
@@ -39,6 +44,10 @@ struct Item {
     /// Lateral tolerance at `a` and `b`, metres.
     tol_a: f64,
     tol_b: f64,
+    /// Covariance of (a, b), world frame, the capture's pose uncertainty included.
+    cov: Matrix6<f64>,
+    /// The capturing rig's origin.
+    rig: Point3<f64>,
 }
 
 impl Item {
@@ -119,8 +128,9 @@ pub fn fuse(captures: &[Capture], params: &FuseParams) -> Vec<MapSegment> {
     let mut map: Vec<MapSegment> = components
         .par_iter()
         .flat_map_iter(|members| split(&items, members, cos_max, params))
-        .filter_map(|group| merge(&items, &group))
+        .filter_map(|group| merge(&items, &group, params.gate.as_ref()))
         .filter(|m| m.observations >= params.min_observations)
+        .filter(|m| !m.uncertain || params.gate.is_some_and(|g| g.include_uncertain))
         .collect();
     map.sort_by(|p, q| {
         let key = |m: &MapSegment| [m.start.x, m.start.y, m.start.z, m.end.x, m.end.y, m.end.z];
@@ -141,13 +151,32 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
     for c in captures {
         let rig = Point3::from(c.rig_to_world.translation.vector);
         let tol = |p: &Point3<f64>| params.lateral_m.max(params.lateral_rel * (p - rig).norm());
-        for s in c.segments {
+        let known = c.covariances.len() == c.segments.len();
+        for (i, s) in c.segments.iter().enumerate() {
             let (a, b) = (c.rig_to_world * s.start, c.rig_to_world * s.end);
             let len = (b - a).norm();
             let finite = a.iter().chain(b.iter()).all(|v| v.is_finite());
             if !finite || len <= MIN_LENGTH_M {
                 continue;
             }
+            let (tol_a, tol_b) = (tol(&a), tol(&b));
+            let own = if known && c.covariances[i].iter().all(|v| v.is_finite()) {
+                c.covariances[i]
+            } else {
+                // Unknown: each endpoint within its tolerance at 95% (2.45σ in 2D).
+                let (va, vb) = ((tol_a / 2.45).powi(2), (tol_b / 2.45).powi(2));
+                Matrix6::from_diagonal(&nalgebra::Vector6::new(va, va, va, vb, vb, vb))
+            };
+            let moved = Measured {
+                start: s.start,
+                end: s.end,
+                covariance: own,
+                uncertain: false,
+            }
+            .transformed_with(&c.rig_to_world, &c.pose_covariance)
+            // Where a segment ends is no measurement of its line: seen from a line at a small
+            // angle, a receding segment's along-line spread would pass for doubt across it.
+            .across_only(0.0);
             let key = [s.start.x, s.start.y, s.start.z, s.end.x, s.end.y, s.end.z];
             let item = Item {
                 a,
@@ -155,8 +184,10 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
                 dir: (b - a) / len,
                 len,
                 capture: c.id,
-                tol_a: tol(&a),
-                tol_b: tol(&b),
+                tol_a,
+                tol_b,
+                cov: moved.covariance,
+                rig,
             };
             keyed.push((key, item));
         }
@@ -341,21 +372,169 @@ fn canonical(d: Vector3<f64>) -> Vector3<f64> {
     }
 }
 
-/// One map segment from a group: the fitted line between the extreme projections.
-fn merge(items: &[Item], group: &[usize]) -> Option<MapSegment> {
-    let line = fit(items, group);
-    let (lo, hi) = extent_of(items, group, &line);
+/// One map segment from a group: the line its members' information agrees on, between the
+/// extreme projections of their ends, with its covariance and, under `gate`, whether it
+/// keeps the map's promise.
+fn merge(items: &[Item], group: &[usize], gate: Option<&MapGate>) -> Option<MapSegment> {
+    let line = fused_line(items, group, fit(items, group));
+    let (lo, hi) = extent_of(items, group, &line.line);
     let mut captures: Vec<u32> = group.iter().map(|&m| items[m].capture).collect();
     captures.sort_unstable();
     captures.dedup();
-    let (start, end) = (line.c + line.d * lo, line.c + line.d * hi);
+    let (start, end) = (
+        line.line.c + line.line.d * lo,
+        line.line.c + line.line.d * hi,
+    );
     let finite = start.iter().chain(end.iter()).all(|v| v.is_finite());
-    finite.then_some(MapSegment {
+    if !finite {
+        return None;
+    }
+    let basis = Matrix3x2::from_columns(&[line.e1, line.e2]);
+    // Across the line at parameter t: δ = e1 (δc1 + t δθ1) + e2 (δc2 + t δθ2).
+    let at = |t: f64| Matrix2x4::new(t, 0.0, 1.0, 0.0, 0.0, t, 0.0, 1.0);
+    let across = |t: f64| basis * at(t) * line.covariance * at(t).transpose() * basis.transpose();
+    let mid_t = 0.5 * (lo + hi);
+    // Along the line each end is a description (where the observations stopped), given the
+    // spread of a lateral tolerance, as a Match's ends are.
+    let nearest_rig = group
+        .iter()
+        .map(|&m| items[m].rig)
+        .min_by(|p, q| {
+            let mid = line.line.c + line.line.d * mid_t;
+            (p - mid).norm().total_cmp(&(q - mid).norm())
+        })
+        .unwrap_or(start);
+    let tolerance =
+        |p: &Point3<f64>, floor: f64, rel: f64| floor.max(rel * (p - nearest_rig).norm());
+    let along = |p: &Point3<f64>| {
+        let t = tolerance(p, 0.01, 0.005);
+        t * t * (line.line.d * line.line.d.transpose())
+    };
+    let mut covariance = Matrix6::zeros();
+    let (a_lo, a_hi) = (at(lo), at(hi));
+    let cross = basis * a_lo * line.covariance * a_hi.transpose() * basis.transpose();
+    covariance
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(across(lo) + along(&start)));
+    covariance
+        .fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&(across(hi) + along(&end)));
+    covariance.fixed_view_mut::<3, 3>(0, 3).copy_from(&cross);
+    covariance
+        .fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&cross.transpose());
+    let direction = line.covariance.fixed_view::<2, 2>(0, 0).into_owned();
+    let direction_var = principal_variances(&(basis * direction * basis.transpose()), &basis);
+    let midpoint_var = principal_variances(&across(mid_t), &basis);
+    let uncertain = gate.is_some_and(|g| {
+        let within = |t: f64, p: &Point3<f64>| {
+            within_radius(
+                principal_variances(&across(t), &basis),
+                tolerance(p, g.position_m, g.position_rel),
+                g.confidence,
+            )
+        };
+        let mid = nalgebra::center(&start, &end);
+        !(within_radius(direction_var, g.direction_deg.to_radians(), g.confidence)
+            && within(mid_t, &mid)
+            && within(lo, &start)
+            && within(hi, &end))
+    });
+    Some(MapSegment {
         start,
         end,
         observations: captures.len() as u32,
         captures,
+        covariance,
+        direction_sigma_deg: direction_var.0.sqrt().to_degrees(),
+        position_sigma_m: midpoint_var.0.sqrt(),
+        uncertain,
     })
+}
+
+/// A fused line: `line` with its covariance in the perturbation (δθ1, δθ2, δc1, δc2) — a
+/// turn of the direction towards `e1`, `e2` and a shift of the point along them.
+struct FusedLine {
+    line: Line,
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+    covariance: Matrix4<f64>,
+}
+
+/// Gauss–Newton steps of [`fused_line`]: it starts from the weighted total-least-squares
+/// line, a step or two from the optimum.
+const FUSE_STEPS: usize = 3;
+
+/// The maximum-likelihood line of a group: the one that minimises its members' endpoints'
+/// distances across it, each pair weighted by its covariance (both ends together, so a
+/// member's own direction counts as it should). Its covariance is the inverse of the summed
+/// information: a map segment's covariance shrinks as it is seen again.
+///
+/// It is not widened where the members disagree more than their covariances say (χ²/dof):
+/// members are grouped by the lateral tolerance, looser than most covariances, and widening
+/// sent groups that are one edge under the gate — on the shared rooms with exact poses 5–6
+/// points of completeness lost and no wrong segment fewer (office 57.6% → 52.0%, lab 55.3%
+/// → 48.6%; error 2.3% → 2.5%, 4.3% → 4.7%).
+fn fused_line(items: &[Item], group: &[usize], start: Line) -> FusedLine {
+    let mut line = start;
+    let mut result = None;
+    for _ in 0..FUSE_STEPS {
+        let (e1, e2) = across_basis(&line.d);
+        let b = Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]);
+        let mut h = Matrix4::zeros();
+        let mut g = Vector4::zeros();
+        for &m in group {
+            let s = &items[m];
+            let mut residual = Vector4::zeros();
+            let mut jacobian = Matrix4::zeros();
+            let mut project = nalgebra::SMatrix::<f64, 4, 6>::zeros();
+            for (k, p) in [s.a, s.b].into_iter().enumerate() {
+                let w = p - line.c;
+                let t = w.dot(&line.d);
+                residual.fixed_rows_mut::<2>(2 * k).copy_from(&(b * w));
+                jacobian
+                    .fixed_view_mut::<2, 4>(2 * k, 0)
+                    .copy_from(&Matrix2x4::new(-t, 0.0, -1.0, 0.0, 0.0, -t, 0.0, -1.0));
+                project.fixed_view_mut::<2, 3>(2 * k, 3 * k).copy_from(&b);
+            }
+            let covariance = project * s.cov * project.transpose();
+            let Some(weight) = covariance.try_inverse() else {
+                continue;
+            };
+            h += jacobian.transpose() * weight * jacobian;
+            g -= jacobian.transpose() * weight * residual;
+        }
+        let Some(inverse) = h.try_inverse() else {
+            break;
+        };
+        result = Some((line, e1, e2, inverse));
+        let step = inverse * g;
+        if step.iter().any(|v| !v.is_finite()) {
+            break;
+        }
+        let d = (line.d + e1 * step[0] + e2 * step[1]).normalize();
+        line = Line {
+            c: line.c + e1 * step[2] + e2 * step[3],
+            d: canonical(d),
+        };
+    }
+    match result {
+        Some((line, e1, e2, covariance)) => FusedLine {
+            line,
+            e1,
+            e2,
+            covariance,
+        },
+        None => {
+            let (e1, e2) = across_basis(&start.d);
+            FusedLine {
+                line: start,
+                e1,
+                e2,
+                covariance: Matrix4::identity() * f64::INFINITY,
+            }
+        }
+    }
 }
 
 /// Disjoint sets over `0..n`, union by size with path halving.

@@ -14,10 +14,11 @@ pub mod export;
 mod fuse;
 pub mod poses;
 pub mod register;
+pub mod session;
 #[cfg(test)]
 mod tests;
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Matrix6, Point3};
 
 use crate::params::{check_all, Rule};
 use crate::segment::Segment3;
@@ -36,6 +37,27 @@ pub struct Capture<'a> {
     pub rig_to_world: Isometry3<f64>,
     /// Rig-frame segments, e.g. a [`crate::pipeline::MatchOutput`]'s.
     pub segments: &'a [Segment3],
+    /// Each segment's covariance (x1 y1 z1 x2 y2 z2, rig frame, metres²), as the match gives
+    /// it; empty when unknown — each endpoint is then taken to be known to its lateral
+    /// tolerance at 95%.
+    pub covariances: &'a [Matrix6<f64>],
+    /// How well the pose is known: the covariance of a small rotation vector about the rig's
+    /// origin (world axes, radians) then of the translation (metres), as
+    /// [`PosePrior::covariance`]; zero for a pose known exactly. Every segment of the capture
+    /// shares it.
+    pub pose_covariance: Matrix6<f64>,
+}
+
+impl Default for Capture<'_> {
+    fn default() -> Self {
+        Capture {
+            id: 0,
+            rig_to_world: Isometry3::identity(),
+            segments: &[],
+            covariances: &[],
+            pose_covariance: Matrix6::zeros(),
+        }
+    }
 }
 
 /// Tolerances of [`fuse`].
@@ -58,6 +80,37 @@ pub struct FuseParams {
     pub max_gap_m: f64,
     /// Map segments supported by fewer distinct captures are dropped (1 keeps all).
     pub min_observations: u32,
+    /// The accuracy a map segment must meet, by its fused covariance, to be in the map; none:
+    /// every segment is.
+    pub gate: Option<MapGate>,
+}
+
+/// The promise of a gated map, as a Match answer's (the session's match options give it):
+/// at `confidence`, each map segment's direction within `direction_deg` of the truth and its
+/// midpoint and both ends within max(`position_m`, `position_rel` × the distance to the
+/// nearest rig that saw it) across the line — the pose's uncertainty included, so a capture
+/// that registration could not place does not put its segments where they may not be.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapGate {
+    pub direction_deg: f64,
+    pub position_m: f64,
+    pub position_rel: f64,
+    pub confidence: f64,
+    /// Keep the segments that miss it too, flagged [`MapSegment::uncertain`].
+    pub include_uncertain: bool,
+}
+
+impl MapGate {
+    /// The gate of a match's answer (`params`), for the map of the session it belongs to.
+    pub fn of(params: &crate::matching::MatchParams) -> MapGate {
+        MapGate {
+            direction_deg: params.gate_direction_deg,
+            position_m: params.gate_position_m,
+            position_rel: params.gate_position_rel,
+            confidence: params.gate_confidence,
+            include_uncertain: params.include_uncertain,
+        }
+    }
 }
 
 impl Default for FuseParams {
@@ -70,6 +123,7 @@ impl Default for FuseParams {
             angle_deg: 3.0,
             max_gap_m: 0.05,
             min_observations: 1,
+            gate: None,
         }
     }
 }
@@ -112,6 +166,35 @@ impl FuseParams {
                 self.min_observations >= 1,
                 "at least 1",
             ),
+        ])?;
+        let Some(g) = self.gate else {
+            return Ok(());
+        };
+        check_all([
+            Rule::new(
+                "gate.direction_deg",
+                g.direction_deg,
+                g.direction_deg > 0.0 && g.direction_deg <= 90.0,
+                "in (0, 90]",
+            ),
+            Rule::new(
+                "gate.position_m",
+                g.position_m,
+                g.position_m > 0.0 && g.position_m <= 100.0,
+                "in (0, 100]",
+            ),
+            Rule::new(
+                "gate.position_rel",
+                g.position_rel,
+                (0.0..=1.0).contains(&g.position_rel),
+                "in [0, 1]",
+            ),
+            Rule::new(
+                "gate.confidence",
+                g.confidence,
+                g.confidence > 0.0 && g.confidence < 1.0,
+                "in (0, 1)",
+            ),
         ])
     }
 }
@@ -125,6 +208,17 @@ pub struct MapSegment {
     pub observations: u32,
     /// Their ids, sorted, unique.
     pub captures: Vec<u32>,
+    /// Covariance of (start, end), metres², world frame: across the line, the fused line's
+    /// (its observations' information added up, poses' uncertainty included); along it, where
+    /// the observations' ends lie.
+    pub covariance: Matrix6<f64>,
+    /// 1σ of the direction (degrees) and of the midpoint across the line (metres): the
+    /// largest of each, as a 3D segment of a Match reports them.
+    pub direction_sigma_deg: f64,
+    pub position_sigma_m: f64,
+    /// It misses the map's gate ([`FuseParams::gate`]) and is there only because the gate
+    /// asked to include uncertain segments.
+    pub uncertain: bool,
 }
 
 impl MapSegment {

@@ -80,11 +80,13 @@ fn one_wall_edge_seen_twice_is_one_segment_with_two_observations() {
             id: 4,
             rig_to_world: pa,
             segments: &sa,
+            ..Default::default()
         },
         Capture {
             id: 9,
             rig_to_world: pb,
             segments: &sb,
+            ..Default::default()
         },
     ];
     let map = fuse(&captures, &FuseParams::default());
@@ -110,6 +112,7 @@ fn fragments_of_one_capture_count_once() {
             id: 1,
             rig_to_world: pa,
             segments: &s,
+            ..Default::default()
         }],
         &FuseParams::default(),
     );
@@ -137,6 +140,7 @@ fn parallel_edges_ten_centimetres_apart_stay_separate() {
             id: i as u32,
             rig_to_world: poses[i],
             segments: &segs[i],
+            ..Default::default()
         })
         .collect();
     let map = fuse(&captures, &FuseParams::default());
@@ -162,11 +166,13 @@ fn segments_seen_once_are_dropped_with_min_observations_two() {
             id: 0,
             rig_to_world: poses[0],
             segments: &a,
+            ..Default::default()
         },
         Capture {
             id: 1,
             rig_to_world: poses[1],
             segments: &b,
+            ..Default::default()
         },
     ];
     assert_eq!(fuse(&captures, &FuseParams::default()).len(), 2);
@@ -229,6 +235,7 @@ fn captures_of<'a>(poses: &[Isometry3<f64>], segs: &'a [Vec<Segment3>]) -> Vec<C
             id: i as u32,
             rig_to_world: *q,
             segments: s,
+            ..Default::default()
         })
         .collect()
 }
@@ -263,6 +270,7 @@ fn the_map_does_not_depend_on_capture_order() {
             id: i as u32,
             rig_to_world: c.rig_to_world,
             segments: c.segments,
+            ..Default::default()
         })
         .collect();
     let mut new_id = vec![0u32; shuffled.len()];
@@ -301,6 +309,7 @@ fn a_gently_bending_chain_is_split_into_straight_pieces() {
             id: 0,
             rig_to_world: q,
             segments: &s,
+            ..Default::default()
         }],
         &params,
     );
@@ -331,6 +340,7 @@ fn empty_and_degenerate_input_give_an_empty_map() {
         id: 0,
         rig_to_world: q,
         segments: &degenerate,
+        ..Default::default()
     };
     assert!(fuse(&[], &FuseParams::default()).is_empty());
     assert!(fuse(&[c], &FuseParams::default()).is_empty());

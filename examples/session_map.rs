@@ -6,14 +6,17 @@
 //!     cargo run --release --example session_map -- [--data DIR] [--images] [--out DIR]
 //!         [--min-observations N] [--options JSON] [--lateral-m M] [--lateral-rel R]
 //!         [--angle-deg A] [--max-gap-m G]
-//!         [--yaw-noise-deg Y --xy-noise-m T [--seed S]] [--register]
+//!         [--yaw-noise-deg Y --xy-noise-m T [--seed S]] [--register [--graph]]
 //!
 //! Odometry is simulated by `--yaw-noise-deg` and `--xy-noise-m`: every capture but the first
 //! (whose pose anchors the map, as a robot's start anchors its odometry) gets a heading error
 //! about its rig's origin and an error across the floor drawn from N(0, Y°) and N(0, T m),
-//! independently, seeded by `--seed`. `--register` registers each capture, in order, to the
-//! captures before it (`map::register`) from that pose and the default prior covariance, and
-//! fuses with the refined poses; the pose errors against the true poses are printed.
+//! independently, seeded by `--seed`. `--register` places each capture in order as AddCapture
+//! does (`map::session::add_capture`: registered to the map from that pose and the simulated
+//! noise as its covariance, then to each earlier capture it overlaps); `--graph` then solves
+//! every pose from the odometry and those edges as GetMap does (`map::session::solve_poses`),
+//! and the map is fused with the poses found. The pose errors against the true poses, and
+//! each edge's error with its χ², are printed.
 //!
 //! `--options` is a proto3-JSON `MatchOptions`, e.g. `{"maxDirectionSigmaDeg": 2}`.
 //! Writes `OUT/map.json` (`{"segments": [[x1,y1,z1,x2,y2,z2],...], "frame": "world",
@@ -26,7 +29,8 @@ use clap::Parser;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
 use trinocular::api::{self, pb, RequestLimits, RunMatch};
-use trinocular::map::{self, Capture, FuseParams, Measured, PosePrior, RegisterParams};
+use trinocular::map::session::{Placed, SessionParams};
+use trinocular::map::{self, Capture, FuseParams, Measured, PosePrior};
 use trinocular::segment::Segment3;
 
 #[derive(Parser)]
@@ -63,13 +67,18 @@ struct Args {
     /// Register each capture to the ones before it.
     #[arg(long)]
     register: bool,
-    /// After registering in order, solve all poses together from the relative poses of every
-    /// pair of captures that registers (`map::poses`).
+    /// After placing them in order, solve all poses together from the odometry and the
+    /// edges between captures, as GetMap does (`map::session::solve_poses`).
     #[arg(long)]
     graph: bool,
-    /// Solve every pose from the priors at once, as GetMap does (`map::poses::solve`).
+    /// Gate the map as a Match answer is gated (the default match options' accuracy), by
+    /// each map segment's fused covariance, poses' uncertainty included.
     #[arg(long)]
-    solve: bool,
+    gate: bool,
+    /// Fuse every 3D segment, uncertain ones too (each by its covariance), and let the map's
+    /// gate decide.
+    #[arg(long)]
+    fuse_uncertain: bool,
 }
 
 /// Standard normal draws from a seed (splitmix64, Box–Muller): the same noise for the same
@@ -212,6 +221,11 @@ fn main() -> Result<(), Error> {
     if let Some(v) = args.max_gap_m {
         params.max_gap_m = v;
     }
+    if args.gate {
+        params.gate = Some(map::MapGate::of(
+            &trinocular::matching::MatchParams::default(),
+        ));
+    }
     params.check()?;
 
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(&args.data)?
@@ -226,6 +240,7 @@ fn main() -> Result<(), Error> {
     let mut truths = Vec::new();
     let mut measured: Vec<Vec<Measured>> = Vec::new();
     let mut segments: Vec<Vec<Segment3>> = Vec::new();
+    let mut covariances: Vec<Vec<nalgebra::Matrix6<f64>>> = Vec::new();
     let mut ids = Vec::new();
     for dir in &dirs {
         let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("");
@@ -251,11 +266,21 @@ fn main() -> Result<(), Error> {
             out.segments_3d.len(),
             out.stats.total_ms
         );
+        let fused_here = |r: &&trinocular::pipeline::Reconstructed| {
+            asked_uncertain || args.fuse_uncertain || !r.uncertain
+        };
         segments.push(
             out.segments_3d
                 .iter()
-                .filter(|r| asked_uncertain || !r.uncertain)
+                .filter(fused_here)
                 .map(|r| r.segment)
+                .collect(),
+        );
+        covariances.push(
+            out.segments_3d
+                .iter()
+                .filter(fused_here)
+                .map(|r| r.covariance)
                 .collect(),
         );
         measured.push(
@@ -289,37 +314,27 @@ fn main() -> Result<(), Error> {
             }
         })
         .collect();
-    let poses = if args.solve {
-        // As GetMap does: every pose from the priors and all pairs, in one solve.
-        let session_priors: Vec<PosePrior> = priors
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                if i == 0 {
-                    PosePrior {
-                        rig_to_world: *p,
-                        covariance: nalgebra::Matrix6::identity() * 1e-12,
-                    }
-                } else {
-                    prior_of(*p, args.yaw_noise_deg, args.xy_noise_m)
-                }
-            })
-            .collect();
-        let t0 = std::time::Instant::now();
-        let solved = map::poses::solve(&session_priors, &measured, &RegisterParams::default());
-        eprintln!("poses solved in {:.1} ms", t0.elapsed().as_secs_f64() * 1e3);
-        solved.iter().map(|p| p.rig_to_world).collect()
-    } else if args.register {
-        register_in_order(
+    // Without registration the poses are taken as exact; with it, each carries the
+    // covariance registration or the graph gives it.
+    let poses: Vec<PosePrior> = if args.register {
+        place_in_order(
             &priors,
             &measured,
+            &truths,
             args.yaw_noise_deg,
             args.xy_noise_m,
             args.graph,
         )
     } else {
-        priors.clone()
+        priors
+            .iter()
+            .map(|&rig_to_world| PosePrior {
+                rig_to_world,
+                covariance: nalgebra::Matrix6::zeros(),
+            })
+            .collect()
     };
+    let poses_only: Vec<Isometry3<f64>> = poses.iter().map(|p| p.rig_to_world).collect();
     let errors = |poses: &[Isometry3<f64>]| {
         let later = poses.iter().zip(&truths).skip(1);
         let rotation: Vec<f64> = later
@@ -331,7 +346,7 @@ fn main() -> Result<(), Error> {
             .collect();
         (median(rotation), median(translation))
     };
-    for (i, ((p, q), t)) in priors.iter().zip(&poses).zip(&truths).enumerate() {
+    for (i, ((p, q), t)) in priors.iter().zip(&poses_only).zip(&truths).enumerate() {
         let r = |x: &Isometry3<f64>| (x.rotation * t.rotation.inverse()).angle().to_degrees();
         let d = |x: &Isometry3<f64>| (x.translation.vector - t.translation.vector).norm() * 1e3;
         eprintln!(
@@ -343,7 +358,7 @@ fn main() -> Result<(), Error> {
         );
     }
     let (prior_r, prior_t) = errors(&priors);
-    let (pose_r, pose_t) = errors(&poses);
+    let (pose_r, pose_t) = errors(&poses_only);
     eprintln!(
         "pose error, median over captures after the first: prior {prior_r:.3} deg {:.1} mm, \
          used {pose_r:.3} deg {:.1} mm",
@@ -353,11 +368,13 @@ fn main() -> Result<(), Error> {
     let captures: Vec<Capture> = ids
         .iter()
         .zip(&poses)
-        .zip(&segments)
-        .map(|((&id, &rig_to_world), s)| Capture {
+        .zip(segments.iter().zip(&covariances))
+        .map(|((&id, pose), (s, c))| Capture {
             id,
-            rig_to_world,
+            rig_to_world: pose.rig_to_world,
             segments: s,
+            covariances: c,
+            pose_covariance: pose.covariance,
         })
         .collect();
     let t0 = std::time::Instant::now();
@@ -383,102 +400,99 @@ fn main() -> Result<(), Error> {
     std::fs::write(args.out.join("map.ply"), map::export::to_ply(&fused))?;
     std::fs::write(
         args.out.join("top.svg"),
-        map::export::top_view_svg(&fused, &poses),
+        map::export::top_view_svg(&fused, &poses_only, &priors),
     )?;
     std::fs::write(
         args.out.join("top.png"),
-        map::export::top_view_png(&fused, &poses)?,
+        map::export::top_view_png(&fused, &poses_only, &priors)?,
     )?;
     println!("{}", args.out.join("map.json").display());
     Ok(())
 }
 
-/// Each capture registered, in order, to the captures before it at their refined poses (a
-/// capture's segments as uncertain as its pose), then `sweeps` times each again to all the
-/// others, alternately backwards and forwards: the loop's end meets its start, and what it
-/// learns there flows back.
-fn register_in_order(
+/// Each capture placed in order as AddCapture places it (`map::session::add_capture`:
+/// registered to the map, then to each earlier capture it overlaps); with `graph`, the poses
+/// then solved as GetMap solves them (`map::session::solve_poses`), otherwise as registered.
+/// Each edge's error against the true relative pose is printed with its χ² under the edge's
+/// information (6 degrees of freedom: 12.6 at 95%).
+fn place_in_order(
     priors: &[Isometry3<f64>],
     measured: &[Vec<Measured>],
+    truths: &[Isometry3<f64>],
     yaw_sigma_deg: f64,
     xy_sigma_m: f64,
     graph: bool,
-) -> Vec<Isometry3<f64>> {
-    let prior = |i: usize| {
-        if i == 0 {
-            // The first pose anchors the map.
-            PosePrior {
-                rig_to_world: priors[0],
-                covariance: nalgebra::Matrix6::identity() * 1e-12,
-            }
-        } else {
-            prior_of(priors[i], yaw_sigma_deg, xy_sigma_m)
-        }
-    };
-    let mut poses: Vec<PosePrior> = Vec::new();
-    let references = |poses: &[PosePrior], skip: usize| -> Vec<Measured> {
-        poses
-            .iter()
-            .zip(measured)
-            .enumerate()
-            .filter(|(j, _)| *j != skip)
-            .flat_map(|(_, (p, m))| {
-                m.iter()
-                    .map(move |s| s.transformed_with(&p.rig_to_world, &p.covariance))
-            })
-            .collect()
-    };
+) -> Vec<PosePrior> {
+    let params = SessionParams::default();
+    let mut placed: Vec<Placed> = Vec::new();
+    let mut edges = Vec::new();
     for (i, segments) in measured.iter().enumerate() {
+        let prior = prior_of(priors[i], yaw_sigma_deg, xy_sigma_m);
         let t0 = std::time::Instant::now();
-        let got = map::register(
-            &references(&poses, usize::MAX),
-            segments,
-            &prior(i),
-            &RegisterParams::default(),
-        );
+        let added = map::session::add_capture(&placed, &prior, segments, &params);
+        let got = added.registration;
         eprintln!(
-            "capture {i:02}: {:?}, {} inliers, moved {:.2} deg {:.1} mm, {:.1} ms",
+            "capture {i:02}: {:?}, {} inliers, moved {:.2} deg {:.1} mm, {} edges, {:.1} ms",
             got.status,
             got.inliers,
             got.rotation_change_deg,
             got.translation_change_m * 1e3,
+            added.edges.len(),
             t0.elapsed().as_secs_f64() * 1e3
         );
-        poses.push(PosePrior {
-            rig_to_world: got.rig_to_world,
-            covariance: got.covariance,
+        placed.push(Placed {
+            prior,
+            pose: PosePrior {
+                rig_to_world: got.rig_to_world,
+                covariance: got.covariance,
+            },
+            status: got.status,
+            segments,
         });
+        edges.extend(added.edges);
+    }
+    for r in &edges {
+        let t = truths[r.to].inverse() * truths[r.from];
+        let rotation = (r.pose.rotation * t.rotation.inverse()).scaled_axis();
+        let shift = r.pose.translation.vector - t.translation.vector;
+        let e = nalgebra::Vector6::new(
+            rotation.x, rotation.y, rotation.z, shift.x, shift.y, shift.z,
+        );
+        let chi2 = (e.transpose() * r.information * e)[0];
+        eprintln!(
+            "edge {}-{}: {} inliers, error {:.3} deg {:.1} mm, chi2 {chi2:.1}",
+            r.to,
+            r.from,
+            r.inliers,
+            rotation.norm().to_degrees(),
+            shift.norm() * 1e3
+        );
     }
     if graph {
-        // Every pair of captures that registers to each other constrains their relative
-        // pose; all poses are then solved together, the loop closing where it comes round.
-        let priors: Vec<PosePrior> = (0..priors.len()).map(prior).collect();
-        let mut relative = Vec::new();
-        for from in 0..priors.len() {
-            for to in 0..from {
-                if let Some(r) = map::poses::relative_pose(
-                    from,
-                    to,
-                    measured,
-                    &poses,
-                    &RegisterParams::default(),
-                ) {
-                    relative.push(r);
-                }
-            }
-        }
-        let links: Vec<String> = relative
-            .iter()
-            .map(|r| format!("{}-{} ({})", r.to, r.from, r.inliers))
-            .collect();
+        let t0 = std::time::Instant::now();
+        let solved = map::session::solve_poses(&placed, &edges);
         eprintln!(
-            "pose graph: {} relative poses: {}",
-            relative.len(),
-            links.join(", ")
+            "pose graph of {} captures and {} edges solved in {:.2} ms",
+            placed.len(),
+            edges.len(),
+            t0.elapsed().as_secs_f64() * 1e3
         );
-        poses = map::poses::optimise(&priors, &relative);
+        for (i, (p, t)) in solved.iter().zip(truths).enumerate() {
+            let c = p.covariance;
+            eprintln!(
+                "capture {i:02} solved: error {:.3} deg {:.1} mm; sigma yaw {:.3} deg, xy {:.1} mm",
+                (p.rig_to_world.rotation * t.rotation.inverse())
+                    .angle()
+                    .to_degrees(),
+                (p.rig_to_world.translation.vector - t.translation.vector).norm() * 1e3,
+                c[(2, 2)].max(0.0).sqrt().to_degrees(),
+                (c[(3, 3)] + c[(4, 4)]).max(0.0).sqrt() * 1e3
+            );
+        }
+        solved
+    } else {
+        placed.iter().map(|p| p.pose).collect()
     }
-    poses.iter().map(|p| p.rig_to_world).collect()
 }
 
 /// The prior a robot that knows its odometry's noise would give: the simulated heading and

@@ -11,6 +11,7 @@ use nalgebra::{
 };
 
 use super::{match_params, pb, rig_from_calibration, InputError};
+use trinocular_core::map::poses::RelativePose;
 use trinocular_core::map::{MapSegment, Measured, PosePrior, Registration, RegistrationStatus};
 use trinocular_core::segment::Segment3;
 
@@ -254,6 +255,8 @@ pub fn status_to_pb(status: RegistrationStatus) -> pb::RegistrationStatus {
         RegistrationStatus::Registered => pb::RegistrationStatus::Registered,
         RegistrationStatus::EmptyMap => pb::RegistrationStatus::EmptyMap,
         RegistrationStatus::TooFewInCommon => pb::RegistrationStatus::TooFewInCommon,
+        RegistrationStatus::DisagreesWithPrior => pb::RegistrationStatus::DisagreesWithPrior,
+        RegistrationStatus::Ambiguous => pb::RegistrationStatus::Ambiguous,
     }
 }
 
@@ -367,6 +370,53 @@ pub fn stored_capture_segments(capture: &pb::StoredCapture) -> Result<StoredSegm
     })
 }
 
+/// The pose-graph edges a capture found when it was added, as stored.
+pub fn edges_to_pb(edges: &[RelativePose]) -> Vec<pb::PoseEdge> {
+    edges
+        .iter()
+        .map(|e| pb::PoseEdge {
+            to: e.to as u64,
+            pose: Some(pose_to_pb(&e.pose)),
+            information: matrix6_to_vec(&e.information),
+            inliers: e.inliers,
+        })
+        .collect()
+}
+
+/// The edges stored with capture `from`: each to an earlier capture, with a finite, symmetric
+/// information matrix. An edge that is not (a damaged store) is an error naming it.
+pub fn edges_of(capture: &pb::StoredCapture, from: usize) -> Result<Vec<RelativePose>, InputError> {
+    capture
+        .edges
+        .iter()
+        .enumerate()
+        .map(|(k, e)| {
+            let field = |name: &str| format!("edges[{k}].{name}");
+            let to = usize::try_from(e.to)
+                .ok()
+                .filter(|&to| to < from)
+                .ok_or_else(|| {
+                    InputError::new(field("to"), format!("must name a capture before {from}"))
+                })?;
+            let pose = pose_from_pb(e.pose.as_ref(), &field("pose"))?;
+            if e.information.len() != 36 || !e.information.iter().all(|v| v.is_finite()) {
+                return Err(InputError::new(
+                    field("information"),
+                    "must be 36 finite numbers",
+                ));
+            }
+            let information = Matrix6::from_row_slice(&e.information);
+            Ok(RelativePose {
+                from,
+                to,
+                pose,
+                information: (information + information.transpose()) * 0.5,
+                inliers: e.inliers,
+            })
+        })
+        .collect()
+}
+
 /// A session's fused map, world frame.
 #[derive(Debug, Clone)]
 pub struct SessionMap {
@@ -396,6 +446,10 @@ pub fn map_to_pb(map: &SessionMap) -> pb::Map {
                 end: Some(point(&s.end)),
                 observations: s.observations,
                 captures: s.captures.clone(),
+                covariance: matrix6_to_vec(&s.covariance),
+                direction_sigma_deg: s.direction_sigma_deg,
+                position_sigma_m: s.position_sigma_m,
+                uncertain: s.uncertain,
             })
             .collect(),
         poses: map.poses.iter().map(pose_to_pb).collect(),

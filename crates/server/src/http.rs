@@ -763,12 +763,12 @@ fn map_export(
         MapFormat::Svg => file(
             "image/svg+xml",
             "svg",
-            export::top_view_svg(&map.segments, &map.poses).into_bytes(),
+            export::top_view_svg(&map.segments, &map.poses, &map.prior_poses).into_bytes(),
         ),
         MapFormat::Png => file(
             "image/png",
             "png",
-            export::top_view_png(&map.segments, &map.poses).map_err(|e| {
+            export::top_view_png(&map.segments, &map.poses, &map.prior_poses).map_err(|e| {
                 ServiceError::Internal {
                     detail: format!("cannot encode the map's PNG: {e}"),
                 }

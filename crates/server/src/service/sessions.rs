@@ -9,20 +9,23 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use nalgebra::Matrix6;
-
 use prost::Message;
 
 use super::auth::{public_id, store_id, Caller};
 use super::clock::Clock;
 use super::store::{SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
-use trinocular_core::map::{self, FuseParams, Measured, PosePrior, RegisterParams, Registration};
+use nalgebra::Matrix6;
+use trinocular_core::map::poses::RelativePose;
+use trinocular_core::map::session::{Added, Placed, SessionParams};
+use trinocular_core::map::{self, FuseParams, MapGate, PosePrior, RegistrationStatus};
+use trinocular_core::segment::Segment3;
 use trinocular_schema::session::{
-    capture_match_request, certain_only, matrix6_to_vec, pose_from_pb, pose_prior, pose_to_pb,
-    registration_to_pb, status_to_pb, stored_capture_segments, StoredSegments,
+    capture_match_request, certain_only, edges_of, edges_to_pb, matrix6_to_vec, pose_from_pb,
+    pose_prior, pose_to_pb, registration_to_pb, status_to_pb, stored_capture_segments,
+    StoredSegments,
 };
-use trinocular_schema::{pb, InputError};
+use trinocular_schema::{match_params, pb, InputError};
 
 // The fused map and its message are the schema's: the transports answer with it.
 pub use trinocular_schema::session::{map_to_pb, SessionMap};
@@ -291,11 +294,14 @@ impl Service {
             let segments = everything.segments_3d.clone();
             let job = self
                 .pool
-                .run(move |_| register_capture(&captures, &segments, &prior));
+                .run(move |_| place_capture(&captures, &segments, &prior));
             let left = self
                 .deadline(timeout)
                 .saturating_sub(self.clock.since(started));
-            let registration = super::within(job, left).await?;
+            let Added {
+                registration,
+                edges,
+            } = super::within(job, left).await?;
             let capture = pb::StoredCapture {
                 rig_to_world: Some(pose_to_pb(&registration.rig_to_world)),
                 segments: everything
@@ -314,6 +320,7 @@ impl Service {
                 prior_covariance: matrix6_to_vec(&prior.covariance),
                 pose_covariance: matrix6_to_vec(&registration.covariance),
                 status: status_to_pb(registration.status) as i32,
+                edges: edges_to_pb(&edges),
             };
             let index = self
                 .store
@@ -361,15 +368,17 @@ impl Service {
                 .map_options
                 .as_ref()
                 .and_then(|m| m.refine_poses)
-                .unwrap_or(false);
+                .unwrap_or(true);
             let min_observations = min_observations
                 .or(stored.map_options.and_then(|m| m.min_observations))
                 .unwrap_or(1);
+            let gate = MapGate::of(&match_params(stored.options.as_ref()));
             let (session_id, clock) = (id.to_string(), Arc::clone(&self.clock));
             let job = self.pool.run(move |_| {
                 let options = MapBuild {
                     min_observations,
                     refine_poses,
+                    gate,
                 };
                 fuse_stored(session_id, &captures, options, clock.as_ref())
             });
@@ -389,114 +398,136 @@ fn fuse_stored(
 ) -> Result<SessionMap, ServiceError> {
     let start = clock.monotonic();
     let stored = decode_captures(captures)?;
-    // Refined, the poses are solved from the priors and the segments of all captures, not
-    // taken from what each AddCapture found (that depends on the order they came in): the
-    // map stays a function of the set of captures.
-    let priors: Vec<PosePrior> = stored.iter().map(|s| s.prior).collect();
-    let poses: Vec<_> = if options.refine_poses {
-        let measured: Vec<Vec<Measured>> = stored.iter().map(|s| s.measured.clone()).collect();
-        map::poses::solve(&priors, &measured, &RegisterParams::default())
-            .iter()
-            .map(|p| p.rig_to_world)
-            .collect()
+    let priors: Vec<PosePrior> = stored.iter().map(|(s, _)| s.prior).collect();
+    // Refined, the poses are the pose graph's solution: every capture's odometry and the
+    // edges each capture found when it was added, each pose with its marginal covariance.
+    // Nothing is registered again here. Not refined, they are as given, and taken as exact.
+    let poses: Vec<PosePrior> = if options.refine_poses {
+        let edges: Vec<RelativePose> = stored.iter().flat_map(|(_, e)| e.clone()).collect();
+        map::session::solve_poses(&placed(&stored), &edges)
     } else {
-        priors.iter().map(|p| p.rig_to_world).collect()
+        priors
+            .iter()
+            .map(|p| PosePrior {
+                rig_to_world: p.rig_to_world,
+                covariance: Matrix6::zeros(),
+            })
+            .collect()
     };
     let prior_poses: Vec<_> = priors.iter().map(|p| p.rig_to_world).collect();
-    let segments: Vec<Vec<_>> = stored.into_iter().map(|s| s.certain).collect();
-    let inputs: Vec<map::Capture> = segments
+    // The map fuses what met the capture's gate, each segment by its covariance.
+    let fused: Vec<(Vec<Segment3>, Vec<Matrix6<f64>>)> = stored
+        .iter()
+        .map(|(s, _)| {
+            s.measured
+                .iter()
+                .filter(|m| !m.uncertain)
+                .map(|m| {
+                    let segment = Segment3 {
+                        start: m.start,
+                        end: m.end,
+                    };
+                    (segment, m.covariance)
+                })
+                .unzip()
+        })
+        .collect();
+    let inputs: Vec<map::Capture> = fused
         .iter()
         .zip(&poses)
         .enumerate()
-        .map(|(i, (segments, pose))| map::Capture {
+        .map(|(i, ((segments, covariances), pose))| map::Capture {
             id: i as u32,
-            rig_to_world: *pose,
+            rig_to_world: pose.rig_to_world,
             segments,
+            covariances,
+            pose_covariance: pose.covariance,
         })
         .collect();
     let params = FuseParams {
         min_observations: options.min_observations,
+        gate: Some(options.gate),
         ..FuseParams::default()
     };
     let segments = map::fuse(&inputs, &params);
     Ok(SessionMap {
         session_id,
         segments,
-        poses,
+        poses: poses.iter().map(|p| p.rig_to_world).collect(),
         prior_poses,
         fuse_ms: clock.since(start).as_secs_f64() * 1e3,
     })
 }
 
-/// How GetMap builds a map, from the session's map options and the call.
+/// How GetMap builds a map, from the session's options and the call.
 #[derive(Debug, Clone, Copy)]
 struct MapBuild {
     min_observations: u32,
-    /// Solve the poses (`map::poses::solve`) rather than take them as given.
+    /// Solve the poses (`map::session::solve_poses`) rather than take them as given.
     refine_poses: bool,
+    /// The promise the map keeps: the session's match options' gate.
+    gate: MapGate,
 }
 
-fn decode_captures(captures: &[Vec<u8>]) -> Result<Vec<StoredSegments>, ServiceError> {
+/// Each stored capture's segments and poses, with the pose-graph edges it holds.
+fn decode_captures(
+    captures: &[Vec<u8>],
+) -> Result<Vec<(StoredSegments, Vec<RelativePose>)>, ServiceError> {
     captures
         .iter()
-        .map(|bytes| {
+        .enumerate()
+        .map(|(index, bytes)| {
             let capture =
                 pb::StoredCapture::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
-            stored_capture_segments(&capture).map_err(|e| ServiceError::Internal {
-                detail: format!("stored capture: {e}"),
-            })
+            let damaged = |e: InputError| ServiceError::Internal {
+                detail: format!("stored capture {index}: {e}"),
+            };
+            let segments = stored_capture_segments(&capture).map_err(damaged)?;
+            let edges = edges_of(&capture, index).map_err(damaged)?;
+            Ok((segments, edges))
         })
         .collect()
 }
 
-/// Captures a registration looks at: the nearest to the prior, no farther than
-/// [`REGISTRATION_REACH_M`] (a robot's local map; the whole session is the map's).
-const REGISTRATION_CAPTURES: usize = 64;
-const REGISTRATION_REACH_M: f64 = 10.0;
+/// The stored captures as the core's session sees them.
+fn placed(stored: &[(StoredSegments, Vec<RelativePose>)]) -> Vec<Placed<'_>> {
+    stored
+        .iter()
+        .map(|(s, _)| Placed {
+            prior: s.prior,
+            pose: s.pose,
+            status: match s.status {
+                pb::RegistrationStatus::Registered => RegistrationStatus::Registered,
+                pb::RegistrationStatus::EmptyMap => RegistrationStatus::EmptyMap,
+                pb::RegistrationStatus::DisagreesWithPrior => {
+                    RegistrationStatus::DisagreesWithPrior
+                }
+                pb::RegistrationStatus::Ambiguous => RegistrationStatus::Ambiguous,
+                // Stored before registration, or found too little in common: placed at the
+                // pose it was given.
+                pb::RegistrationStatus::TooFewInCommon | pb::RegistrationStatus::Unspecified => {
+                    RegistrationStatus::TooFewInCommon
+                }
+            },
+            segments: &s.measured,
+        })
+        .collect()
+}
 
-/// Registers a capture's segments (rig frame, as the match answered them) to the stored
-/// captures near its prior (on the compute pool).
-///
-/// The map it registers to is the session's first capture, whose pose defines the map's
-/// frame, and the captures registered since, each as uncertain as its refined pose. Captures
-/// whose pose is only the one given are left out: a reference's pose error is shared by all
-/// its segments, and many segments each given that error's spread as if independent would
-/// let wrong pairs in by the dozen (the session's map still places them: GetMap solves every
-/// pose together).
-fn register_capture(
+/// Places a new capture's segments (rig frame, as the match answered them) in the session
+/// (on the compute pool): registered to the stored captures as a map, and to each one it
+/// overlaps as an edge of the pose graph (`map::session::add_capture`).
+fn place_capture(
     captures: &[Vec<u8>],
     segments: &[pb::Segment3],
     prior: &PosePrior,
-) -> Result<Registration, ServiceError> {
-    let here = prior.rig_to_world.translation.vector;
-    let mut stored: Vec<(f64, StoredSegments)> = decode_captures(captures)?
-        .into_iter()
-        .filter_map(|mut s| {
-            match s.status {
-                pb::RegistrationStatus::EmptyMap => s.pose.covariance = Matrix6::zeros(),
-                pb::RegistrationStatus::TooFewInCommon => return None,
-                _ => {}
-            }
-            Some(s)
-        })
-        .map(|s| ((s.pose.rig_to_world.translation.vector - here).norm(), s))
-        .filter(|(d, _)| *d <= REGISTRATION_REACH_M)
-        .collect();
-    stored.sort_by(|a, b| a.0.total_cmp(&b.0));
-    stored.truncate(REGISTRATION_CAPTURES);
-    let references: Vec<Measured> = stored
-        .iter()
-        .flat_map(|(_, s)| {
-            s.measured
-                .iter()
-                .map(|m| m.transformed_with(&s.pose.rig_to_world, &s.pose.covariance))
-        })
-        .collect();
+) -> Result<Added, ServiceError> {
+    let stored = decode_captures(captures)?;
     let capture = StoredSegments::measured_of(segments);
-    Ok(map::register(
-        &references,
-        &capture,
+    Ok(map::session::add_capture(
+        &placed(&stored),
         prior,
-        &RegisterParams::default(),
+        &capture,
+        &SessionParams::default(),
     ))
 }

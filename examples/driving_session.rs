@@ -1,0 +1,329 @@
+//! A robot driving a loop through the library's synthetic room, mapping it with the poses its
+//! odometry gives: the driving sessions of issue 16, rendered and scored by our own `synth`.
+//!
+//!     cargo run --release --example driving_session -- [--seeds 1,2,3,4] [--captures 16]
+//!         [--noise 0/0,1/0.02,3/0.05] [--out DIR]
+//!
+//! Per seed: the standard room (`synth::Scene::room`) and rig (`RigSpec::non_collinear`);
+//! the rig drives once round an ellipse through the middle of the room, 1.2 m up, looking
+//! along its path — `--captures` captures, 0.3–0.45 m and 15–30° apart, the last one seeing
+//! what the first saw, so the loop can close. Each capture is rendered (`render_triplet`) and
+//! matched from its images (every 3D segment kept with its covariance, as a session's
+//! AddCapture keeps them); each noise level `YAW_DEG/XY_M` then gives every capture but the
+//! first a heading error N(0, YAW_DEG) about its rig's origin and a floor error N(0, XY_M) per
+//! axis, seeded, as its prior. The session is built as the service builds it: each capture
+//! placed in order (`map::session::add_capture`), the poses solved from the odometry and the
+//! edges (`map::session::solve_poses`), the map fused with the default match options' gate.
+//! Printed per seed and noise level, and pooled: the map's error and completeness (the shared
+//! scorer's criterion, tolerances from the mean rig centre, eligible edges united over the
+//! captures, as it scores a session), map segments per covered edge, and the median pose
+//! error against the truth.
+
+use clap::Parser;
+use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3};
+use trinocular::map::session::{Placed, SessionParams};
+use trinocular::map::{self, Capture, FuseParams, MapGate, Measured, PosePrior};
+use trinocular::matching::MatchParams;
+use trinocular::pipeline::{self, Input, Options};
+use trinocular::segment::Segment3;
+use trinocular::synth::{
+    eligible_intervals, observe, render_triplet, rig_centre, score, union_intervals, Defects,
+    Interval, Pose, RenderParams, RigSpec, Rng, Scene,
+};
+
+#[derive(Parser)]
+struct Args {
+    /// Rooms (and rigs, and noise draws), comma-separated seeds.
+    #[arg(long, default_value = "1,2,3,4")]
+    seeds: String,
+    #[arg(long, default_value_t = 16)]
+    captures: usize,
+    /// Odometry noise levels, `yaw_deg/xy_m` comma-separated.
+    #[arg(long, default_value = "0/0,1/0.02,3/0.05")]
+    noise: String,
+    /// Write each seed's map at the last noise level as `DIR/map_SEED.svg` (prior poses in
+    /// orange).
+    #[arg(long)]
+    out: Option<std::path::PathBuf>,
+}
+
+/// The loop: an ellipse about the room's middle, clear of the furniture along the walls.
+const CENTRE: [f64; 2] = [3.0, 2.5];
+const SEMI_AXES: [f64; 2] = [1.3, 0.75];
+const HEIGHT_M: f64 = 1.2;
+
+/// One capture's match and where it really was.
+struct Seen {
+    truth: Isometry3<f64>,
+    measured: Vec<Measured>,
+    certain: Vec<Segment3>,
+    certain_covariances: Vec<Matrix6<f64>>,
+    centre: Point3<f64>,
+}
+
+fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    let seeds: Vec<u64> = args
+        .seeds
+        .split(',')
+        .map(|s| s.trim().parse())
+        .collect::<Result<_, _>>()?;
+    let levels: Vec<(f64, f64)> = args
+        .noise
+        .split(',')
+        .map(|l| {
+            let (y, t) = l.split_once('/').unwrap_or((l, "0"));
+            Ok::<_, anyhow::Error>((y.trim().parse()?, t.trim().parse()?))
+        })
+        .collect::<Result<_, _>>()?;
+    let mut pooled = vec![Pooled::default(); levels.len()];
+    println!("| seed | odometry noise | map segments | error | completeness | segments per covered edge | pose error, median |");
+    println!("|---|---|---|---|---|---|---|");
+    for &seed in &seeds {
+        let (scene, seen, eligible) = drive(seed, args.captures)?;
+        let truth_edges = scene.ground_truth_edges();
+        let centres: Vec<Point3<f64>> = seen.iter().map(|s| s.centre).collect();
+        let mean_centre = Point3::from(
+            centres.iter().fold(Vector3::zeros(), |a, c| a + c.coords) / centres.len() as f64,
+        );
+        for (k, &(yaw_deg, xy_m)) in levels.iter().enumerate() {
+            let priors = odometry(&seen, yaw_deg, xy_m, seed * 1000 + k as u64);
+            let (poses, fused) = build_map(&seen, &priors);
+            let segments: Vec<Segment3> = fused.iter().map(|m| m.segment()).collect();
+            let s = score(&segments, &truth_edges, &eligible, mean_centre);
+            let covered_edges = s
+                .matches
+                .iter()
+                .flatten()
+                .collect::<std::collections::BTreeSet<_>>();
+            let per_edge = s.n_correct as f64 / covered_edges.len().max(1) as f64;
+            let (rotation, translation) = pose_error(&poses, &seen);
+            println!(
+                "| {seed} | {yaw_deg}°, {} cm | {} | {:.1}% | {:.1}% | {per_edge:.2} | {rotation:.3}°, {:.1} mm |",
+                xy_m * 100.0,
+                s.n_segments,
+                100.0 * s.error_rate.unwrap_or(0.0),
+                100.0 * s.completeness.unwrap_or(0.0),
+                translation * 1e3
+            );
+            let p = &mut pooled[k];
+            p.segments += s.n_segments;
+            p.correct += s.n_correct;
+            p.eligible += s.eligible_length_m;
+            p.covered += s.covered_length_m;
+            p.rotations.push(rotation);
+            p.translations.push(translation);
+            if let (Some(dir), true) = (&args.out, k + 1 == levels.len()) {
+                std::fs::create_dir_all(dir)?;
+                let given: Vec<Isometry3<f64>> = priors.iter().map(|p| p.rig_to_world).collect();
+                std::fs::write(
+                    dir.join(format!("map_{seed}.svg")),
+                    map::export::top_view_svg(&fused, &poses, &given),
+                )?;
+            }
+        }
+    }
+    println!();
+    println!("| odometry noise | error | completeness | pose error, median of seeds |");
+    println!("|---|---|---|---|");
+    for (&(yaw_deg, xy_m), p) in levels.iter().zip(&pooled) {
+        println!(
+            "| {yaw_deg}°, {} cm | {:.1}% | {:.1}% | {:.3}°, {:.1} mm |",
+            xy_m * 100.0,
+            100.0 * (1.0 - p.correct as f64 / p.segments.max(1) as f64),
+            100.0 * p.covered / p.eligible.max(1e-12),
+            median(p.rotations.clone()),
+            median(p.translations.clone()) * 1e3
+        );
+    }
+    Ok(())
+}
+
+#[derive(Debug, Clone, Default)]
+struct Pooled {
+    segments: usize,
+    correct: usize,
+    eligible: f64,
+    covered: f64,
+    rotations: Vec<f64>,
+    translations: Vec<f64>,
+}
+
+/// The poses of the loop: position and heading (radians, the rig's yaw, 0 looking along +y).
+fn path(captures: usize) -> Vec<(Point3<f64>, f64)> {
+    (0..captures)
+        .map(|k| {
+            let t = std::f64::consts::TAU * k as f64 / captures as f64;
+            let (a, b) = (SEMI_AXES[0], SEMI_AXES[1]);
+            let position = Point3::new(CENTRE[0] + a * t.cos(), CENTRE[1] + b * t.sin(), HEIGHT_M);
+            // Counter-clockwise: the tangent, and the yaw that turns +y onto it.
+            let (hx, hy) = (-a * t.sin(), b * t.cos());
+            (position, (-hx).atan2(hy))
+        })
+        .collect()
+}
+
+/// Renders and matches every capture of the loop in room `seed`; returns the scene, the
+/// captures and the eligible parts of the ground truth, united over the captures.
+fn drive(seed: u64, captures: usize) -> anyhow::Result<(Scene, Vec<Seen>, Vec<Vec<Interval>>)> {
+    let scene = Scene::room(seed);
+    let spec = RigSpec::non_collinear(seed);
+    let rig = spec.build(&Pose::identity())?;
+    let params = MatchParams {
+        include_uncertain: true,
+        ..MatchParams::default()
+    };
+    let options = Options::with(params);
+    let mut seen = Vec::new();
+    let mut eligible: Vec<Vec<Interval>> = Vec::new();
+    for (k, (position, yaw)) in path(captures).into_iter().enumerate() {
+        let pose = Pose::from_position_yaw(position, yaw);
+        let placed = spec.build(&pose)?;
+        let images = render_triplet(
+            &scene,
+            &placed,
+            &RenderParams::default(),
+            seed * 100 + k as u64,
+        );
+        let matched = pipeline::run(
+            &rig,
+            Input::Images([&images[0], &images[1], &images[2]]),
+            &options,
+        )?;
+        let observation = observe(&scene, &placed, &Defects::clean(), seed);
+        let here = eligible_intervals(&observation);
+        eligible.resize(here.len(), Vec::new());
+        for (all, mine) in eligible.iter_mut().zip(here) {
+            all.extend(mine);
+            *all = union_intervals(all);
+        }
+        let out = &matched.output;
+        let measured: Vec<Measured> = out
+            .segments_3d
+            .iter()
+            .map(|r| Measured {
+                start: r.segment.start,
+                end: r.segment.end,
+                covariance: r.covariance,
+                uncertain: r.uncertain,
+            })
+            .collect();
+        let certain: Vec<&pipeline::Reconstructed> =
+            out.segments_3d.iter().filter(|r| !r.uncertain).collect();
+        eprintln!(
+            "seed {seed} capture {k:02}: {} 3D segments, {} certain",
+            measured.len(),
+            certain.len()
+        );
+        let truth = Isometry3::from_parts(
+            Translation3::from(pose.translation),
+            UnitQuaternion::from_rotation_matrix(&pose.rotation),
+        );
+        seen.push(Seen {
+            truth,
+            centre: rig_centre(&placed),
+            certain: certain.iter().map(|r| r.segment).collect(),
+            certain_covariances: certain.iter().map(|r| r.covariance).collect(),
+            measured,
+        });
+    }
+    Ok((scene, seen, eligible))
+}
+
+/// Each capture's prior: the truth, but every capture after the first turned by N(0, yaw)
+/// about its rig's origin and moved by N(0, xy) per floor axis; the covariance says so
+/// (at least 0.25° and 1 cm, as a robot would never claim to be exact).
+fn odometry(seen: &[Seen], yaw_deg: f64, xy_m: f64, seed: u64) -> Vec<PosePrior> {
+    let mut rng = Rng::new(seed);
+    seen.iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let (yaw, dx, dy) = (
+                rng.normal() * yaw_deg.to_radians(),
+                rng.normal() * xy_m,
+                rng.normal() * xy_m,
+            );
+            let pose = if i == 0 {
+                s.truth
+            } else {
+                let t = s.truth.translation.vector + Vector3::new(dx, dy, 0.0);
+                Isometry3::from_parts(
+                    Translation3::from(t),
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw) * s.truth.rotation,
+                )
+            };
+            PosePrior::odometry(
+                pose,
+                yaw_deg.max(0.25),
+                map::register::DEFAULT_TILT_SIGMA_DEG,
+                xy_m.max(0.01),
+                map::register::DEFAULT_Z_SIGMA_M,
+            )
+        })
+        .collect()
+}
+
+/// The session as the service builds it: placed in order, poses solved, map fused and gated.
+fn build_map(seen: &[Seen], priors: &[PosePrior]) -> (Vec<Isometry3<f64>>, Vec<map::MapSegment>) {
+    let params = SessionParams::default();
+    let mut placed: Vec<Placed> = Vec::new();
+    let mut edges = Vec::new();
+    for (s, prior) in seen.iter().zip(priors) {
+        let added = map::session::add_capture(&placed, prior, &s.measured, &params);
+        let r = added.registration;
+        placed.push(Placed {
+            prior: *prior,
+            pose: PosePrior {
+                rig_to_world: r.rig_to_world,
+                covariance: r.covariance,
+            },
+            status: r.status,
+            segments: &s.measured,
+        });
+        edges.extend(added.edges);
+    }
+    let solved = map::session::solve_poses(&placed, &edges);
+    let captures: Vec<Capture> = seen
+        .iter()
+        .zip(&solved)
+        .enumerate()
+        .map(|(i, (s, pose))| Capture {
+            id: i as u32,
+            rig_to_world: pose.rig_to_world,
+            segments: &s.certain,
+            covariances: &s.certain_covariances,
+            pose_covariance: pose.covariance,
+        })
+        .collect();
+    let fuse = FuseParams {
+        gate: Some(MapGate::of(&MatchParams::default())),
+        ..FuseParams::default()
+    };
+    let fused = map::fuse(&captures, &fuse);
+    (solved.iter().map(|p| p.rig_to_world).collect(), fused)
+}
+
+/// Median rotation (degrees) and translation (metres) error of the poses after the first.
+fn pose_error(poses: &[Isometry3<f64>], seen: &[Seen]) -> (f64, f64) {
+    let later = poses.iter().zip(seen).skip(1);
+    let rotation = later
+        .clone()
+        .map(|(p, s)| {
+            (p.rotation * s.truth.rotation.inverse())
+                .angle()
+                .to_degrees()
+        })
+        .collect();
+    let translation = later
+        .map(|(p, s)| (p.translation.vector - s.truth.translation.vector).norm())
+        .collect();
+    (median(rotation), median(translation))
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}

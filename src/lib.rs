@@ -6,9 +6,11 @@
 //! trinocular (CLI, demo) ─▶ trinocular-server (use cases, transports)
 //!                                 ─▶ trinocular-schema (messages, conversions)
 //!                                       ─▶ trinocular-core (vision)
+//!                        ─▶ trinocular-synth (synthetic rooms, scorer) ─▶ trinocular-core
 //! ```
 //!
 //! `trinocular::pipeline` and the core's other modules are [`trinocular_core`]'s;
+//! `trinocular::synth` is [`trinocular_synth`];
 //! `trinocular::api` is [`trinocular_schema`] with the server's transports and the running of
 //! a checked request; `trinocular::service` is the server's use cases with its servers and
 //! configuration. The layering itself is the crates' (docs/ARCHITECTURE.md), not these
@@ -16,8 +18,11 @@
 
 pub use trinocular_core::{
     angle, calibrate, checkpoint, extract, geometry, map, matching, overlay, pipeline, reconstruct,
-    segment, synth,
+    segment,
 };
+/// The synthetic rooms and the scorer ([`trinocular_synth`]), for the demo, tests, benches,
+/// examples and fuzz seeds.
+pub use trinocular_synth as synth;
 
 /// The schema and its conversions ([`trinocular_schema`]), the transports, and the running of
 /// a checked request (its traits, [`RunMatch`] and [`RunCalibration`], must be in scope for

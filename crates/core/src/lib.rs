@@ -22,7 +22,9 @@
 //! | [`calibrate`] | projection matrices from images of a known pattern, or from correspondences |
 //! | [`map`] | session captures fused into a world-frame room map, exports |
 //! | [`overlay`] | pictures of the segments over the images |
-//! | `synth` (feature `synth`) | synthetic rooms with exact ground truth, and a scorer |
+//!
+//! The synthetic rooms with exact ground truth, and the scorer, that test all of it are a
+//! crate of their own, `trinocular-synth`, which a library user never compiles.
 
 pub mod angle;
 pub mod calibrate;
@@ -36,5 +38,5 @@ pub mod params;
 pub mod pipeline;
 pub mod reconstruct;
 pub mod segment;
-#[cfg(any(test, feature = "synth"))]
-pub mod synth;
+#[cfg(test)]
+mod testing;

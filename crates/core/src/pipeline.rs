@@ -1474,17 +1474,7 @@ fn assemble(
 mod tests {
     use super::*;
     use crate::segment::Segment2;
-    use crate::synth::{Pose, RigSpec};
-    use nalgebra::Vector2;
-
-    /// [`run`] on three lists with `params`, as most tests ask.
-    fn match_segments(
-        rig: &Rig,
-        lists: &[SegmentList; 3],
-        params: &MatchParams,
-    ) -> Result<MatchOutput, MatchError> {
-        run(rig, Input::lists(lists), &Options::with(params.clone())).map(|m| m.output)
-    }
+    use crate::testing::preset_rig;
 
     /// A vertical line 2 m ahead of the rig, as a fit of `chi2` with ends agreeing to
     /// `ends` σ.
@@ -1543,9 +1533,7 @@ mod tests {
 
     #[test]
     fn a_ghost_is_ambiguous_when_the_true_edge_flips_contrast_in_the_view_that_fixes_depth() {
-        let rig = RigSpec::non_collinear(1)
-            .build(&Pose::identity())
-            .expect("preset rig");
+        let rig = preset_rig();
         let (c1, c2) = (rig.camera(0).centre(), rig.camera(1).centre());
         let along = (c2 - c1).normalize();
         // A 60 cm edge parallel to the baseline of cameras 1 and 2, and its ghost in the same
@@ -1584,7 +1572,8 @@ mod tests {
                 list(vec![seen(1, &edge, false, 21.0)]),
                 list(third),
             ];
-            let out = match_segments(&rig, &lists, &params).unwrap();
+            let options = Options::with(params.clone());
+            let out = run(&rig, Input::lists(&lists), &options).unwrap().output;
             assert_eq!(out.segments_3d.len(), 1, "{:?}", out.stats);
             (out.segments_3d[0].uncertain, out.stats.ambiguous)
         };
@@ -1604,9 +1593,7 @@ mod tests {
 
     #[test]
     fn the_extractors_graph_joins_validations_adjacency_in_prepared_indices() {
-        let rig = RigSpec::non_collinear(1)
-            .build(&Pose::identity())
-            .expect("preset rig");
+        let rig = preset_rig();
         let rect = Rectification::new(&rig).unwrap();
         let p = |u: f64, v: f64| rect.to_rect(0, Point2::new(u, v)).unwrap();
         // Prepared view 1: the caller's segments 0, 2 and 3 (1 was too short, say).
@@ -1638,75 +1625,6 @@ mod tests {
         let (a, b, vertex) = adjacency[1];
         assert_eq!((a, b), (0, 1));
         assert!((vertex - p(200.0, 150.0)).norm() < 1e-9);
-    }
-
-    #[test]
-    fn copies_of_segments_are_dropped_and_repetitive_lists_stay_bounded() {
-        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
-        let params = MatchParams::default();
-        let once = match_segments(&rig, &lists, &params).unwrap();
-        // Every segment sent three times, exactly: the copies are dropped, the answer is the
-        // same.
-        let thrice = lists.clone().map(|mut l| {
-            let copies = l.segments.clone();
-            l.segments.extend(copies.iter().chain(&copies).copied());
-            l
-        });
-        let out = match_segments(&rig, &thrice, &params).unwrap();
-        assert_eq!(
-            out.stats.duplicates_dropped,
-            once.stats.segments_used.map(|n| 2 * n),
-            "the copies of every segment used (a short one is dropped before)"
-        );
-        assert_eq!(out.triplets, once.triplets);
-        // A thousand copies of one matched triplet's segments, each end jittered by up to 2 px:
-        // n³ candidate triplets, but each segment's hypotheses are bounded.
-        let [a, b, c] = once.triplets[0].segments;
-        let mut rng = crate::synth::rng::Rng::new(7);
-        let mut jitter = |s: Segment2| {
-            let mut d = || Vector2::new(rng.symmetric(2.0), rng.symmetric(2.0));
-            Segment2 {
-                start: s.start + d(),
-                end: s.end + d(),
-                ..s
-            }
-        };
-        let pile: [SegmentList; 3] = std::array::from_fn(|v| SegmentList {
-            segments: (0..1000)
-                .map(|_| jitter(lists[v].segments[[a, b, c][v] as usize]))
-                .collect(),
-            oriented: lists[v].oriented,
-            background_gradient: None,
-        });
-        let out = match_segments(&rig, &pile, &params).unwrap();
-        let used = out.stats.segments_used[0] as usize;
-        assert!(used > 300, "many jittered copies are distinct: {used}");
-        assert!(
-            out.stats.hypotheses as usize <= used * matching::predict::MAX_HYPOTHESES_PER_SEGMENT
-        );
-        // Far more segments than that, spread over the image: past the total, an error.
-        let mut rng = crate::synth::rng::Rng::new(11);
-        let crowd: [SegmentList; 3] = std::array::from_fn(|v| {
-            let cam = rig.camera(v);
-            let (w, h) = (f64::from(cam.width()), f64::from(cam.height()));
-            SegmentList {
-                segments: (0..20_000)
-                    .map(|_| {
-                        let p = Point2::new(rng.range(0.0, w), rng.range(0.0, h));
-                        let d = Vector2::new(rng.symmetric(80.0), rng.symmetric(80.0));
-                        Segment2::new(p, p + d)
-                    })
-                    .collect(),
-                oriented: false,
-                background_gradient: None,
-            }
-        });
-        assert_eq!(
-            match_segments(&rig, &crowd, &params).unwrap_err(),
-            MatchError::TooManyHypotheses {
-                limit: matching::predict::MAX_HYPOTHESES
-            }
-        );
     }
 
     #[test]
@@ -1764,130 +1682,5 @@ mod tests {
             }
         }
         assert!(checked > 4000, "{checked}");
-    }
-
-    /// The lists with every other segment faint (gradient 4) and the others strong (40).
-    fn every_other_faint(lists: &[SegmentList; 3]) -> [SegmentList; 3] {
-        lists.clone().map(|mut l| {
-            for (i, s) in l.segments.iter_mut().enumerate() {
-                s.gradient = Some(if i % 2 == 0 { 4.0 } else { 40.0 });
-            }
-            l
-        })
-    }
-
-    #[test]
-    fn faint_segments_are_left_out_when_asked_and_lists_without_gradients_never() {
-        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
-        let graded = every_other_faint(&lists);
-        let params = MatchParams {
-            min_gradient: 10.0,
-            ..MatchParams::default()
-        };
-        let out = match_segments(&rig, &graded, &params).unwrap();
-        let all = match_segments(&rig, &graded, &MatchParams::default()).unwrap();
-        for (v, list) in graded.iter().enumerate() {
-            // Every faint one that was otherwise usable (long enough, not a copy, in view).
-            let faint = list.segments.iter().step_by(2).count() as u32;
-            let unusable = all.stats.segments_in[v] - all.stats.segments_used[v];
-            let dropped = out.stats.low_contrast_dropped[v];
-            assert!(dropped <= faint && dropped + unusable >= faint, "view {v}");
-            assert_eq!(
-                out.stats.segments_used[v],
-                all.stats.segments_used[v] - dropped
-            );
-        }
-        assert!(!out.triplets.is_empty());
-        for t in &out.triplets {
-            assert!(t.segments.iter().all(|&s| s % 2 == 1), "{t:?}");
-        }
-        // No gradients given: nothing is known to be faint.
-        let out = match_segments(&rig, &lists, &params).unwrap();
-        assert_eq!(out.stats.low_contrast_dropped, [0, 0, 0]);
-        assert!(MatchParams {
-            min_gradient: -1.0,
-            ..MatchParams::default()
-        }
-        .check()
-        .is_err());
-    }
-
-    #[test]
-    fn segments_that_do_not_stand_out_from_their_images_background_are_left_out() {
-        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
-        // On images whose typical pixel has 2 grey levels per pixel, the faint ones (4) are
-        // under 2.5 times that.
-        let textured = every_other_faint(&lists).map(|mut l| {
-            l.background_gradient = Some(2.0);
-            l
-        });
-        let out = match_segments(&rig, &textured, &MatchParams::default()).unwrap();
-        let off = MatchParams {
-            min_gradient_to_background: 0.0,
-            ..MatchParams::default()
-        };
-        let all = match_segments(&rig, &textured, &off).unwrap();
-        assert_eq!(all.stats.low_contrast_dropped, [0, 0, 0]);
-        for v in 0..3 {
-            let dropped = out.stats.low_contrast_dropped[v];
-            assert!(dropped > 0, "view {v}");
-            assert_eq!(
-                out.stats.segments_used[v],
-                all.stats.segments_used[v] - dropped
-            );
-        }
-        assert!(!out.triplets.is_empty());
-        for t in &out.triplets {
-            assert!(t.segments.iter().all(|&s| s % 2 == 1), "{t:?}");
-        }
-        // The same lists from a clean image (background 0.4): nothing is faint.
-        let clean = textured.map(|mut l| {
-            l.background_gradient = Some(0.4);
-            l
-        });
-        let out = match_segments(&rig, &clean, &MatchParams::default()).unwrap();
-        assert_eq!(out.stats.low_contrast_dropped, [0, 0, 0]);
-        assert!(MatchParams {
-            min_gradient_to_background: f64::NAN,
-            ..MatchParams::default()
-        }
-        .check()
-        .is_err());
-    }
-
-    #[test]
-    fn a_checkpoint_stops_the_pipeline_before_each_stage_in_turn() {
-        use std::sync::atomic::{AtomicUsize, Ordering};
-        let (rig, lists) = crate::synth::scattered_capture(200, 0.3, 0.2, 3);
-        let full = match_segments(&rig, &lists, &MatchParams::default()).unwrap();
-        assert!(!full.triplets.is_empty());
-        let mut stages = Vec::new();
-        for allowed in 0.. {
-            let asked = AtomicUsize::new(0);
-            let stop = || asked.fetch_add(1, Ordering::Relaxed) >= allowed;
-            let checkpoint = Checkpoint::new(&stop);
-            let options = Options {
-                checkpoint,
-                ..Options::default()
-            };
-            match run(&rig, Input::lists(&lists), &options) {
-                Err(MatchError::Stopped { stage }) => stages.push(stage),
-                Ok(matched) => {
-                    // Let through every checkpoint, it gives what an unstoppable call gives.
-                    assert_eq!(matched.output.triplets, full.triplets);
-                    break;
-                }
-                Err(e) => panic!("{e}"),
-            }
-        }
-        // Long stages ask inside their loops too: one stop per question, stage by stage.
-        let asked = stages.len();
-        stages.dedup();
-        assert!(asked > stages.len(), "prediction asks per segment");
-        assert_eq!(
-            stages[..4],
-            ["rectify", "predict", "validate", "reconstruct"]
-        );
-        assert_eq!(stages.last(), Some(&"assemble"));
     }
 }

@@ -341,6 +341,8 @@ fn main() {
         options: Some(options.clone()),
         map_options: Some(pb::MapOptions {
             min_observations: Some(2),
+            // Unset, as before the field existed: the seed's bytes are unchanged.
+            refine_poses: None,
         }),
     };
     write(

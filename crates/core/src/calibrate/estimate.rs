@@ -543,8 +543,8 @@ fn refine(
 mod tests {
     use super::*;
     use crate::calibrate::{CalibrationPattern, GridBoard};
-    use crate::synth::rng::Rng;
     use proptest::prelude::*;
+    use trinocular_synth::Rng;
 
     const W: u32 = 512;
     const H: u32 = 512;

@@ -253,7 +253,7 @@ mod tests {
     #[test]
     fn background_is_the_noise_on_a_flat_image_and_the_texture_on_a_textured_one() {
         let (w, h) = (64, 48);
-        let mut rng = crate::synth::rng::Rng::new(7);
+        let mut rng = trinocular_synth::Rng::new(7);
         // Flat grey with σ = 2 sensor noise, smoothed like extraction does.
         let flat: Vec<f32> = (0..w * h)
             .map(|_| (128.0 + 2.0 * rng.normal() as f32).round())

@@ -188,7 +188,7 @@ proptest! {
 /// the first-order propagation the accuracy goal relies on, checked on its own.
 #[test]
 fn ml_covariance_is_calibrated_when_the_noise_is_as_stated() {
-    use crate::synth::Rng;
+    use trinocular_synth::Rng;
     let r = rig(
         [
             Vector3::zeros(),

@@ -310,7 +310,6 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::{Pose, RigSpec};
 
     fn seg(ax: f64, ay: f64, bx: f64, by: f64, index: u32) -> RectSegment {
         RectSegment::new(Point2::new(ax, ay), Point2::new(bx, by), f64::NAN, index)
@@ -327,10 +326,7 @@ mod tests {
     }
 
     fn rect() -> Rectification {
-        let rig = RigSpec::non_collinear(1)
-            .build(&Pose::identity())
-            .expect("preset rig");
-        Rectification::new(&rig).expect("rectifiable")
+        Rectification::new(&crate::testing::preset_rig()).expect("rectifiable")
     }
 
     #[test]

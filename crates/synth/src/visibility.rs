@@ -26,8 +26,8 @@ use nalgebra::{Point2, Point3, Vector3, Vector4};
 
 use super::bvh::SceneIndex;
 use super::scene::{slab, Scene, Tracer};
-use crate::geometry::{Camera, Rig};
-use crate::segment::Segment3;
+use trinocular_core::geometry::{Camera, Rig};
+use trinocular_core::segment::Segment3;
 
 /// A closed interval of an edge parameter.
 pub type Interval = (f64, f64);
@@ -337,7 +337,7 @@ pub(crate) struct FlatCamera {
     cx: f64,
     cy: f64,
     centre: Point3<f64>,
-    distortion: Option<crate::geometry::Distortion>,
+    distortion: Option<trinocular_core::geometry::Distortion>,
     width: f64,
     height: f64,
 }
@@ -547,8 +547,8 @@ pub fn rig_visibility(scene: &Scene, rig: &Rig, edges: &[Segment3]) -> Vec<EdgeV
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::rig::{Pose, RigSpec};
-    use crate::synth::scene::Box3;
+    use crate::rig::{Pose, RigSpec};
+    use crate::scene::Box3;
 
     /// Camera 1 of a collinear rig: at the origin, looking along +y, pitched down ~5°.
     fn camera() -> Camera {

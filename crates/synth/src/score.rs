@@ -20,7 +20,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::defects::Observation;
 use super::visibility::{intersect_intervals, total_length, union_intervals, Interval};
-use crate::segment::Segment3;
+use trinocular_core::segment::Segment3;
 
 pub const TOL_ABS_M: f64 = 0.02;
 pub const TOL_REL: f64 = 0.01;
@@ -386,7 +386,7 @@ fn indistinguishable(a: &Segment3, b: &Segment3) -> bool {
 /// segments: `Some(edge)` when every segment of every triplet behind it is an image of that
 /// edge (or of one indistinguishable from it), `None` for a wrong match.
 pub fn match_labels(
-    output: &crate::pipeline::MatchOutput,
+    output: &trinocular_core::pipeline::MatchOutput,
     obs: &super::Observation,
 ) -> Vec<Option<usize>> {
     let truth = &obs.ground_truth;
@@ -421,7 +421,7 @@ pub fn match_labels(
 /// extracted segment has both endpoints within `tolerance_px` of theirs, in the same order
 /// (so the same contrast orientation). Returns `(found, total)`.
 pub fn edge_recall(
-    extracted: &crate::segment::SegmentList,
+    extracted: &trinocular_core::segment::SegmentList,
     obs: &Observation,
     camera: usize,
     min_length_px: f64,

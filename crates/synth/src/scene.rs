@@ -15,7 +15,7 @@
 use nalgebra::{Point3, Vector3};
 
 use super::rng::Rng;
-use crate::segment::Segment3;
+use trinocular_core::segment::Segment3;
 
 /// Rays hit nothing closer than this along their direction (in units of the direction's
 /// length), so a ray leaving a surface does not hit that surface again.

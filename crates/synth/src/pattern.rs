@@ -13,9 +13,9 @@ use nalgebra::{Point3, Rotation3, Vector3};
 use super::rig::{Pose, RigSpec};
 use super::rng::Rng;
 use super::scene::{Box3, Scene};
-use crate::calibrate::detect::printed_side;
-use crate::calibrate::{CalibrationPattern, GridBoard};
-use crate::geometry::Rig;
+use trinocular_core::calibrate::detect::printed_side;
+use trinocular_core::calibrate::{CalibrationPattern, GridBoard};
+use trinocular_core::geometry::Rig;
 
 /// Albedos: white paper, black toner, grey surroundings.
 const BOARD_ALBEDO: f64 = 0.6;

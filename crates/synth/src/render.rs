@@ -29,8 +29,8 @@ use rayon::prelude::*;
 
 use super::rng::Rng;
 use super::scene::{Ray, Scene, BACKGROUND};
-use crate::extract::GreyImage;
-use crate::geometry::{Camera, Distortion, Rig};
+use trinocular_core::extract::GreyImage;
+use trinocular_core::geometry::{Camera, Distortion, Rig};
 
 /// Grey level a sensor saturates at (and the top of the [`GreyImage`] scale).
 const WHITE: f64 = 255.0;
@@ -442,11 +442,11 @@ fn blur_column_into(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::Distortion;
-    use crate::synth::rig::{Pose, RigSpec};
-    use crate::synth::scene::{Box3, Tracer, AMBIENT};
-    use crate::synth::STANDARD_RIG_POSITION;
+    use crate::rig::{Pose, RigSpec};
+    use crate::scene::{Box3, Tracer, AMBIENT};
+    use crate::STANDARD_RIG_POSITION;
     use nalgebra::{Matrix3, Point2, Point3, Vector3};
+    use trinocular_core::geometry::Distortion;
 
     /// Depth of the wall in [`two_tone_wall`], metres.
     const WALL_Y: f64 = 4.0;

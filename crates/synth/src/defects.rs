@@ -29,8 +29,8 @@ use super::bvh::SceneIndex;
 use super::rng::Rng;
 use super::scene::{Scene, Tracer};
 use super::visibility::{rig_visibility, EdgeVisibility, FlatCamera, Interval, MIN_CONTRAST};
-use crate::geometry::{Camera, Rig};
-use crate::segment::{LineNoise, Segment2, Segment3, SegmentList};
+use trinocular_core::geometry::{Camera, Rig};
+use trinocular_core::segment::{LineNoise, Segment2, Segment3, SegmentList};
 
 /// Spacing of contrast probes along a visible piece, pixels.
 pub const RUN_SAMPLE_PX: f64 = 4.0;
@@ -541,9 +541,9 @@ pub fn observe(scene: &Scene, rig: &Rig, defects: &Defects, seed: u64) -> Observ
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::rig::{Pose, RigSpec};
-    use crate::synth::scene::Box3;
-    use crate::synth::visibility::pixel_radiance;
+    use crate::rig::{Pose, RigSpec};
+    use crate::scene::Box3;
+    use crate::visibility::pixel_radiance;
 
     /// A dark block and a lighter block in front of a bright wall, seen from 2–4 m.
     fn small_scene() -> Scene {

@@ -13,8 +13,8 @@ use nalgebra::{Point3, Vector3};
 
 use super::rig::{Pose, RigSpec};
 use super::rng::Rng;
-use crate::geometry::Rig;
-use crate::segment::{Segment2, SegmentList};
+use trinocular_core::geometry::Rig;
+use trinocular_core::segment::{Segment2, SegmentList};
 
 /// A rig (non-collinear preset) and three oriented segment lists with about `n` segments
 /// each: `n / (1 + clutter_fraction)` projected scene segments plus clutter.

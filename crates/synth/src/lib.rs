@@ -1,4 +1,13 @@
-//! Synthetic scenes with exact ground truth, for tests, benches and the demo.
+//! Synthetic scenes with exact ground truth, and a scorer: Trinocular's test bench, for the
+//! tests, benches, examples, fuzz seeds and the demo.
+//!
+//! A crate of its own, unpublished, over `trinocular-core`'s public API: the library a robot
+//! embeds never compiles it, and whatever the scenes need from the core is the same API a
+//! user has. The core's own unit tests take from here only what crosses as plain data, [`Rng`]
+//! and the numbers of a preset rig (a dev-dependency, which links a second copy of the core:
+//! its types are not theirs); its tests that need a scene are integration tests of the core
+//! (`crates/core/tests/synthetic/`), which link the same core as this crate
+//! (docs/ARCHITECTURE.md).
 //!
 //! The pieces, in the order data flows:
 //!
@@ -18,6 +27,8 @@
 //!   to look at or to feed the extractor.
 //! - [`score`]: the metrics of `shared/eval/score.py`, in Rust.
 //! - [`bvh`]: a bounding-volume hierarchy that makes the many contrast probes cheap.
+//! - [`pattern`]: the calibration pattern as a renderable scene, and rigs looking at it.
+//! - [`scatter`]: scenes of any size for benchmarks, scattered segments projected exactly.
 //! - [`rng`]: the seeded generator that makes all of it reproducible.
 //!
 //! Everything is a pure function of its arguments and a `u64` seed. Frames follow DESIGN §1.
@@ -52,8 +63,8 @@ pub use visibility::{
 
 use nalgebra::Point3;
 
-use crate::geometry::Rig;
-use crate::segment::Segment3;
+use trinocular_core::geometry::Rig;
+use trinocular_core::segment::Segment3;
 
 /// Where [`standard_capture`] puts the rig origin (camera 1) in the room: 1.2 m high, a
 /// little left of the room's centre line so the rig centre is on it, 2.65 m from the north
@@ -159,7 +170,7 @@ pub fn score_capture(segments: &[Segment3], observation: &Observation, rig: &Rig
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::segment::Segment3;
+    use trinocular_core::segment::Segment3;
 
     #[test]
     fn standard_capture_is_rich_and_scores_perfectly_against_itself() {

@@ -18,7 +18,7 @@ use nalgebra::{Matrix3, Matrix4, Point3, Rotation3, Vector3};
 use thiserror::Error;
 
 use super::rng::Rng;
-use crate::geometry::{Camera, CameraError, Distortion, Rig, RigError};
+use trinocular_core::geometry::{Camera, CameraError, Distortion, Rig, RigError};
 
 /// Why a spec does not make a rig.
 #[derive(Debug, Clone, PartialEq, Error)]

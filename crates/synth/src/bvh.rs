@@ -183,7 +183,7 @@ impl Tracer for SceneIndex<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::rng::Rng;
+    use crate::rng::Rng;
 
     #[test]
     fn same_hits_as_brute_force() {

@@ -107,6 +107,7 @@ fn bench_fuse(c: &mut Criterion) {
                 id: i as u32,
                 rig_to_world: *p,
                 segments: s,
+                ..Capture::default()
             })
             .collect();
         let total: usize = segments.iter().map(Vec::len).sum();

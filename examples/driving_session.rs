@@ -45,6 +45,10 @@ struct Args {
     /// orange).
     #[arg(long)]
     out: Option<std::path::PathBuf>,
+    /// Print, per capture, how it registered, each edge's error and each solved pose's error
+    /// against the truth.
+    #[arg(long)]
+    verbose: bool,
 }
 
 /// The loop: an ellipse about the room's middle, clear of the furniture along the walls.
@@ -88,7 +92,7 @@ fn main() -> anyhow::Result<()> {
         );
         for (k, &(yaw_deg, xy_m)) in levels.iter().enumerate() {
             let priors = odometry(&seen, yaw_deg, xy_m, seed * 1000 + k as u64);
-            let (poses, fused) = build_map(&seen, &priors);
+            let (poses, fused) = build_map(&seen, &priors, args.verbose);
             let segments: Vec<Segment3> = fused.iter().map(|m| m.segment()).collect();
             let s = score(&segments, &truth_edges, &eligible, mean_centre);
             let covered_edges = s
@@ -264,25 +268,74 @@ fn odometry(seen: &[Seen], yaw_deg: f64, xy_m: f64, seed: u64) -> Vec<PosePrior>
 }
 
 /// The session as the service builds it: placed in order, poses solved, map fused and gated.
-fn build_map(seen: &[Seen], priors: &[PosePrior]) -> (Vec<Isometry3<f64>>, Vec<map::MapSegment>) {
+fn build_map(
+    seen: &[Seen],
+    priors: &[PosePrior],
+    verbose: bool,
+) -> (Vec<Isometry3<f64>>, Vec<map::MapSegment>) {
     let params = SessionParams::default();
     let mut placed: Vec<Placed> = Vec::new();
     let mut edges = Vec::new();
     for (s, prior) in seen.iter().zip(priors) {
-        let added = map::session::add_capture(&placed, prior, &s.measured, &params);
+        let added = map::session::add_capture(&placed, &edges, prior, &s.measured, &params);
         let r = added.registration;
+        if verbose {
+            let off = |p: &Isometry3<f64>| {
+                (
+                    (p.rotation * s.truth.rotation.inverse())
+                        .angle()
+                        .to_degrees(),
+                    (p.translation.vector - s.truth.translation.vector).norm() * 1e3,
+                )
+            };
+            let (r_deg, r_mm) = off(&r.rig_to_world);
+            let (p_deg, p_mm) = off(&prior.rig_to_world);
+            eprintln!(
+                "  capture {:02}: {:?}, {} inliers, {} edges, error {r_deg:.3} deg {r_mm:.1} mm \
+                 (given {p_deg:.3} deg {p_mm:.1} mm)",
+                placed.len(),
+                r.status,
+                r.inliers,
+                added.edges.len(),
+            );
+            for e in &added.edges {
+                let t = seen[e.to].truth.inverse() * s.truth;
+                let rotation = (e.pose.rotation * t.rotation.inverse())
+                    .angle()
+                    .to_degrees();
+                let shift = (e.pose.translation.vector - t.translation.vector).norm();
+                let d = e.pose.rotation * t.rotation.inverse();
+                let v = d.scaled_axis();
+                let w = e.pose.translation.vector - t.translation.vector;
+                let err = nalgebra::Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z);
+                eprintln!(
+                    "    edge to {:02}: {} inliers, error {rotation:.3} deg {:.1} mm, chi2 {:.1}",
+                    e.to,
+                    e.inliers,
+                    shift * 1e3,
+                    err.dot(&(e.information * err))
+                );
+            }
+        }
         placed.push(Placed {
             prior: *prior,
-            pose: PosePrior {
-                rig_to_world: r.rig_to_world,
-                covariance: r.covariance,
-            },
-            status: r.status,
             segments: &s.measured,
         });
         edges.extend(added.edges);
     }
     let solved = map::session::solve_poses(&placed, &edges);
+    if verbose {
+        for (i, (p, s)) in solved.iter().zip(seen).enumerate() {
+            eprintln!(
+                "  solved {i:02}: error {:.3} deg {:.1} mm, sigma yaw {:.3} deg",
+                (p.rig_to_world.rotation * s.truth.rotation.inverse())
+                    .angle()
+                    .to_degrees(),
+                (p.rig_to_world.translation.vector - s.truth.translation.vector).norm() * 1e3,
+                p.covariance[(2, 2)].max(0.0).sqrt().to_degrees()
+            );
+        }
+    }
     let captures: Vec<Capture> = seen
         .iter()
         .zip(&solved)

@@ -425,11 +425,12 @@ fn place_in_order(
 ) -> Vec<PosePrior> {
     let params = SessionParams::default();
     let mut placed: Vec<Placed> = Vec::new();
+    let mut registered = Vec::new();
     let mut edges = Vec::new();
     for (i, segments) in measured.iter().enumerate() {
         let prior = prior_of(priors[i], yaw_sigma_deg, xy_sigma_m);
         let t0 = std::time::Instant::now();
-        let added = map::session::add_capture(&placed, &prior, segments, &params);
+        let added = map::session::add_capture(&placed, &edges, &prior, segments, &params);
         let got = added.registration;
         eprintln!(
             "capture {i:02}: {:?}, {} inliers, moved {:.2} deg {:.1} mm, {} edges, {:.1} ms",
@@ -440,15 +441,11 @@ fn place_in_order(
             added.edges.len(),
             t0.elapsed().as_secs_f64() * 1e3
         );
-        placed.push(Placed {
-            prior,
-            pose: PosePrior {
-                rig_to_world: got.rig_to_world,
-                covariance: got.covariance,
-            },
-            status: got.status,
-            segments,
+        registered.push(PosePrior {
+            rig_to_world: got.rig_to_world,
+            covariance: got.covariance,
         });
+        placed.push(Placed { prior, segments });
         edges.extend(added.edges);
     }
     for r in &edges {
@@ -491,7 +488,7 @@ fn place_in_order(
         }
         solved
     } else {
-        placed.iter().map(|p| p.pose).collect()
+        registered
     }
 }
 

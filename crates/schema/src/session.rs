@@ -256,7 +256,6 @@ pub fn status_to_pb(status: RegistrationStatus) -> pb::RegistrationStatus {
         RegistrationStatus::EmptyMap => pb::RegistrationStatus::EmptyMap,
         RegistrationStatus::TooFewInCommon => pb::RegistrationStatus::TooFewInCommon,
         RegistrationStatus::DisagreesWithPrior => pb::RegistrationStatus::DisagreesWithPrior,
-        RegistrationStatus::Ambiguous => pb::RegistrationStatus::Ambiguous,
     }
 }
 

@@ -190,10 +190,6 @@ pub enum RegistrationStatus {
     /// (beyond [`PRIOR_GATE`]): a repetitive scene matched one shift over, say. The prior
     /// is kept.
     DisagreesWithPrior,
-    /// Refinement slid from the best hypothesis to a pose that hypothesis rules out: along a
-    /// repetitive scene (shelves, fins) several poses fit about as well, and none is
-    /// believed. The prior is kept.
-    Ambiguous,
 }
 
 /// The outcome of [`register`].
@@ -329,18 +325,6 @@ pub fn register(
     if !finite {
         // A prior or covariances beyond floating point: nothing learnt, the prior kept.
         return Registration {
-            inliers: inliers.len() as u32,
-            ..too_few
-        };
-    }
-    // Refinement re-associates as it goes, and along a repetitive structure each round can
-    // take the next shelf or fin: a pose it slid to, beyond what the hypothesis it started
-    // from allows, is one of several the scene fits (measured: a 20 cm slide on a sparse
-    // panorama, with 15 inliers).
-    let slid = xi - best.xi;
-    if slid.dot(&(best.information * slid)) > PRIOR_GATE {
-        return Registration {
-            status: RegistrationStatus::Ambiguous,
             inliers: inliers.len() as u32,
             ..too_few
         };
@@ -628,6 +612,25 @@ impl Problem<'_> {
                     .count() as f64
     }
 
+    /// A hypothesis from a start (a perturbation of the prior): what it associates as
+    /// tightly as hypotheses are scored, solved with the prior; `None` beyond the prior gate.
+    fn from_start(
+        &self,
+        start: &Vector6<f64>,
+        candidates: &[Vec<(usize, f64)>],
+    ) -> Option<(f64, Vector6<f64>, Matrix6<f64>)> {
+        let pairs = self.associate(&self.pose(start), &slack(), candidates);
+        let (xi, information) = self.solve(*start, &pairs);
+        let distance = xi.dot(&(self.prior_information * xi));
+        (distance <= PRIOR_GATE).then(|| {
+            (
+                self.cost(&self.pose(&xi), candidates) + distance,
+                xi,
+                information,
+            )
+        })
+    }
+
     /// The best pose of two non-parallel pairings among the longest segments, or of the
     /// prior.
     fn best_hypothesis(&self, candidates: &[Vec<(usize, f64)>]) -> Hypotheses {
@@ -651,23 +654,12 @@ impl Problem<'_> {
         // goes on to refinement as sure of itself as they do: refined from the prior's own
         // spread, a repetitive scene's pairs one step over would be associated too and pull
         // it there.
-        let at_prior = self.associate(&self.prior.rig_to_world, &slack(), candidates);
-        let (xi, information) = self.solve(Vector6::zeros(), &at_prior);
-        let distance = xi.dot(&(self.prior_information * xi));
-        let first = if distance <= PRIOR_GATE {
-            (
-                self.cost(&self.pose(&xi), candidates) + distance,
-                xi,
-                information,
-            )
-        } else {
-            (
-                self.cost(&self.prior.rig_to_world, candidates),
-                Vector6::zeros(),
-                self.prior_information,
-            )
-        };
-        let mut best = first;
+        let first = self.from_start(&Vector6::zeros(), candidates).unwrap_or((
+            self.cost(&self.prior.rig_to_world, candidates),
+            Vector6::zeros(),
+            self.prior_information,
+        ));
+        let mut tried = vec![first];
         for (n, &k1) in seeds.iter().enumerate() {
             for &k2 in &seeds[n + 1..] {
                 if direction(k1).dot(&direction(k2)).abs() > cos_min {
@@ -700,17 +692,16 @@ impl Problem<'_> {
                             continue;
                         }
                         let cost = self.cost(&self.pose(&xi), candidates) + distance;
-                        if cost < best.0 {
-                            best = (cost, xi, information);
-                        }
+                        tried.push((cost, xi, information));
                     }
                 }
             }
         }
-        Hypotheses {
-            xi: best.1,
-            information: best.2,
-        }
+        let (_, xi, information) = tried
+            .into_iter()
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .expect("the prior's own hypothesis is always there");
+        Hypotheses { xi, information }
     }
 
     /// Associates and solves from `xi`, whose `information` says how well it is known, until

@@ -2,10 +2,10 @@
 //! what it says about the captures before it.
 //!
 //! [`add_capture`] does two things with a new capture's 3D segments:
-//! 1. **Registers it to the map** ([`register`]): the captures placed so far (the first,
-//!    which anchors the map, and those registered since, each as uncertain as its pose),
-//!    nearest first. That is the pose AddCapture answers, and the centre the pairs below
-//!    start from.
+//! 1. **Registers it to the map** ([`register`]): the captures the graph of the session so
+//!    far places well (the first, which anchors the map, and those tied to it by edges, each
+//!    as uncertain as its pose), nearest first. That is the pose AddCapture answers, and the
+//!    centre the pairs below start from.
 //! 2. **Registers it to each earlier capture it overlaps** ([`register_pair`]), from the two
 //!    placed poses but with their *odometry's* spread: each pair that registers is one edge
 //!    of the session's pose graph, a relative pose with the information of the two captures'
@@ -22,17 +22,12 @@ use nalgebra::Matrix6;
 
 use super::poses::{register_pair, RelativePose};
 use super::register::{register, Measured, PosePrior, RegisterParams, Registration};
-use super::RegistrationStatus;
 
 /// A capture already in the session.
 #[derive(Debug, Clone, Copy)]
 pub struct Placed<'a> {
     /// Where the robot said the rig was, with its odometry's covariance.
     pub prior: PosePrior,
-    /// Where registration placed it when it arrived (the prior's pose when it did not
-    /// register), with that estimate's covariance.
-    pub pose: PosePrior,
-    pub status: RegistrationStatus,
     /// Its 3D segments, rig frame, each with its covariance.
     pub segments: &'a [Measured],
 }
@@ -71,51 +66,50 @@ impl Default for SessionParams {
 }
 
 /// Places a new capture (`segments`, rig frame; `prior`, the robot's pose and its
-/// covariance) in a session whose earlier captures are `placed`, in capture order: see the
-/// module documentation.
+/// covariance) in a session whose earlier captures are `placed`, in capture order, with the
+/// pose-graph `edges` they found: see the module documentation.
+///
+/// The earlier captures stand where the graph puts them now ([`solve_poses`]), not where
+/// registration left each when it arrived: a capture that found nothing in common when it
+/// came may since have been tied to its neighbours, and it then takes part in the map.
 pub fn add_capture(
     placed: &[Placed],
+    edges: &[RelativePose],
     prior: &PosePrior,
     segments: &[Measured],
     params: &SessionParams,
 ) -> Added {
+    let current = solve_poses(placed, edges);
     let here = prior.rig_to_world.translation.vector;
-    let mut near: Vec<(f64, usize)> = placed
+    let mut near: Vec<(f64, usize)> = current
         .iter()
         .enumerate()
-        .map(|(i, p)| ((p.pose.rig_to_world.translation.vector - here).norm(), i))
+        .map(|(i, p)| ((p.rig_to_world.translation.vector - here).norm(), i))
         .filter(|(d, _)| *d <= params.reach_m)
         .collect();
     near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
 
-    // The map: the anchor and the captures registered since. A capture left at its prior
-    // is left out: its pose error is shared by all its segments, and many segments each
-    // given that error's spread as if independent would let wrong pairs in by the dozen.
+    // The map: the captures the graph places well, each segment as uncertain as its
+    // capture's pose. A capture known only by its odometry is left out: its pose error is
+    // shared by all its segments, and many segments each given that error's spread as if
+    // independent would let wrong pairs in by the dozen.
     let references: Vec<Measured> = near
         .iter()
-        .filter_map(|&(_, i)| {
-            let p = &placed[i];
-            let covariance = match p.status {
-                RegistrationStatus::EmptyMap => Matrix6::zeros(),
-                RegistrationStatus::Registered => p.pose.covariance,
-                RegistrationStatus::TooFewInCommon
-                | RegistrationStatus::DisagreesWithPrior
-                | RegistrationStatus::Ambiguous => return None,
-            };
-            Some((p, covariance))
-        })
+        .map(|&(_, i)| (i, &current[i]))
+        .filter(|(_, pose)| well_placed(pose))
         .take(params.map_captures)
-        .flat_map(|(p, covariance)| {
-            p.segments
+        .flat_map(|(i, pose)| {
+            placed[i]
+                .segments
                 .iter()
-                .map(move |m| m.transformed_with(&p.pose.rig_to_world, &covariance))
+                .map(move |m| m.transformed_with(&pose.rig_to_world, &pose.covariance))
         })
         .collect();
     let registration = register(&references, segments, prior, &params.register);
 
     // The pairs start from where registration put the new capture, with the spread its
-    // odometry gives it, against each earlier capture where it was placed, with the spread
-    // of that capture's own odometry.
+    // odometry gives it, against each earlier capture where the graph puts it, with the
+    // spread of that capture's own odometry.
     let from = PosePrior {
         rig_to_world: registration.rig_to_world,
         covariance: prior.covariance,
@@ -125,13 +119,12 @@ pub fn add_capture(
         .iter()
         .take(params.pair_captures)
         .filter_map(|&(_, to)| {
-            let p = &placed[to];
             let at = PosePrior {
-                rig_to_world: p.pose.rig_to_world,
-                covariance: p.prior.covariance,
+                rig_to_world: current[to].rig_to_world,
+                covariance: placed[to].prior.covariance,
             };
             let (pose, information, inliers) =
-                register_pair(segments, p.segments, &from, &at, &params.register)?;
+                register_pair(segments, placed[to].segments, &from, &at, &params.register)?;
             Some(RelativePose {
                 from: index,
                 to,
@@ -145,6 +138,18 @@ pub fn add_capture(
         registration,
         edges,
     }
+}
+
+/// Largest spread of a capture's pose for its segments to be part of the map a new capture
+/// is registered to: 0.5° of rotation and 3 cm of translation (1σ, the largest axis). Beyond
+/// it the capture is known by little more than its odometry.
+const WELL_PLACED_RAD: f64 = 0.0087;
+const WELL_PLACED_M: f64 = 0.03;
+
+fn well_placed(pose: &PosePrior) -> bool {
+    let c = &pose.covariance;
+    let largest = |k: usize| (k..k + 3).map(|i| c[(i, i)]).fold(0.0, f64::max).sqrt();
+    largest(0) <= WELL_PLACED_RAD && largest(3) <= WELL_PLACED_M
 }
 
 /// The priors the pose graph starts from: each capture's odometry, but the first capture's

@@ -18,7 +18,7 @@ use super::{Service, ServiceError};
 use nalgebra::Matrix6;
 use trinocular_core::map::poses::RelativePose;
 use trinocular_core::map::session::{Added, Placed, SessionParams};
-use trinocular_core::map::{self, FuseParams, MapGate, PosePrior, RegistrationStatus};
+use trinocular_core::map::{self, FuseParams, MapGate, PosePrior};
 use trinocular_core::segment::Segment3;
 use trinocular_schema::session::{
     capture_match_request, certain_only, edges_of, edges_to_pb, matrix6_to_vec, pose_from_pb,
@@ -495,20 +495,6 @@ fn placed(stored: &[(StoredSegments, Vec<RelativePose>)]) -> Vec<Placed<'_>> {
         .iter()
         .map(|(s, _)| Placed {
             prior: s.prior,
-            pose: s.pose,
-            status: match s.status {
-                pb::RegistrationStatus::Registered => RegistrationStatus::Registered,
-                pb::RegistrationStatus::EmptyMap => RegistrationStatus::EmptyMap,
-                pb::RegistrationStatus::DisagreesWithPrior => {
-                    RegistrationStatus::DisagreesWithPrior
-                }
-                pb::RegistrationStatus::Ambiguous => RegistrationStatus::Ambiguous,
-                // Stored before registration, or found too little in common: placed at the
-                // pose it was given.
-                pb::RegistrationStatus::TooFewInCommon | pb::RegistrationStatus::Unspecified => {
-                    RegistrationStatus::TooFewInCommon
-                }
-            },
             segments: &s.measured,
         })
         .collect()
@@ -523,9 +509,11 @@ fn place_capture(
     prior: &PosePrior,
 ) -> Result<Added, ServiceError> {
     let stored = decode_captures(captures)?;
+    let edges: Vec<RelativePose> = stored.iter().flat_map(|(_, e)| e.clone()).collect();
     let capture = StoredSegments::measured_of(segments);
     Ok(map::session::add_capture(
         &placed(&stored),
+        &edges,
         prior,
         &capture,
         &SessionParams::default(),

@@ -105,7 +105,9 @@ fn a_match_response_is_the_golden_one() {
 
 #[test]
 fn a_fused_session_map_is_the_golden_one() {
-    let (calibration, captures) = panorama(6);
+    // Twelve captures 30 degrees apart, poses as given: each registers to its neighbours, the
+    // pose graph closes the loop, the map is fused by covariance and gated.
+    let (calibration, captures) = panorama(12);
     let map = runtime().block_on(async {
         let running = start().await;
         let mut client = connect(running.grpc_addr).await;

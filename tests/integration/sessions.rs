@@ -265,8 +265,46 @@ fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
     });
 }
 
+/// A session that fuses with the poses as given (`refine_poses: false`): its map is a
+/// function of the set of captures.
+fn as_given(calibration: &pb::Calibration) -> pb::CreateSessionRequest {
+    pb::CreateSessionRequest {
+        map_options: Some(pb::MapOptions {
+            refine_poses: Some(false),
+            ..Default::default()
+        }),
+        ..create_request(calibration)
+    }
+}
+
+/// The map of a new session created by `request`, given `captures` one after the other.
+async fn map_of_session(
+    client: &mut Client,
+    request: pb::CreateSessionRequest,
+    captures: &[pb::AddCaptureRequest],
+) -> pb::Map {
+    let session = client.create_session(request).await.unwrap().into_inner();
+    for capture in captures {
+        let capture = pb::AddCaptureRequest {
+            session_id: session.id.clone(),
+            ..capture.clone()
+        };
+        client.add_capture(capture).await.unwrap();
+    }
+    client
+        .get_map(pb::GetMapRequest {
+            session_id: session.id,
+            min_observations: None,
+        })
+        .await
+        .unwrap()
+        .into_inner()
+}
+
 #[test]
-fn the_map_does_not_depend_on_the_order_of_the_captures() {
+fn with_the_poses_as_given_the_map_does_not_depend_on_the_order_of_the_captures() {
+    // Fusion itself is order-free. (Refined poses come from the edges each capture found
+    // when it arrived, which depend on what was there: docs/SESSIONS.md.)
     let (calibration, captures) = panorama(12);
     runtime().block_on(async {
         let running = start().await;
@@ -277,7 +315,7 @@ fn the_map_does_not_depend_on_the_order_of_the_captures() {
             vec![7, 3, 11, 0, 5, 9, 1, 10, 2, 8, 4, 6],
         ] {
             let in_order: Vec<_> = order.iter().map(|&i| captures[i].clone()).collect();
-            maps.push(map_of(&mut grpc, &calibration, &in_order).await);
+            maps.push(map_of_session(&mut grpc, as_given(&calibration), &in_order).await);
         }
         same_geometry(&maps[0], &maps[1]);
         running.shutdown().await;
@@ -348,6 +386,15 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
                 status.message().starts_with(&format!("{field}: ")),
                 "{field}: {status:?}"
             );
+            if bad.rig_to_world.is_none() {
+                // A capture without a pose says what is missing and why it is needed.
+                assert!(
+                    status
+                        .message()
+                        .contains("registered to the map from that pose"),
+                    "{status:?}"
+                );
+            }
             let reply = http
                 .post(format!(
                     "http://{}/v1/sessions/{}/captures",
@@ -708,6 +755,8 @@ fn two_replicas_on_one_redis_build_the_same_map_as_one_server() {
             "no capture lost or doubled"
         );
 
+        // Both replicas read the same captures and the same pose-graph edges: the same map,
+        // whichever is asked.
         let mut grpc_b = connect(b.grpc_addr).await;
         let request = pb::GetMapRequest {
             session_id: session.id.clone(),
@@ -716,19 +765,39 @@ fn two_replicas_on_one_redis_build_the_same_map_as_one_server() {
         let map_a = grpc_a.get_map(request.clone()).await.unwrap().into_inner();
         let map_b = grpc_b.get_map(request).await.unwrap().into_inner();
         same_geometry(&map_a, &map_b);
+        assert_eq!(map_a.poses, map_b.poses);
 
-        // One server, the same captures twice in order: the same map.
+        // With the poses as given the map is a function of the set of captures: one server,
+        // the same captures twice in order, gives the same map as the two replicas racing.
+        let given = grpc_a
+            .create_session(as_given(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+        let (to_a, to_b) = tokio::join!(
+            stream_captures(a.grpc_addr, &given.id, &captures, 6, Acked::default()),
+            stream_captures(b.grpc_addr, &given.id, &captures, 6, Acked::default()),
+        );
+        assert_eq!(to_a.len() + to_b.len(), 24);
+        let map_given = grpc_b
+            .get_map(pb::GetMapRequest {
+                session_id: given.id.clone(),
+                min_observations: None,
+            })
+            .await
+            .unwrap()
+            .into_inner();
         let running = start().await;
         let mut one = connect(running.grpc_addr).await;
         let twice: Vec<_> = captures.iter().chain(&captures).cloned().collect();
-        let map_one = map_of(&mut one, &calibration, &twice).await;
-        same_geometry(&map_a, &map_one);
-        grpc_a
-            .delete_session(pb::DeleteSessionRequest {
-                session_id: session.id,
-            })
-            .await
-            .unwrap();
+        let map_one = map_of_session(&mut one, as_given(&calibration), &twice).await;
+        same_geometry(&map_given, &map_one);
+        for session_id in [session.id, given.id] {
+            grpc_a
+                .delete_session(pb::DeleteSessionRequest { session_id })
+                .await
+                .unwrap();
+        }
         running.shutdown().await;
     });
 }
@@ -903,7 +972,8 @@ fn captures_are_registered_to_the_map_and_the_map_uses_the_refined_poses() {
     // AddCapture registers each to the captures before it and must never move a pose away
     // from the truth; GetMap with `refine_poses` solves them all and must bring the median
     // error below the given poses'. (The issue's goal, a median of 0.2 degrees and 1 cm, is
-    // not met on this sparse panorama: 0.13 degrees but 3 cm; docs/SESSIONS.md.)
+    // met on the shared rooms but not on this sparse panorama — 8 to 50 segments a capture,
+    // its middle captures sharing too little: 0.24 degrees and 1.7 cm; docs/SESSIONS.md.)
     // 30 degrees apart, as the shared rooms' sessions.
     let (calibration, captures) = panorama(12);
     let offsets = [
@@ -930,12 +1000,7 @@ fn captures_are_registered_to_the_map_and_the_map_uses_the_refined_poses() {
             }),
             ..create_request(&calibration)
         };
-        let session = grpc
-            .create_session(refined.clone())
-            .await
-            .unwrap()
-            .into_inner();
-        let mut requests = Vec::new();
+        let session = grpc.create_session(refined).await.unwrap().into_inner();
         let mut truths = Vec::new();
         let mut given = Vec::new();
         let (mut before, mut after) = (Vec::new(), Vec::new());
@@ -988,7 +1053,6 @@ fn captures_are_registered_to_the_map_and_the_map_uses_the_refined_poses() {
             }
             truths.push(truth);
             given.push(request.rig_to_world.clone().unwrap());
-            requests.push(request);
         }
         let medians = |v: &[(f64, f64)]| {
             (
@@ -1012,6 +1076,23 @@ fn captures_are_registered_to_the_map_and_the_map_uses_the_refined_poses() {
             .await
             .unwrap()
             .into_inner();
+        // Every map segment carries its fused covariance and keeps the default gate's promise:
+        // its direction within 5 degrees at 95%, so even along its worse axis σ is under
+        // 5 / 1.96 degrees, and its position within max(2 cm, 1% of range) — at most 4 cm in
+        // this room, σ under 4 / 1.96 cm.
+        assert!(!map.segments.is_empty());
+        for s in &map.segments {
+            assert_eq!(s.covariance.len(), 36);
+            assert!(!s.uncertain);
+            assert!(
+                s.position_sigma_m > 0.0 && s.position_sigma_m < 0.04 / 1.96,
+                "{s:?}"
+            );
+            assert!(
+                s.direction_sigma_deg > 0.0 && s.direction_sigma_deg < 5.0 / 1.96,
+                "{s:?}"
+            );
+        }
         assert_eq!(map.prior_poses.len(), given.len());
         for (a, b) in map.prior_poses.iter().zip(&given) {
             let apart = a.matrix.iter().zip(&b.matrix).map(|(x, y)| (x - y).abs());
@@ -1032,24 +1113,6 @@ fn captures_are_registered_to_the_map_and_the_map_uses_the_refined_poses() {
             "map poses: median {map_deg:.3} deg {map_m:.4} m off, given {given_deg:.3} deg \
              {given_m:.4} m"
         );
-        // Solved poses do not depend on the order the captures came in.
-        let reversed = grpc.create_session(refined).await.unwrap().into_inner();
-        for request in requests.iter().rev() {
-            let request = pb::AddCaptureRequest {
-                session_id: reversed.id.clone(),
-                ..request.clone()
-            };
-            grpc.add_capture(request).await.unwrap();
-        }
-        let other = grpc
-            .get_map(pb::GetMapRequest {
-                session_id: reversed.id,
-                min_observations: None,
-            })
-            .await
-            .unwrap()
-            .into_inner();
-        same_geometry(&map, &other);
         // Fused with refined poses, the map is the exact-pose map's size, give or take.
         let exact = map_of(&mut grpc, &calibration, &captures).await;
         let (n, m) = (map.segments.len() as f64, exact.segments.len() as f64);

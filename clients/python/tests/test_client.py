@@ -286,7 +286,10 @@ def test_session_lifecycle(client, demo):
     cal = demo / "calibration.json"
     s = client.create_session(cal, name="py-test", min_observations=1)
     assert re.fullmatch(r"[0-9a-f]{32}", s.id) and s.name == "py-test"
+    once = None
     for i in range(2):
+        if i == 1:
+            once = client.get_map(s.id)
         r = client.add_capture(s.id, IDENTITY, images=_paths(demo))
         assert r.capture_index == i and r.captures == i + 1
         assert len(r.match.segments_3d) > 0
@@ -301,6 +304,11 @@ def test_session_lifecycle(client, demo):
     np.testing.assert_array_equal(m.prior_poses[0], IDENTITY)
     np.testing.assert_array_equal(m.poses[0], IDENTITY)
     assert m.observations.max() == 2
+    # Each map segment carries its fused covariance; seen twice, an edge is known better than
+    # once (information adds: σ shrinks by about √2).
+    assert m.covariances.shape == (len(m.segments), 6, 6)
+    assert np.all(m.position_sigma_m > 0) and not m.uncertain.any()
+    assert np.median(m.position_sigma_m) < np.median(once.position_sigma_m) / 1.2
     assert len(client.get_map(s.id, min_observations=3).segments) == 0
     assert client.get_session(s.id).captures == 2
     assert s.id in [x.id for x in client.list_sessions()]

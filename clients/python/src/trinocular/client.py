@@ -249,7 +249,11 @@ class MatchResult:
 @dataclass
 class Map:
     """A session's fused map, world frame: `segments` M×2×3, `observations` M captures
-    counts, `captures` per-segment capture indices, `poses` K×4×4 rig poses."""
+    counts, `captures` per-segment capture indices, `poses` K×4×4 rig poses (solved by the
+    pose graph unless the session's `refine_poses` is false), `prior_poses` K×4×4 as given;
+    per segment its fused `covariances` M×6×6 (start, end; m², world frame, the poses'
+    uncertainty included), `direction_sigma_deg` and `position_sigma_m` (M), and
+    `uncertain` (M, true only where the session's options include uncertain segments)."""
 
     session_id: str
     segments: np.ndarray
@@ -259,9 +263,17 @@ class Map:
     fuse_ms: float = 0.0
     raw: Any = None
     prior_poses: Optional[np.ndarray] = None
+    covariances: Optional[np.ndarray] = None
+    direction_sigma_deg: Optional[np.ndarray] = None
+    position_sigma_m: Optional[np.ndarray] = None
+    uncertain: Optional[np.ndarray] = None
 
     @classmethod
     def from_pb(cls, m: "pb.Map") -> "Map":
+        def covariance(s):
+            c = list(s.covariance)
+            return np.array(c, dtype=float).reshape(6, 6) if len(c) == 36 else np.full((6, 6), np.nan)
+
         return cls(
             session_id=m.session_id,
             segments=_points(m.segments),
@@ -272,6 +284,10 @@ class Map:
             raw=m,
             prior_poses=np.array([list(p.matrix) for p in m.prior_poses],
                                  dtype=float).reshape(-1, 4, 4),
+            covariances=np.array([covariance(s) for s in m.segments], dtype=float).reshape(-1, 6, 6),
+            direction_sigma_deg=np.array([s.direction_sigma_deg for s in m.segments], dtype=float),
+            position_sigma_m=np.array([s.position_sigma_m for s in m.segments], dtype=float),
+            uncertain=np.array([s.uncertain for s in m.segments], dtype=bool),
         )
 
     def summary(self) -> str:
@@ -457,8 +473,10 @@ class Client:
     def create_session(self, calibration, name: str = "", options=None,
                        min_observations: Optional[int] = None,
                        refine_poses: Optional[bool] = None) -> Session:
-        """`refine_poses`: GetMap solves every capture's pose from the poses given and the
-        segments the captures share (experimental: docs/SESSIONS.md)."""
+        """`refine_poses` (default true): GetMap solves every capture's pose from the poses
+        given and what each capture's segments said, when it was added, about the captures it
+        overlaps (a pose graph: docs/SESSIONS.md); false fuses with the poses as given, taken
+        as exact."""
         req = pb.CreateSessionRequest(name=name, calibration=load_calibration(calibration))
         opts = _parse(options, pb.MatchOptions)
         if opts is not None:

@@ -146,25 +146,40 @@ pub fn edge_chi2(poses: &[PosePrior], edge: &RelativePose) -> f64 {
     e.dot(&(edge.information * e))
 }
 
-/// Gauss–Newton steps of [`optimise`].
+/// Gauss–Newton steps of [`optimise`], at most; it stops sooner when a step moves no pose by
+/// more than [`SETTLED`] (radians, metres): far below any pose's precision.
 const STEPS: usize = 10;
+const SETTLED: f64 = 1e-8;
 /// Step of the numerical derivatives: radians and metres.
 const DELTA: f64 = 1e-7;
 
 /// The poses that best agree with the priors and the relative poses, each with its marginal
 /// covariance. A capture with a (nearly) exact prior anchors the others.
 pub fn optimise(priors: &[PosePrior], relative: &[RelativePose]) -> Vec<PosePrior> {
+    optimise_from(priors, relative, None)
+}
+
+/// [`optimise`], starting from `start` (one pose per prior) rather than the priors' poses:
+/// a solution already close, as when an edge has just been dropped, converges in a step.
+pub fn optimise_from(
+    priors: &[PosePrior],
+    relative: &[RelativePose],
+    start: Option<&[Isometry3<f64>]>,
+) -> Vec<PosePrior> {
     let n = priors.len();
     let informations: Vec<Option<Matrix6<f64>>> =
         priors.iter().map(|p| p.covariance.try_inverse()).collect();
-    let mut poses: Vec<Isometry3<f64>> = priors.iter().map(|p| p.rig_to_world).collect();
-    let residual = |poses: &[Isometry3<f64>], r: &RelativePose| {
-        let predicted = poses[r.to].inverse() * poses[r.from];
-        difference(&r.pose, &predicted)
+    let mut poses: Vec<Isometry3<f64>> = match start {
+        Some(s) if s.len() == n => s.to_vec(),
+        _ => priors.iter().map(|p| p.rig_to_world).collect(),
+    };
+    // What the edge says against what the poses of its two ends say.
+    let residual = |from: &Isometry3<f64>, to: &Isometry3<f64>, r: &RelativePose| {
+        difference(&r.pose, &(to.inverse() * from))
     };
     let mut hessian = DMatrix::<f64>::zeros(6 * n, 6 * n);
     for _ in 0..STEPS {
-        hessian = DMatrix::zeros(6 * n, 6 * n);
+        hessian.fill(0.0);
         let mut gradient = DVector::<f64>::zeros(6 * n);
         for (i, (p, info)) in priors.iter().zip(&informations).enumerate() {
             let Some(info) = info else { continue };
@@ -176,17 +191,16 @@ pub fn optimise(priors: &[PosePrior], relative: &[RelativePose]) -> Vec<PosePrio
             rows -= g;
         }
         for r in relative {
-            let e0 = residual(&poses, r);
+            let (from, to) = (poses[r.from], poses[r.to]);
+            let e0 = residual(&from, &to, r);
             let mut jacobian = nalgebra::SMatrix::<f64, 6, 12>::zeros();
-            for (block, node) in [r.from, r.to].into_iter().enumerate() {
-                for k in 0..6 {
-                    let mut xi = Vector6::zeros();
-                    xi[k] = DELTA;
-                    let mut moved = poses.clone();
-                    moved[node] = perturbed(&poses[node], &xi);
-                    let column = (residual(&moved, r) - e0) / DELTA;
-                    jacobian.set_column(6 * block + k, &column);
-                }
+            for k in 0..6 {
+                let mut xi = Vector6::zeros();
+                xi[k] = DELTA;
+                let moved_from = residual(&perturbed(&from, &xi), &to, r);
+                let moved_to = residual(&from, &perturbed(&to, &xi), r);
+                jacobian.set_column(k, &((moved_from - e0) / DELTA));
+                jacobian.set_column(6 + k, &((moved_to - e0) / DELTA));
             }
             let jt_i = jacobian.transpose() * r.information;
             let h = jt_i * jacobian;
@@ -207,11 +221,13 @@ pub fn optimise(priors: &[PosePrior], relative: &[RelativePose]) -> Vec<PosePrio
             let xi = Vector6::from_iterator(step.rows(6 * i, 6).iter().copied());
             *pose = perturbed(pose, &xi);
         }
-        if step.amax() < 1e-10 {
+        if step.amax() < SETTLED {
             break;
         }
     }
-    let covariance = hessian.clone().try_inverse();
+    // The marginal covariances: the inverse of the information at the solution (the last
+    // step is too small to change it).
+    let covariance = hessian.cholesky().map(|c| c.inverse());
     poses
         .into_iter()
         .enumerate()

@@ -538,7 +538,7 @@ impl Problem<'_> {
                             segment: k,
                             reference: j,
                         };
-                        self.chi2(pair, &pose, &self.prior.covariance)
+                        self.chi2_moved(pair, &world, &pose, &self.prior.covariance)
                             .filter(|c| *c <= CANDIDATE_GATE)
                             .map(|c| (j, c))
                     })
@@ -614,7 +614,7 @@ impl Problem<'_> {
 
     /// A hypothesis from a start (a perturbation of the prior): what it associates as
     /// tightly as hypotheses are scored, solved with the prior; `None` beyond the prior gate.
-    fn from_start(
+    fn hypothesis_from(
         &self,
         start: &Vector6<f64>,
         candidates: &[Vec<(usize, f64)>],
@@ -654,11 +654,13 @@ impl Problem<'_> {
         // goes on to refinement as sure of itself as they do: refined from the prior's own
         // spread, a repetitive scene's pairs one step over would be associated too and pull
         // it there.
-        let first = self.from_start(&Vector6::zeros(), candidates).unwrap_or((
-            self.cost(&self.prior.rig_to_world, candidates),
-            Vector6::zeros(),
-            self.prior_information,
-        ));
+        let first = self
+            .hypothesis_from(&Vector6::zeros(), candidates)
+            .unwrap_or((
+                self.cost(&self.prior.rig_to_world, candidates),
+                Vector6::zeros(),
+                self.prior_information,
+            ));
         let mut tried = vec![first];
         for (n, &k1) in seeds.iter().enumerate() {
             for &k2 in &seeds[n + 1..] {
@@ -764,14 +766,17 @@ impl Problem<'_> {
         candidates
             .iter()
             .enumerate()
+            .filter(|(_, list)| !list.is_empty())
             .filter_map(|(k, list)| {
+                let world = self.segments[k].transformed(pose);
                 list.iter()
                     .filter_map(|&(j, _)| {
                         let pair = Pair {
                             segment: k,
                             reference: j,
                         };
-                        self.chi2(pair, pose, uncertainty).map(|c| (pair, c))
+                        self.chi2_moved(pair, &world, pose, uncertainty)
+                            .map(|c| (pair, c))
                     })
                     .filter(|(_, c)| *c <= INLIER_GATE)
                     .min_by(|x, y| x.1.total_cmp(&y.1))

@@ -394,3 +394,165 @@ proptest! {
         }
     }
 }
+
+/// `segments` with an isotropic covariance of `sigma` metres on every endpoint.
+fn with_sigma(segments: &[Segment3], sigma: f64) -> Vec<nalgebra::Matrix6<f64>> {
+    vec![nalgebra::Matrix6::identity() * sigma * sigma; segments.len()]
+}
+
+#[test]
+fn a_segment_seen_again_is_known_better_and_its_covariance_says_so() {
+    let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
+    let poses = [
+        pose(1.0, 0.0, 0.0),
+        pose(1.5, 0.3, 10.0),
+        pose(0.5, 0.2, -10.0),
+    ];
+    let mut n = Noise(3);
+    let segments: Vec<Vec<Segment3>> = poses
+        .iter()
+        .map(|q| seen(q, &wall, &mut n, 0.002))
+        .collect();
+    let covariances: Vec<_> = segments.iter().map(|s| with_sigma(s, 0.004)).collect();
+    let fused = |k: usize| {
+        let captures: Vec<Capture> = (0..k)
+            .map(|i| Capture {
+                id: i as u32,
+                rig_to_world: poses[i],
+                segments: &segments[i],
+                covariances: &covariances[i],
+                ..Default::default()
+            })
+            .collect();
+        let map = fuse(&captures, &FuseParams::default());
+        assert_eq!(map.len(), 1, "{map:?}");
+        map[0].clone()
+    };
+    let (once, thrice) = (fused(1), fused(3));
+    assert_eq!(thrice.observations, 3);
+    // One observation: the covariance across the line is its own (4 mm on each end).
+    assert!(
+        (once.position_sigma_m - 0.004 / 2f64.sqrt()).abs() < 2e-4,
+        "{once:?}"
+    );
+    // Three: information adds, σ shrinks by about √3.
+    let ratio = once.position_sigma_m / thrice.position_sigma_m;
+    assert!((ratio - 3f64.sqrt()).abs() < 0.1, "{ratio}");
+    assert!(thrice.direction_sigma_deg < once.direction_sigma_deg);
+    // The line itself is where the three agree, within their noise.
+    for q in [thrice.start, thrice.end] {
+        assert!(
+            (q.y - 3.0).abs() < 0.004 && (q.z - 0.8).abs() < 0.004,
+            "{q}"
+        );
+    }
+}
+
+#[test]
+fn where_a_segment_ends_is_no_doubt_across_the_fused_line() {
+    // Two sightings of one edge at a slight angle, one with 30 cm of spread along itself
+    // (a receding line's ends): it must not make the fused line doubtful across it.
+    let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
+    let (pa, pb) = (pose(1.0, 0.0, 0.0), pose(1.2, 0.2, 2.0));
+    let mut n = Noise(5);
+    let (sa, sb) = (
+        seen(&pa, &wall, &mut n, 0.001),
+        seen(&pb, &wall, &mut n, 0.001),
+    );
+    let ca = with_sigma(&sa, 0.003);
+    let mut cb = with_sigma(&sb, 0.003);
+    let along = (sb[0].end - sb[0].start).normalize();
+    for k in 0..2 {
+        let mut block = cb[0].fixed_view_mut::<3, 3>(3 * k, 3 * k);
+        block += along * along.transpose() * 0.3f64.powi(2);
+    }
+    let captures = [
+        Capture {
+            id: 0,
+            rig_to_world: pa,
+            segments: &sa,
+            covariances: &ca,
+            ..Default::default()
+        },
+        Capture {
+            id: 1,
+            rig_to_world: pb,
+            segments: &sb,
+            covariances: &cb,
+            ..Default::default()
+        },
+    ];
+    let map = fuse(&captures, &FuseParams::default());
+    assert_eq!(map.len(), 1);
+    assert!(map[0].position_sigma_m < 0.003, "{:?}", map[0]);
+}
+
+#[test]
+fn the_gate_leaves_out_what_a_capture_placed_by_its_odometry_alone_saw() {
+    // Two captures see one wall edge each; the second's pose is known to 3 degrees only,
+    // so at 3 m its edge may be 15 cm off: not a segment the map can vouch for.
+    let (pa, pb) = (pose(1.0, 0.0, 0.0), pose(1.0, 0.0, 90.0));
+    let mut n = Noise(9);
+    let sa = seen(&pa, &[(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))], &mut n, 0.001);
+    let sb = seen(
+        &pb,
+        &[(p(-2.0, -1.0, 0.8), p(-2.0, 1.0, 0.8))],
+        &mut n,
+        0.001,
+    );
+    let (ca, cb) = (with_sigma(&sa, 0.003), with_sigma(&sb, 0.003));
+    let odometry = super::PosePrior::odometry(pb, 3.0, 0.3, 0.05, 0.01).covariance;
+    let captures = [
+        Capture {
+            id: 0,
+            rig_to_world: pa,
+            segments: &sa,
+            covariances: &ca,
+            ..Default::default()
+        },
+        Capture {
+            id: 1,
+            rig_to_world: pb,
+            segments: &sb,
+            covariances: &cb,
+            pose_covariance: odometry,
+        },
+    ];
+    let gate = super::MapGate::of(&crate::matching::MatchParams::default());
+    let gated = FuseParams {
+        gate: Some(gate),
+        ..FuseParams::default()
+    };
+    let map = fuse(&captures, &gated);
+    assert_eq!(map.len(), 1, "{map:?}");
+    assert_eq!(map[0].captures, vec![0]);
+    assert!(!map[0].uncertain);
+    // Asked for, it is there, flagged; without a gate, there and not flagged.
+    let everything = FuseParams {
+        gate: Some(super::MapGate {
+            include_uncertain: true,
+            ..gate
+        }),
+        ..FuseParams::default()
+    };
+    let map = fuse(&captures, &everything);
+    assert_eq!(map.len(), 2);
+    let doubtful: Vec<_> = map.iter().filter(|m| m.uncertain).collect();
+    assert_eq!(doubtful.len(), 1);
+    assert_eq!(doubtful[0].captures, vec![1]);
+    assert!(doubtful[0].position_sigma_m > 0.05, "{:?}", doubtful[0]);
+    assert!(fuse(&captures, &FuseParams::default())
+        .iter()
+        .all(|m| !m.uncertain));
+}
+
+#[test]
+fn a_gate_out_of_range_is_named() {
+    let mut params = FuseParams {
+        gate: Some(super::MapGate::of(&crate::matching::MatchParams::default())),
+        ..FuseParams::default()
+    };
+    params.check().unwrap();
+    params.gate.as_mut().unwrap().confidence = 1.0;
+    assert_eq!(params.check().unwrap_err().field(), "gate.confidence");
+}

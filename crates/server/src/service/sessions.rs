@@ -267,7 +267,16 @@ impl Service {
             } = request;
             check_id(&session_id)?;
             let session_id = store_id(caller, &session_id);
-            let pose = pose_from_pb(rig_to_world.as_ref(), "rig_to_world")?;
+            let Some(rig_to_world) = rig_to_world else {
+                return Err(ServiceError::Input(InputError::new(
+                    "rig_to_world",
+                    "missing: where the robot believes the rig was (a row-major 4x4 rigid \
+                     transform), with rig_to_world_covariance saying how sure it is. A capture \
+                     is registered to the map from that pose; registration without one \
+                     (global) is not supported",
+                )));
+            };
+            let pose = pose_from_pb(Some(&rig_to_world), "rig_to_world")?;
             let prior = pose_prior(pose, &rig_to_world_covariance, "rig_to_world_covariance")?;
             let info = self.store.get(&session_id).await?;
             if info.captures >= MAX_CAPTURES_PER_SESSION {

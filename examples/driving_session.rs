@@ -122,7 +122,13 @@ fn main() -> anyhow::Result<()> {
                 let given: Vec<Isometry3<f64>> = priors.iter().map(|p| p.rig_to_world).collect();
                 std::fs::write(
                     dir.join(format!("map_{seed}.svg")),
-                    map::export::top_view_svg(&fused, &poses, &given),
+                    map::export::top_view_svg(
+                        &fused,
+                        &poses,
+                        &given,
+                        // The synthetic rig's frame has its origin among its cameras.
+                        &map::export::RigMarker::origin(),
+                    ),
                 )?;
             }
         }

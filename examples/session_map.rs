@@ -242,6 +242,7 @@ fn main() -> Result<(), Error> {
     let mut segments: Vec<Vec<Segment3>> = Vec::new();
     let mut covariances: Vec<Vec<nalgebra::Matrix6<f64>>> = Vec::new();
     let mut ids = Vec::new();
+    let mut rig_marker = map::export::RigMarker::origin();
     for dir in &dirs {
         let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("");
         let id: u32 = name.trim_start_matches("capture_").parse()?;
@@ -259,6 +260,8 @@ fn main() -> Result<(), Error> {
                 .include_uncertain = Some(true);
         }
         let input = api::match_request(&request, &RequestLimits::default())?;
+        rig_marker =
+            map::export::RigMarker::of(&api::rig_from_calibration(request.calibration.as_ref())?);
         let executed = input.execute()?;
         let out = &executed.output;
         eprintln!(
@@ -400,11 +403,11 @@ fn main() -> Result<(), Error> {
     std::fs::write(args.out.join("map.ply"), map::export::to_ply(&fused))?;
     std::fs::write(
         args.out.join("top.svg"),
-        map::export::top_view_svg(&fused, &poses_only, &priors),
+        map::export::top_view_svg(&fused, &poses_only, &priors, &rig_marker),
     )?;
     std::fs::write(
         args.out.join("top.png"),
-        map::export::top_view_png(&fused, &poses_only, &priors)?,
+        map::export::top_view_png(&fused, &poses_only, &priors, &rig_marker)?,
     )?;
     println!("{}", args.out.join("map.json").display());
     Ok(())

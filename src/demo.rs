@@ -14,8 +14,9 @@ use crate::synth::{
     render_triplet, rig_centre, score_capture, standard_capture, Defects, RenderParams,
 };
 
-/// Top view scale, pixels per metre: a 6 m room in about 700 pixels.
-const TOP_VIEW_PX_PER_M: f64 = 110.0;
+/// Top view scale, pixels per metre: the part of the room the rig sees (about 2.5 by 3 m)
+/// in about 400 by 480 pixels.
+const TOP_VIEW_PX_PER_M: f64 = 160.0;
 
 /// What the demo produced.
 #[derive(Debug, Clone)]
@@ -61,6 +62,7 @@ pub fn run(seed: u64) -> Result<Demo, String> {
         [&images[0], &images[1], &images[2]],
         lists,
         [&labels[0], &labels[1], &labels[2]],
+        rig.cameras().each_ref().map(|c| c.name()),
     );
     // The ground truth seen by the rig: the parts of edges visible in all three cameras.
     let visible: Vec<Segment3> = observation

@@ -17,8 +17,8 @@
 //! re-exports'.
 
 pub use trinocular_core::{
-    angle, calibrate, checkpoint, extract, geometry, map, matching, overlay, pipeline, reconstruct,
-    segment,
+    angle, calibrate, checkpoint, extract, geometry, map, matching, overlay, pipeline, plot,
+    reconstruct, segment,
 };
 /// The synthetic rooms and the scorer ([`trinocular_synth`]), for the demo, tests, benches,
 /// examples and fuzz seeds.

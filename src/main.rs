@@ -173,6 +173,9 @@ struct MatchArgs {
     /// coloured by 3D segment, unmatched ones grey (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
+    /// Also write the 3D segments (rig frame) as PLY, in their overlay colours.
+    #[arg(long)]
+    ply: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -291,6 +294,7 @@ fn draw_overlay(input: &MatchInput, executed: &Executed, path: &Path) -> Result<
         [&images[0], &images[1], &images[2]],
         lists,
         [&labels[0], &labels[1], &labels[2]],
+        input.rig.cameras().each_ref().map(|c| c.name()),
     );
     write(
         path,
@@ -306,7 +310,12 @@ fn run_match(args: &MatchArgs) -> Result<(), Failure> {
     if let Some(path) = &args.overlay {
         draw_overlay(&input, &executed, path)?;
     }
-    let json = api::to_json(&input.response(&executed));
+    let response = input.response(&executed);
+    if let Some(path) = &args.ply {
+        let ply = trinocular::map::export::segments_to_ply(&api::segments_3d_of(&response));
+        write(path, ply.as_bytes())?;
+    }
+    let json = api::to_json(&response);
     match &args.output {
         Some(path) => write(path, (json + "\n").as_bytes())?,
         None => println!("{json}"),

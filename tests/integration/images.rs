@@ -511,7 +511,8 @@ fn cli_extracts_matches_images_and_draws_the_overlay() {
     // The default answer holds only the segments that meet the accuracy gate (40 here).
     assert!(resp.segments_3d.len() > 20, "{}", resp.segments_3d.len());
     let drawn = image::open(&overlay).unwrap();
-    assert_eq!((drawn.width(), drawn.height()), (3 * 512 + 16, 512));
+    // Side by side, with a band under them for the captions and the legend.
+    assert_eq!((drawn.width(), drawn.height()), (3 * 512 + 16, 512 + 44));
 
     // The same triplets as the library on the same images (the PNG round trip is lossless:
     // the renders are quantised to 8 bits).

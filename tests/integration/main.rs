@@ -3,6 +3,7 @@
 
 mod accuracy;
 mod bad_input;
+mod browser;
 mod calibration;
 mod common;
 mod golden;

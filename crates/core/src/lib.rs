@@ -36,6 +36,7 @@ pub mod matching;
 pub mod overlay;
 pub mod params;
 pub mod pipeline;
+pub mod plot;
 pub mod reconstruct;
 pub mod segment;
 #[cfg(test)]

@@ -25,7 +25,7 @@ impl Picture {
         }
     }
 
-    fn put(&mut self, x: i64, y: i64, colour: [u8; 3]) {
+    pub(crate) fn put(&mut self, x: i64, y: i64, colour: [u8; 3]) {
         if x >= 0 && y >= 0 && x < i64::from(self.width) && y < i64::from(self.height) {
             let i = 3 * (y as usize * self.width as usize + x as usize);
             self.rgb[i..i + 3].copy_from_slice(&colour);
@@ -112,18 +112,23 @@ pub fn colour(i: usize) -> [u8; 3] {
 
 const UNMATCHED: [u8; 3] = [150, 150, 150];
 const GAP_PX: u32 = 8;
+/// Under the images: a caption per camera and the legend.
+const CAPTION_PX: u32 = 44;
 
 /// The three images side by side (dimmed so colours show), each list's segments drawn on
 /// its image: segment `i` of image `v` in the colour of `triplet_of[v][i]` if matched, grey
-/// otherwise; a dot marks each segment's start.
+/// otherwise; a dot marks each segment's start. Under each image its camera's name and
+/// counts; under all, the legend.
 pub fn triplet_overlay(
     images: [&GreyImage; 3],
     lists: [&SegmentList; 3],
     triplet_of: [&[Option<usize>]; 3],
+    names: [&str; 3],
 ) -> Picture {
+    use crate::plot::{Anchor, Canvas};
     let width = images.iter().map(|i| i.width()).sum::<u32>() + 2 * GAP_PX;
-    let height = images.iter().map(|i| i.height()).max().unwrap_or(1);
-    let mut pic = Picture::new(width, height, [0, 0, 0]);
+    let images_height = images.iter().map(|i| i.height()).max().unwrap_or(1);
+    let mut pic = Picture::new(width, images_height + CAPTION_PX, [255, 255, 255]);
     let mut x0 = 0u32;
     for v in 0..3 {
         let img = images[v];
@@ -134,17 +139,55 @@ pub fn triplet_overlay(
             }
         }
         let shift = nalgebra::Vector2::new(f64::from(x0), 0.0);
+        let mut matched = 0;
         for (i, s) in lists[v].segments.iter().enumerate() {
-            let c = triplet_of[v]
-                .get(i)
-                .copied()
-                .flatten()
-                .map_or(UNMATCHED, colour);
+            let label = triplet_of[v].get(i).copied().flatten();
+            matched += usize::from(label.is_some());
+            let c = label.map_or(UNMATCHED, colour);
             pic.line(s.start + shift, s.end + shift, c, 1);
             pic.dot(s.start + shift, c);
         }
+        let name = if names[v].is_empty() {
+            format!("camera {}", v + 1)
+        } else {
+            format!("camera {} ({})", v + 1, names[v])
+        };
+        pic.text(
+            Point2::new(f64::from(x0) + 4.0, f64::from(images_height) + 14.0),
+            &format!(
+                "{name}: {} segments, {matched} matched",
+                lists[v].segments.len()
+            ),
+            [30, 30, 34],
+            Anchor::Start,
+        );
         x0 += img.width() + GAP_PX;
     }
+    // The legend.
+    let y = f64::from(images_height) + 34.0;
+    let mut x = 4.0;
+    for (swatch, label) in [
+        (colour(0), "matched: a colour per 3D segment"),
+        (UNMATCHED, "extracted, not matched"),
+    ] {
+        Canvas::line(
+            &mut pic,
+            Point2::new(x, y - 4.0),
+            Point2::new(x + 18.0, y - 4.0),
+            swatch,
+            3.0,
+            false,
+        );
+        pic.text(Point2::new(x + 24.0, y), label, [30, 30, 34], Anchor::Start);
+        x += 24.0 + 8.0 * label.len() as f64 + 16.0;
+    }
+    pic.dot(Point2::new(x + 4.0, y - 4.0), [30, 30, 34]);
+    pic.text(
+        Point2::new(x + 12.0, y),
+        "dot: a segment's start (brighter side on its left)",
+        [30, 30, 34],
+        Anchor::Start,
+    );
     pic
 }
 
@@ -166,59 +209,71 @@ pub fn segment3_labels(output: &MatchOutput, sizes: [usize; 3]) -> [Vec<Option<u
     out
 }
 
-const BACKGROUND: [u8; 3] = [24, 24, 28];
-const REFERENCE: [u8; 3] = [90, 90, 90];
+const REFERENCE: [u8; 3] = [185, 185, 192];
+const CAMERA: [u8; 3] = [31, 95, 208];
 
-/// Seen from above (x right, y up on the picture), `pixels_per_m` scale: `segments` in
-/// colour over `reference` segments in grey (e.g. ground truth), camera centres as white dots.
+/// A colour of [`colour`] darkened to read on white.
+fn on_white(i: usize) -> [u8; 3] {
+    colour(i).map(|c| (f64::from(c) * 0.72).round() as u8)
+}
+
+/// Seen from above (x right, y up on the picture), `pixels_per_m` scale (less if the picture
+/// would be larger than 1100 pixels): `segments` a colour each over `reference` segments in
+/// grey (the ground truth), the cameras as blue dots, on a labelled metre grid with a scale
+/// bar and a legend (`plot::FloorPlan`).
 pub fn top_view(
     segments: &[Segment3],
     reference: &[Segment3],
     cameras: &[nalgebra::Point3<f64>],
     pixels_per_m: f64,
 ) -> Picture {
+    use crate::plot::{Canvas, FloorPlan, LegendEntry, Swatch};
     let points = segments
         .iter()
         .chain(reference)
-        .flat_map(|s| [s.start, s.end])
-        .chain(cameras.iter().copied())
-        .filter(|p| p.x.is_finite() && p.y.is_finite());
-    let (mut xmin, mut xmax, mut ymin, mut ymax) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for p in points {
-        (xmin, xmax, ymin, ymax) = (xmin.min(p.x), xmax.max(p.x), ymin.min(p.y), ymax.max(p.y));
-    }
-    if xmin > xmax {
-        (xmin, xmax, ymin, ymax) = (0.0, 1.0, 0.0, 1.0);
-    }
-    let margin = 20.0;
-    let width = ((xmax - xmin) * pixels_per_m + 2.0 * margin).clamp(64.0, 4096.0) as u32;
-    let height = ((ymax - ymin) * pixels_per_m + 2.0 * margin).clamp(64.0, 4096.0) as u32;
-    let mut pic = Picture::new(width, height, BACKGROUND);
-    let to_px = |x: f64, y: f64| {
-        Point2::new(
-            margin + (x - xmin) * pixels_per_m,
-            f64::from(height) - margin - (y - ymin) * pixels_per_m,
-        )
-    };
+        .flat_map(|s| [(s.start.x, s.start.y), (s.end.x, s.end.y)])
+        .chain(cameras.iter().map(|c| (c.x, c.y)));
+    let legend = vec![
+        LegendEntry::new(
+            Swatch::Line {
+                colour: on_white(0),
+                width: 2.0,
+            },
+            "3D segment (a colour each)",
+        ),
+        LegendEntry::new(
+            Swatch::Line {
+                colour: REFERENCE,
+                width: 1.0,
+            },
+            "ground truth seen by the three cameras",
+        ),
+        LegendEntry::new(
+            Swatch::Disc {
+                colour: CAMERA,
+                filled: true,
+            },
+            "camera",
+        ),
+    ];
+    let plan = FloorPlan::fit(points, pixels_per_m, 1100.0, legend);
+    let mut pic = Picture::new(plan.width, plan.height, [255, 255, 255]);
+    plan.draw_grid(&mut pic);
     for s in reference {
-        pic.line(
-            to_px(s.start.x, s.start.y),
-            to_px(s.end.x, s.end.y),
-            REFERENCE,
-            1,
-        );
+        let (a, b) = (plan.px(s.start.x, s.start.y), plan.px(s.end.x, s.end.y));
+        pic.line(a, b, REFERENCE, 1);
     }
     for (i, s) in segments.iter().enumerate() {
-        pic.line(
-            to_px(s.start.x, s.start.y),
-            to_px(s.end.x, s.end.y),
-            colour(i),
-            2,
-        );
+        let (a, b) = (plan.px(s.start.x, s.start.y), plan.px(s.end.x, s.end.y));
+        pic.line(a, b, on_white(i), 2);
     }
     for c in cameras {
-        pic.dot(to_px(c.x, c.y), [255, 255, 255]);
+        pic.disc(plan.px(c.x, c.y), 4.0, CAMERA, true);
     }
+    plan.draw_frame(
+        &mut pic,
+        &format!("{} 3D segments from above (rig frame)", segments.len()),
+    );
     pic
 }
 
@@ -237,8 +292,11 @@ mod tests {
             background_gradient: None,
         };
         let labels = [Some(0), None];
-        let pic = triplet_overlay([&img; 3], [&list; 3], [&labels[..]; 3]);
-        assert_eq!((pic.width, pic.height), (3 * 20 + 2 * GAP_PX, 10));
+        let pic = triplet_overlay([&img; 3], [&list; 3], [&labels[..]; 3], ["a", "b", "c"]);
+        assert_eq!(
+            (pic.width, pic.height),
+            (3 * 20 + 2 * GAP_PX, 10 + CAPTION_PX)
+        );
         let px = |x: u32, y: u32| {
             let i = 3 * (y * pic.width + x) as usize;
             [pic.rgb[i], pic.rgb[i + 1], pic.rgb[i + 2]]
@@ -252,18 +310,49 @@ mod tests {
     }
 
     #[test]
-    fn top_view_puts_north_up() {
+    fn top_view_puts_north_up_with_its_scale_and_legend() {
         let s = Segment3 {
             start: nalgebra::Point3::new(0.0, 0.0, 1.0),
             end: nalgebra::Point3::new(0.0, 2.0, 1.0),
         };
         let pic = top_view(&[s], &[], &[nalgebra::Point3::new(1.0, 0.0, 1.0)], 50.0);
-        assert_eq!((pic.width, pic.height), (90, 140));
-        let red_at = |x: u32, y: u32| pic.rgb[3 * (y * pic.width + x) as usize] > 100;
+        let where_is = |c: [u8; 3]| -> Vec<(u32, u32)> {
+            (0..pic.height)
+                .flat_map(|y| (0..pic.width).map(move |x| (x, y)))
+                .filter(|&(x, y)| {
+                    let i = 3 * (y * pic.width + x) as usize;
+                    pic.rgb[i..i + 3] == c
+                })
+                .collect()
+        };
+        // The legend's swatch has the segment's colour too: keep to the plot's pixels, above
+        // the legend rows.
+        let segment: Vec<_> = where_is(on_white(0))
+            .into_iter()
+            .filter(|&(_, y)| y + 60 < pic.height)
+            .collect();
+        let (xs, ys): (Vec<u32>, Vec<u32>) = segment.iter().copied().unzip();
+        let span = |v: &[u32]| v.iter().max().unwrap() - v.iter().min().unwrap();
+        assert!(span(&xs) <= 2, "a vertical line");
         assert!(
-            red_at(20, 30) && red_at(20, 110),
-            "segment along the left edge"
+            (98..=102).contains(&span(&ys)),
+            "2 m at 50 px/m: {}",
+            span(&ys)
         );
-        assert!(red_at(70, 120), "camera dot bottom right");
+        let camera: Vec<_> = where_is(CAMERA)
+            .into_iter()
+            .filter(|&(_, y)| y + 60 < pic.height)
+            .collect();
+        let cx = camera.iter().map(|p| f64::from(p.0)).sum::<f64>() / camera.len() as f64;
+        let cy = camera.iter().map(|p| f64::from(p.1)).sum::<f64>() / camera.len() as f64;
+        assert!(
+            (cx - f64::from(xs[0]) - 50.0).abs() < 2.0,
+            "1 m right of the segment"
+        );
+        assert!(
+            (cy - f64::from(*ys.iter().max().unwrap())).abs() < 3.0,
+            "level with its start, at the bottom: y up"
+        );
+        assert_eq!(pic.rgb[..3], [255, 255, 255], "light background");
     }
 }

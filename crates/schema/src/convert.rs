@@ -681,6 +681,23 @@ fn point3(p: &nalgebra::Point3<f64>) -> pb::Point3 {
     }
 }
 
+/// The 3D segments of a `MatchResponse` (absent endpoints read as the origin), for exports.
+pub fn segments_3d_of(response: &pb::MatchResponse) -> Vec<trinocular_core::segment::Segment3> {
+    let point = |p: &Option<pb::Point3>| {
+        p.as_ref().map_or(nalgebra::Point3::origin(), |p| {
+            nalgebra::Point3::new(p.x, p.y, p.z)
+        })
+    };
+    response
+        .segments_3d
+        .iter()
+        .map(|s| trinocular_core::segment::Segment3 {
+            start: point(&s.start),
+            end: point(&s.end),
+        })
+        .collect()
+}
+
 /// The `MatchResponse` of a pipeline output, with the extracted lists if given.
 pub fn match_response(
     output: &MatchOutput,

@@ -23,7 +23,8 @@ pub use calibrate::{calibrate_request_from_json, LEGACY_PATTERN_TO_RIG};
 pub use convert::{
     calibration_to_pb, camera_to_pb, extract_params, images, match_error, match_params,
     match_request, match_response, request_size, rig_from_calibration, segment_list_to_pb,
-    segment_lists, triplet_pixels, MatchInput, MatchSource, RequestLimits, MAX_SEGMENTS_PER_LIST,
+    segment_lists, segments_3d_of, triplet_pixels, MatchInput, MatchSource, RequestLimits,
+    MAX_SEGMENTS_PER_LIST,
 };
 pub use fast_json::match_request_from_json;
 

@@ -426,6 +426,8 @@ pub struct SessionMap {
     /// … and as the client gave it.
     pub prior_poses: Vec<Isometry3<f64>>,
     pub fuse_ms: f64,
+    /// Where the session rig's cameras are, for the top views.
+    pub rig: trinocular_core::map::export::RigMarker,
 }
 
 /// The `Map` message of a fused map.

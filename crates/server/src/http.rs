@@ -1,15 +1,18 @@
 //! The HTTP transport (axum): the same messages as gRPC, as canonical proto3 JSON or as
 //! protobuf (`Content-Type: application/x-protobuf`); answers in the request's format.
 //!
-//! - `POST /v1/match[?timeout_ms=N]`: a `MatchRequest` → a `MatchResponse` (504
-//!   DEADLINE_EXCEEDED past the timeout); or a `multipart/form-data` upload (parts
-//!   `calibration`, `options`, and `segments` or `image1` `image2` `image3`), answered in JSON;
+//! - `POST /v1/match[?timeout_ms=N][&format=json|ply]`: a `MatchRequest` → a `MatchResponse`
+//!   (504 DEADLINE_EXCEEDED past the timeout), or its 3D segments as PLY; or a
+//!   `multipart/form-data` upload (parts `calibration`, `options`, and `segments` or `image1`
+//!   `image2` `image3`), answered in JSON;
 //! - `POST /v1/calibrate[?timeout_ms=N]`: a `CalibrateRequest` → a `CalibrateResponse`, or a
 //!   multipart upload (parts `pattern`, `options`, `pattern_to_rig`, `image1..3`);
 //! - sessions: `POST /v1/sessions` (a `CreateSessionRequest`), `GET /v1/sessions`,
 //!   `GET|DELETE /v1/sessions/{id}`, `POST /v1/sessions/{id}/captures[?timeout_ms=N]` (an
 //!   `AddCaptureRequest`, or a multipart upload with parts `pose` and `segments` or
 //!   `image1..3`), `GET /v1/sessions/{id}/map[?format=json|ply|obj|svg|png][&min_observations=N]`;
+//! - the browser view (`/`, `/sessions/{id}`, `/ui/…`) and its live feed
+//!   `GET /v1/sessions/{id}/events` ([`crate::ui`]);
 //! - `GET /healthz`: the process is up; `GET /readyz`: it takes work (503 while stopping);
 //! - `GET /metrics`: Prometheus text format.
 //!
@@ -62,6 +65,7 @@ pub fn router(service: Arc<Service>) -> Router {
         .route("/v1/sessions/{id}", get(get_session).delete(delete_session))
         .route("/v1/sessions/{id}/captures", post(add_capture))
         .route("/v1/sessions/{id}/map", get(get_map))
+        .merge(crate::ui::routes())
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/readyz", get(ready))
         .route(
@@ -98,6 +102,7 @@ fn route(parts: &Parts) -> Option<&'static str> {
         (&Method::DELETE, "/v1/sessions/{id}") => "delete_session",
         (&Method::POST, "/v1/sessions/{id}/captures") => "add_capture",
         (&Method::GET, "/v1/sessions/{id}/map") => "get_map",
+        (&Method::GET, "/v1/sessions/{id}/events") => "session_events",
         _ => return None,
     })
 }
@@ -115,7 +120,8 @@ async fn admit(
     mut request: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
-    if !matches!(request.uri().path(), "/healthz" | "/readyz" | "/metrics") {
+    let path = request.uri().path();
+    if !matches!(path, "/healthz" | "/readyz" | "/metrics") && !crate::ui::is_public(path) {
         // The key is checked before anything else, by the handlers' own extractor: an
         // unknown caller costs no admission and reads no body. The caller it finds is kept in
         // the request for the handler's extraction.
@@ -346,6 +352,34 @@ impl TimeoutQuery {
     }
 }
 
+/// Match's query: `?timeout_ms=N&format=json|ply`, both optional.
+#[derive(Debug, Default, Deserialize)]
+struct MatchQuery {
+    timeout_ms: Option<String>,
+    format: Option<String>,
+}
+
+impl MatchQuery {
+    fn timeout(&self) -> Result<Option<Duration>, InputError> {
+        TimeoutQuery {
+            timeout_ms: self.timeout_ms.clone(),
+        }
+        .timeout()
+    }
+
+    /// PLY asked for: the 3D segments as a file for point-cloud viewers, not the response.
+    fn ply(&self) -> Result<bool, InputError> {
+        match self.format.as_deref() {
+            None | Some("json") => Ok(false),
+            Some("ply") => Ok(true),
+            Some(other) => Err(InputError::new(
+                "format",
+                format!("must be json or ply, got {other:?}"),
+            )),
+        }
+    }
+}
+
 /// ListSessions' query: `?page_size=N&page_token=T`, both optional.
 #[derive(Debug, Default, Deserialize)]
 struct ListQuery {
@@ -442,7 +476,7 @@ impl std::str::FromStr for MapFormat {
 async fn match_handler(
     State(service): State<Arc<Service>>,
     _: Caller,
-    params: Result<Query<TimeoutQuery>, QueryRejection>,
+    params: Result<Query<MatchQuery>, QueryRejection>,
     format: BodyFormat,
     request: axum::extract::Request,
 ) -> Response {
@@ -450,7 +484,7 @@ async fn match_handler(
     let multipart = format == BodyFormat::Multipart;
     let max_bytes = service.limits().max_message_bytes;
     let refuse = |e: ServiceError| error_response(&e);
-    let timeout = match query(params).and_then(|q| q.timeout()) {
+    let (timeout, ply) = match query(params).and_then(|q| Ok((q.timeout()?, q.ply()?))) {
         Ok(t) => t,
         Err(e) => return refuse(ServiceError::Input(e)),
     };
@@ -483,7 +517,10 @@ async fn match_handler(
         }
     };
     let encode = move |r: &pb::MatchResponse| {
-        if protobuf {
+        if ply {
+            trinocular_core::map::export::segments_to_ply(&trinocular_schema::segments_3d_of(r))
+                .into_bytes()
+        } else if protobuf {
             r.encode_to_vec()
         } else {
             (to_json(r) + "\n").into_bytes()
@@ -491,7 +528,11 @@ async fn match_handler(
     };
     match service.match_within(read, encode, timeout).await {
         Ok((response, body)) => {
-            let content_type = if protobuf { PROTOBUF } else { JSON };
+            let content_type = match (ply, protobuf) {
+                (true, _) => "application/x-ply",
+                (false, true) => PROTOBUF,
+                (false, false) => JSON,
+            };
             let matched = observe::Matched {
                 segments_3d: response.segments_3d.len(),
             };
@@ -763,16 +804,17 @@ fn map_export(
         MapFormat::Svg => file(
             "image/svg+xml",
             "svg",
-            export::top_view_svg(&map.segments, &map.poses, &map.prior_poses).into_bytes(),
+            export::top_view_svg(&map.segments, &map.poses, &map.prior_poses, &map.rig)
+                .into_bytes(),
         ),
         MapFormat::Png => file(
             "image/png",
             "png",
-            export::top_view_png(&map.segments, &map.poses, &map.prior_poses).map_err(|e| {
-                ServiceError::Internal {
+            export::top_view_png(&map.segments, &map.poses, &map.prior_poses, &map.rig).map_err(
+                |e| ServiceError::Internal {
                     detail: format!("cannot encode the map's PNG: {e}"),
-                }
-            })?,
+                },
+            )?,
         ),
     })
 }

@@ -2,7 +2,7 @@
 //! configuration, with the gRPC and HTTP transports on top.
 //!
 //! ```text
-//! serve ─▶ server ─▶ grpc, grpc_body, http, http_server, observe, tls        (transports)
+//! serve ─▶ server ─▶ grpc, grpc_body, http, http_server, observe, tls, ui    (transports)
 //!    │                          │
 //!    │                          ▼
 //!    └──── config ─────▶ service: Match, sessions, Calibrate, pool,  (use cases)
@@ -26,3 +26,4 @@ pub mod serve;
 pub mod server;
 pub mod service;
 pub mod tls;
+pub mod ui;

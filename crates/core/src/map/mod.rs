@@ -16,6 +16,8 @@ pub mod poses;
 pub mod register;
 pub mod session;
 #[cfg(test)]
+mod test_room;
+#[cfg(test)]
 mod tests;
 
 use nalgebra::{Isometry3, Matrix6, Point3};

@@ -810,34 +810,7 @@ mod tests {
     /// A box room's edges around the origin: floor and ceiling rectangles and the four
     /// vertical corners, plus a few shelves, each with an isotropic 5 mm covariance.
     fn room() -> Vec<Measured> {
-        let (x, y, z) = (2.5, 3.0, 2.4);
-        let corners = [(-x, -y), (x, -y), (x, y), (-x, y)];
-        let mut edges = Vec::new();
-        for i in 0..4 {
-            let (a, b) = (corners[i], corners[(i + 1) % 4]);
-            for h in [0.0, z] {
-                edges.push((Point3::new(a.0, a.1, h), Point3::new(b.0, b.1, h)));
-            }
-            edges.push((Point3::new(a.0, a.1, 0.0), Point3::new(a.0, a.1, z)));
-        }
-        for (k, h) in [0.6, 1.1, 1.7].into_iter().enumerate() {
-            let x0 = -1.5 + 0.7 * k as f64;
-            edges.push((Point3::new(x0, y, h), Point3::new(x0 + 1.2, y, h)));
-            edges.push((
-                Point3::new(x, -1.0 + k as f64, h),
-                Point3::new(x, k as f64, h),
-            ));
-        }
-        let covariance = Matrix6::identity() * 0.005f64.powi(2);
-        edges
-            .into_iter()
-            .map(|(start, end)| Measured {
-                start,
-                end,
-                covariance,
-                uncertain: false,
-            })
-            .collect()
+        crate::map::test_room::box_room(0.005, false)
     }
 
     fn rotation_error_deg(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {

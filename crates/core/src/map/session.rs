@@ -231,42 +231,12 @@ pub fn solve_poses(placed: &[Placed], edges: &[RelativePose]) -> Vec<PosePrior> 
 mod tests {
     use super::*;
     use crate::map::RegistrationStatus;
-    use nalgebra::{Isometry3, Point3, Vector3};
+    use nalgebra::{Isometry3, Vector3};
 
-    /// A box room about the origin, 5 x 6 x 2.4 m, with shelves on two walls: every edge
+    /// A box room about the origin, 5 x 6 x 2.4 m, with shelves on three walls: every edge
     /// with 3 mm of isotropic noise (covariance only; the edges are exact).
     fn room() -> Vec<Measured> {
-        let (x, y, z) = (2.5, 3.0, 2.4);
-        let corners = [(-x, -y), (x, -y), (x, y), (-x, y)];
-        let mut edges = Vec::new();
-        for i in 0..4 {
-            let (a, b) = (corners[i], corners[(i + 1) % 4]);
-            for h in [0.0, z] {
-                edges.push((Point3::new(a.0, a.1, h), Point3::new(b.0, b.1, h)));
-            }
-            edges.push((Point3::new(a.0, a.1, 0.0), Point3::new(a.0, a.1, z)));
-        }
-        for (k, h) in [0.6, 1.1, 1.7].into_iter().enumerate() {
-            let x0 = -1.5 + 0.7 * k as f64;
-            edges.push((Point3::new(x0, y, h), Point3::new(x0 + 1.2, y, h)));
-            edges.push((
-                Point3::new(x, -1.0 + k as f64, h),
-                Point3::new(x, k as f64, h),
-            ));
-            edges.push((
-                Point3::new(-x, 0.5 * k as f64, h),
-                Point3::new(-x, 1.0 + 0.5 * k as f64, h),
-            ));
-        }
-        edges
-            .into_iter()
-            .map(|(start, end)| Measured {
-                start,
-                end,
-                covariance: Matrix6::identity() * 0.003f64.powi(2),
-                uncertain: false,
-            })
-            .collect()
+        crate::map::test_room::box_room(0.003, true)
     }
 
     fn pose(x: f64, y: f64, yaw: f64) -> Isometry3<f64> {

@@ -17,6 +17,9 @@ pub enum ServiceError {
     /// Every compute slot is taken: retry after a moment.
     #[error("the service is busy ({max_jobs} jobs queued or running); retry later")]
     Busy { max_jobs: usize },
+    /// As many live-view streams are open on this replica as it serves: retry after a moment.
+    #[error("{limit} live views are open on this replica already; retry later")]
+    TooManyStreams { limit: usize },
     /// No API key, or not a valid one.
     #[error("{message}")]
     Unauthenticated { message: String },
@@ -88,7 +91,8 @@ impl ServiceError {
             ServiceError::Busy { .. }
             | ServiceError::BodiesInFlight { .. }
             | ServiceError::MemoryBusy { .. }
-            | ServiceError::QuotaExceeded { .. } => Code::ResourceExhausted,
+            | ServiceError::QuotaExceeded { .. }
+            | ServiceError::TooManyStreams { .. } => Code::ResourceExhausted,
             ServiceError::Unauthenticated { .. } => Code::Unauthenticated,
             ServiceError::BodyTimeout { .. } => Code::DeadlineExceeded,
             // As tonic answers a message past its decoding limit.
@@ -111,6 +115,7 @@ impl ServiceError {
             | ServiceError::MemoryBusy { .. }
             | ServiceError::Unauthenticated { .. }
             | ServiceError::QuotaExceeded { .. }
+            | ServiceError::TooManyStreams { .. }
             | ServiceError::BodyTimeout { .. }
             | ServiceError::TooLarge { .. }
             | ServiceError::Unavailable { .. }
@@ -130,7 +135,8 @@ impl ServiceError {
         match self {
             ServiceError::Busy { .. }
             | ServiceError::BodiesInFlight { .. }
-            | ServiceError::MemoryBusy { .. } => true,
+            | ServiceError::MemoryBusy { .. }
+            | ServiceError::TooManyStreams { .. } => true,
             ServiceError::Input(_)
             | ServiceError::Unauthenticated { .. }
             | ServiceError::QuotaExceeded { .. }

@@ -144,7 +144,19 @@ pub struct Service {
     keys: auth::ApiKeys,
     /// Sessions one key may hold at once.
     max_sessions_per_key: usize,
+    /// The stored id of each session as a capture is added to it or it is deleted, for the
+    /// live views on this replica ([`Service::session_changes`]).
+    changes: tokio::sync::broadcast::Sender<String>,
+    /// Live-view streams open now, at most [`MAX_EVENT_STREAMS`].
+    event_streams: Arc<tokio::sync::Semaphore>,
 }
+
+/// Session changes a slow live view may fall behind by before it is told to catch up (it then
+/// reads the session again, so nothing is lost but the intermediate counts).
+const CHANGES_BUFFERED: usize = 256;
+/// Live-view streams (`GET /v1/sessions/{id}/events`) open at once on one replica: each holds
+/// a task and reads its session's record when told of a change or once a second.
+pub const MAX_EVENT_STREAMS: usize = 256;
 
 /// The default of the sessions one API key may hold at once.
 pub const MAX_SESSIONS_PER_KEY: usize = 1000;
@@ -172,6 +184,8 @@ impl Service {
         Ok(Service {
             keys: auth::ApiKeys::default(),
             max_sessions_per_key: MAX_SESSIONS_PER_KEY,
+            changes: tokio::sync::broadcast::channel(CHANGES_BUFFERED).0,
+            event_streams: Arc::new(tokio::sync::Semaphore::new(MAX_EVENT_STREAMS)),
             bodies: Arc::new(tokio::sync::Semaphore::new(body_kib)),
             working: memory::WorkingMemory::new(limits.max_working_bytes),
             pool: ComputePool::new(limits.threads, limits.max_jobs)?,
@@ -182,6 +196,23 @@ impl Service {
             store_ttl: session_ttl,
             clock: clock::system(),
         })
+    }
+
+    /// Stored session ids as they change (a capture added, the session deleted), on this
+    /// replica only: a live view also re-reads its session now and then for the changes made
+    /// through other replicas.
+    pub fn session_changes(&self) -> tokio::sync::broadcast::Receiver<String> {
+        self.changes.subscribe()
+    }
+
+    /// A place for one more live-view stream, or none when [`MAX_EVENT_STREAMS`] are open.
+    pub fn open_event_stream(&self) -> Option<tokio::sync::OwnedSemaphorePermit> {
+        Arc::clone(&self.event_streams).try_acquire_owned().ok()
+    }
+
+    fn session_changed(&self, stored_id: &str) {
+        // No receiver (no live view open) is not a failure.
+        let _ = self.changes.send(stored_id.to_string());
     }
 
     /// This service, stamping sessions and captures and timing requests by `clock` (give the

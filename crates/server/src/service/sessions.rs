@@ -16,6 +16,7 @@ use super::clock::Clock;
 use super::store::{SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
 use nalgebra::Matrix6;
+use trinocular_core::map::export::RigMarker;
 use trinocular_core::map::poses::RelativePose;
 use trinocular_core::map::session::{Added, Placed, SessionParams};
 use trinocular_core::map::{self, FuseParams, MapGate, PosePrior};
@@ -25,7 +26,7 @@ use trinocular_schema::session::{
     pose_prior, pose_to_pb, registration_to_pb, status_to_pb, stored_capture_segments,
     StoredSegments,
 };
-use trinocular_schema::{match_params, pb, InputError};
+use trinocular_schema::{match_params, pb, rig_from_calibration, InputError};
 
 // The fused map and its message are the schema's: the transports answer with it.
 pub use trinocular_schema::session::{map_to_pb, SessionMap};
@@ -238,7 +239,10 @@ impl Service {
     pub async fn delete_session(&self, caller: &Caller, id: &str) -> Result<(), ServiceError> {
         async {
             check_id(id)?;
-            Ok(self.store.delete(&store_id(caller, id)).await?)
+            let stored_id = store_id(caller, id);
+            self.store.delete(&stored_id).await?;
+            self.session_changed(&stored_id);
+            Ok(())
         }
         .await
     }
@@ -335,6 +339,7 @@ impl Service {
                 .store
                 .append_capture(&session_id, &capture.encode_to_vec())
                 .await?;
+            self.session_changed(&session_id);
             let response = if asked_uncertain {
                 everything
             } else {
@@ -372,6 +377,13 @@ impl Service {
             let info = self.store.get(&stored_id).await?;
             let stored = pb::StoredOptions::decode(&info.record.options[..])
                 .map_err(|e| corrupt("options", e))?;
+            let calibration = pb::Calibration::decode(&info.record.calibration[..])
+                .map_err(|e| corrupt("calibration", e))?;
+            let rig = rig_from_calibration(Some(&calibration))
+                .map(|rig| RigMarker::of(&rig))
+                .map_err(|e| ServiceError::Internal {
+                    detail: format!("stored calibration is not a rig: {e}"),
+                })?;
             let captures = self.store.captures(&stored_id).await?;
             let refine_poses = stored
                 .map_options
@@ -388,6 +400,7 @@ impl Service {
                     min_observations,
                     refine_poses,
                     gate,
+                    rig,
                 };
                 fuse_stored(session_id, &captures, options, clock.as_ref())
             });
@@ -465,6 +478,7 @@ fn fuse_stored(
         poses: poses.iter().map(|p| p.rig_to_world).collect(),
         prior_poses,
         fuse_ms: clock.since(start).as_secs_f64() * 1e3,
+        rig: options.rig,
     })
 }
 
@@ -476,6 +490,8 @@ struct MapBuild {
     refine_poses: bool,
     /// The promise the map keeps: the session's match options' gate.
     gate: MapGate,
+    /// Where the rig's cameras are, for the top views.
+    rig: RigMarker,
 }
 
 /// Each stored capture's segments and poses, with the pose-graph edges it holds.

@@ -101,6 +101,14 @@ check("sleep" in json.dumps(pre), f"k8s preStop sleep {pre}")
 res = c.get("resources", {})
 check(all(k in res.get(s, {}) for s in ("requests", "limits") for k in ("cpu", "memory")), "k8s resources requests+limits cpu/memory")
 check(pod["securityContext"].get("runAsNonRoot") is True, "k8s runAsNonRoot")
+check(c.get("startupProbe", {}).get("grpc", {}).get("port") == 50051, "k8s gRPC probe on 50051 (grpc.health.v1)")
+images = [x["image"] for d in k8s for x in d.get("spec", {}).get("template", {}).get("spec", {}).get("containers", [])]
+images += [s.get("image", "") for s in svc.values()]
+check(all(":" in i and not i.endswith(":latest") for i in images if i), f"no latest or untagged images: {images}")
+redis_sts = kind("StatefulSet")
+check(bool(redis_sts) and redis_sts[0]["spec"]["template"]["spec"].get("securityContext", {}).get("runAsNonRoot") is True
+      and redis_sts[0]["spec"]["template"]["spec"]["containers"][0].get("securityContext", {}).get("allowPrivilegeEscalation") is False,
+      "k8s Redis runs as non-root without privilege escalation")
 cm = kind("ConfigMap")
 check(len(cm) == 1 and "trinocular.toml" in cm[0]["data"], "k8s ConfigMap with trinocular.toml")
 mounts = {m["name"]: m["mountPath"] for m in c["volumeMounts"]}

@@ -39,6 +39,48 @@ enum Command {
     /// correspondences); prints a Calibration (JSON) that Match and sessions take unchanged,
     /// and each camera's reprojection error on stderr.
     Calibrate(CalibrateArgs),
+    /// Read a calibration from other tools' files (Kalibr, OpenCV FileStorage, ROS
+    /// CameraInfo), or write one in their formats.
+    #[command(subcommand)]
+    Calibration(CalibrationCommand),
+    /// Write the calibration pattern as printable SVG pages at true size, one per board
+    /// (board_0.svg, board_1.svg, …): print at 100 %, check the 100 mm bar, mount as labelled.
+    Pattern(PatternArgs),
+}
+
+#[derive(Args)]
+struct PatternArgs {
+    /// A CalibrationPattern in proto3 JSON (default: the two-board pattern `calibrate` uses).
+    #[arg(long)]
+    pattern: Option<PathBuf>,
+    /// Directory for the pages.
+    #[arg(long, default_value = "pattern")]
+    out: PathBuf,
+}
+
+#[derive(Subcommand)]
+enum CalibrationCommand {
+    /// Prints the Calibration (JSON) of Kalibr's camchain.yaml (--format kalibr), an OpenCV
+    /// FileStorage file (opencv-yaml, opencv-xml) or three ROS CameraInfo files (ros).
+    Import {
+        #[arg(long, value_parser = ["kalibr", "opencv-yaml", "opencv-xml", "ros"])]
+        format: String,
+        /// One file; three for ros (cameras 1, 2, 3).
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Write the Calibration here instead of stdout.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+    },
+    /// Writes a Calibration (JSON) in another tool's format: to OUTPUT (ros: OUTPUT's stem
+    /// with _1, _2, _3 per camera), or stdout for a one-file format.
+    Export {
+        #[arg(long, value_parser = ["kalibr", "opencv-yaml", "opencv-xml", "ros"])]
+        format: String,
+        calibration: PathBuf,
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+    },
 }
 
 #[derive(Args)]
@@ -323,6 +365,95 @@ fn run_match(args: &MatchArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+fn run_calibration(command: &CalibrationCommand) -> Result<(), Failure> {
+    use api::calibration_files::{export, import, CalibrationFormat};
+    // An error about a file names the file the user passed, not its index.
+    let named = |e: InputError, files: &[PathBuf]| -> Failure {
+        let at = |i: usize| files.get(i).map(|p| p.display().to_string());
+        let file = if let Some(rest) = e.field.strip_prefix("files[") {
+            rest.split(']')
+                .next()
+                .and_then(|i| i.parse().ok())
+                .and_then(at)
+        } else if files.len() == 1 && !e.field.starts_with("calibration") && e.field != "files" {
+            at(0)
+        } else {
+            None
+        };
+        match file {
+            Some(f) => Failure::Input(InputError {
+                field: format!("{f}: {}", e.field),
+                message: e.message,
+            }),
+            None => Failure::Input(e),
+        }
+    };
+    match command {
+        CalibrationCommand::Import {
+            format,
+            files,
+            output,
+        } => {
+            let format: CalibrationFormat = format.parse()?;
+            let texts = files
+                .iter()
+                .map(|f| read(f))
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let refs: Vec<&str> = texts.iter().map(String::as_str).collect();
+            let calibration = import(format, &refs).map_err(|e| named(e, files))?;
+            let json = api::to_json(&calibration) + "\n";
+            match output {
+                Some(path) => write(path, json.as_bytes())?,
+                None => print!("{json}"),
+            }
+        }
+        CalibrationCommand::Export {
+            format,
+            calibration,
+            output,
+        } => {
+            let format: CalibrationFormat = format.parse()?;
+            let calibration: pb::Calibration = api::from_json("calibration", &read(calibration)?)?;
+            let files = export(format, &calibration)?;
+            match (output, files.len()) {
+                (None, 1) => print!("{}", files[0]),
+                (None, _) => {
+                    return Err(Failure::Other(anyhow::anyhow!(
+                        "{} writes one file per camera: give --output",
+                        format.name()
+                    )))
+                }
+                (Some(path), 1) => write(path, files[0].as_bytes())?,
+                (Some(path), _) => {
+                    let stem = path.with_extension("");
+                    for (i, text) in files.iter().enumerate() {
+                        let name = format!("{}_{}.yaml", stem.display(), i + 1);
+                        write(Path::new(&name), text.as_bytes())?;
+                        eprintln!("wrote {name}");
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+fn run_pattern(args: &PatternArgs) -> Result<(), Failure> {
+    let given: Option<pb::CalibrationPattern> = match &args.pattern {
+        Some(path) => Some(api::from_json("pattern", &read(path)?)?),
+        None => None,
+    };
+    let pattern = api::calibrate::pattern_from_pb(given.as_ref())?;
+    fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    for (i, board) in pattern.boards.iter().enumerate() {
+        let path = args.out.join(format!("board_{i}.svg"));
+        write(&path, board.printable_svg(i).as_bytes())?;
+        println!("{}", path.display());
+    }
+    Ok(())
+}
+
 fn run_calibrate(args: &CalibrateArgs) -> Result<(), Failure> {
     let json = |what: &str, path: &Option<PathBuf>| -> Result<Option<String>, Failure> {
         match path {
@@ -442,6 +573,8 @@ fn main() -> ExitCode {
         Command::Extract(args) => run_extract(args),
         Command::Match(args) => run_match(args),
         Command::Calibrate(args) => run_calibrate(args),
+        Command::Calibration(command) => run_calibration(command),
+        Command::Pattern(args) => run_pattern(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

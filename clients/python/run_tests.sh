@@ -15,6 +15,6 @@ export TRINOCULAR_BIN
 [ -x "$TRINOCULAR_BIN" ] || { echo "no server binary at $TRINOCULAR_BIN (cargo build --release)" >&2; exit 1; }
 python3 -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip
-"$venv/bin/python" -m pip install -q "$root/clients/python[rerun]" pytest numpy trustme
+"$venv/bin/python" -m pip install -q "$root/clients/python[rerun]" pytest numpy trustme opencv-python-headless
 cd "$here"
 exec "$venv/bin/python" -m pytest -q tests "${@:2}"

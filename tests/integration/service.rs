@@ -750,7 +750,19 @@ fn each_request_is_counted_once_under_its_transport_route_and_code() {
         assert_eq!(status(unread), 400);
         // Off the API: the probes, and paths the router does not serve, are not counted.
         assert_eq!(status(http.get(url("/healthz")).send().await.unwrap()), 200);
-        assert_eq!(status(http.get(url("/v2/nothing")).send().await.unwrap()), 404);
+        let nowhere = http.get(url("/v2/nothing")).send().await.unwrap();
+        assert_eq!(status(nowhere), 404);
+        // …and answer in the API's error format, as a wrong method does.
+        let nowhere: serde_json::Value =
+            serde_json::from_str(&http.get(url("/v2/nothing")).send().await.unwrap().text().await.unwrap())
+                .unwrap();
+        assert_eq!(nowhere["error"]["code"], "NOT_FOUND", "{nowhere}");
+        let wrong = http.delete(url("/v1/match")).send().await.unwrap();
+        assert_eq!(status(wrong), 405);
+        let wrong: serde_json::Value =
+            serde_json::from_str(&http.delete(url("/v1/match")).send().await.unwrap().text().await.unwrap())
+                .unwrap();
+        assert_eq!(wrong["error"]["field"], "method", "{wrong}");
 
         let text = http.get(url("/metrics")).send().await.unwrap().text().await.unwrap();
         let counted: Vec<&str> = text

@@ -339,7 +339,10 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
             ..captures[0].clone()
         };
         let with_matrix = |matrix: Vec<f64>| pb::AddCaptureRequest {
-            rig_to_world: Some(pb::Pose { matrix }),
+            rig_to_world: Some(pb::Pose {
+                matrix,
+                ..pb::Pose::default()
+            }),
             ..good.clone()
         };
         let mut scaled = good.rig_to_world.clone().unwrap().matrix;
@@ -943,7 +946,10 @@ fn perturbed(pose: &pb::Pose, yaw_deg: f64, dx: f64, dy: f64) -> pb::Pose {
     }
     out[3] += dx;
     out[7] += dy;
-    pb::Pose { matrix: out }
+    pb::Pose {
+        matrix: out,
+        ..pb::Pose::default()
+    }
 }
 
 /// Rotation angle (degrees) and distance (metres) between two poses.

@@ -320,6 +320,19 @@ def test_session_lifecycle(client, demo):
         client.get_map(s.id)
 
 
+def test_poses_as_quaternions_and_rounded_matrices(client, demo):
+    cal = demo / "calibration.json"
+    s = client.create_session(cal, name="poses")
+    r = client.add_capture(s.id, {"quaternion": [1, 0, 0, 0], "translation": [0, 0, 0]},
+                           images=_paths(demo))
+    assert r.warnings == []
+    c, sn = np.cos(0.3), np.sin(0.3)
+    rounded = np.round([[c, -sn, 0, 0.1], [sn, c, 0, 0.2], [0, 0, 1, 0], [0, 0, 0, 1]], 4)
+    r = client.add_capture(s.id, rounded, images=_paths(demo))
+    assert len(r.warnings) == 1 and r.warnings[0].startswith("rig_to_world.matrix"), r.warnings
+    client.delete_session(s.id)
+
+
 def test_bad_pose_is_invalid(client, demo):
     s = client.create_session(demo / "calibration.json")
     bad = np.eye(4)

@@ -14,6 +14,7 @@
 //! runtime, transport or store.
 
 pub mod calibrate;
+pub mod calibration_files;
 pub mod codec;
 pub(crate) mod convert;
 mod fast_json;

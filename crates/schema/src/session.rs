@@ -15,19 +15,84 @@ use trinocular_core::map::poses::RelativePose;
 use trinocular_core::map::{MapSegment, Measured, PosePrior, Registration, RegistrationStatus};
 use trinocular_core::segment::Segment3;
 
-/// How far a pose's rotation block may be from a rotation (RᵀR − I, determinant − 1).
+/// How far a pose's rotation block may be from a rotation (RᵀR − I, determinant − 1) and be
+/// taken as it is, without a warning.
 pub const POSE_TOLERANCE: f64 = 1e-6;
 /// Longest session name, characters.
 pub const MAX_NAME_CHARS: usize = 200;
 
-/// The rigid transform of a `Pose` (16 doubles, row-major 4x4), or an error naming `field`.
+/// A rigid transform from a `Pose` message: its matrix, or its quaternion and translation.
+/// A matrix within [`NEAR_RIGID`] of rigid is replaced by the nearest rotation; use
+/// [`pose_from_pb_noting`] to learn when that happened.
 pub fn pose_from_pb(pose: Option<&pb::Pose>, field: &str) -> Result<Isometry3<f64>, InputError> {
-    let pb::Pose { matrix } = pose.ok_or_else(|| {
+    pose_from_pb_noting(pose, field).map(|(pose, _)| pose)
+}
+
+/// How far from orthonormal (max |RᵀR − I|, and |det − 1|) a pose's rotation block may be and
+/// still be accepted, re-orthonormalised: a pose printed to three or four digits.
+pub const NEAR_RIGID: f64 = 1e-3;
+
+/// [`pose_from_pb`], and a warning when the pose was corrected to be taken.
+pub fn pose_from_pb_noting(
+    pose: Option<&pb::Pose>,
+    field: &str,
+) -> Result<(Isometry3<f64>, Option<String>), InputError> {
+    let pb::Pose {
+        matrix,
+        quaternion,
+        translation,
+    } = pose.ok_or_else(|| {
         InputError::new(
             field,
-            "missing: a row-major 4x4 rigid transform, 16 numbers",
+            "missing: a rigid transform (a row-major 4x4 as 16 numbers, or a quaternion w x y z \
+             and a translation)",
         )
     })?;
+    let finite = |values: &[f64], name: &str| -> Result<(), InputError> {
+        match values.iter().position(|v| !v.is_finite()) {
+            Some(i) => Err(InputError::new(
+                format!("{field}.{name}[{i}]"),
+                format!("{} is not a finite number", values[i]),
+            )),
+            None => Ok(()),
+        }
+    };
+    if !quaternion.is_empty() || !translation.is_empty() {
+        if !matrix.is_empty() {
+            return Err(InputError::new(
+                field,
+                "give the matrix or the quaternion and translation, not both",
+            ));
+        }
+        for (values, name, n) in [
+            (quaternion, "quaternion", 4),
+            (translation, "translation", 3),
+        ] {
+            if values.len() != n {
+                return Err(InputError::new(
+                    format!("{field}.{name}"),
+                    format!("needs exactly {n} numbers, got {}", values.len()),
+                ));
+            }
+            finite(values, name)?;
+        }
+        let q =
+            nalgebra::Quaternion::new(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
+        let norm = q.norm();
+        if (norm - 1.0).abs() > NEAR_RIGID {
+            return Err(InputError::new(
+                format!("{field}.quaternion"),
+                format!("must be a unit quaternion (w, x, y, z), its norm is {norm:.6}"),
+            ));
+        }
+        let warning = ((norm - 1.0).abs() > POSE_TOLERANCE)
+            .then(|| format!("{field}.quaternion: norm {norm:.6} normalised to 1"));
+        let pose = Isometry3::from_parts(
+            Translation3::new(translation[0], translation[1], translation[2]),
+            UnitQuaternion::from_quaternion(q),
+        );
+        return Ok((pose, warning));
+    }
     let field = format!("{field}.matrix");
     if matrix.len() != 16 {
         return Err(InputError::new(
@@ -64,7 +129,7 @@ pub fn pose_from_pb(pose: Option<&pb::Pose>, field: &str) -> Result<Isometry3<f6
     let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into_owned();
     let orthogonality = (r.transpose() * r - Matrix3::identity()).abs().max();
     let det = r.determinant();
-    if orthogonality > POSE_TOLERANCE || (det - 1.0).abs() > POSE_TOLERANCE {
+    if orthogonality > NEAR_RIGID || (det - 1.0).abs() > NEAR_RIGID {
         return Err(InputError::new(
             field,
             format!(
@@ -73,9 +138,25 @@ pub fn pose_from_pb(pose: Option<&pb::Pose>, field: &str) -> Result<Isometry3<f6
             ),
         ));
     }
-    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    let (rotation, warning) =
+        if orthogonality > POSE_TOLERANCE || (det - 1.0).abs() > POSE_TOLERANCE {
+            // The nearest rotation (polar decomposition by SVD).
+            let svd = r.svd(true, true);
+            let nearest = svd.u.expect("u") * svd.v_t.expect("v_t");
+            (
+                nearest,
+                Some(format!(
+                    "{field}: the rotation block was {orthogonality:.1e} from orthonormal and was \
+                 replaced by the nearest rotation"
+                )),
+            )
+        } else {
+            (r, None)
+        };
+    let rotation =
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rotation));
     let translation = Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]);
-    Ok(Isometry3::from_parts(translation, rotation))
+    Ok((Isometry3::from_parts(translation, rotation), warning))
 }
 
 /// A `Pose` message.
@@ -86,6 +167,7 @@ pub fn pose_to_pb(pose: &Isometry3<f64>) -> pb::Pose {
             .flat_map(|r| (0..4).map(move |c| (r, c)))
             .map(|(r, c)| m[(r, c)])
             .collect(),
+        ..pb::Pose::default()
     }
 }
 
@@ -466,7 +548,10 @@ mod tests {
     use proptest::prelude::*;
 
     fn pose(matrix: Vec<f64>) -> Option<pb::Pose> {
-        Some(pb::Pose { matrix })
+        Some(pb::Pose {
+            matrix,
+            ..pb::Pose::default()
+        })
     }
 
     #[test]
@@ -556,9 +641,63 @@ mod tests {
         let mut mirrored = identity.clone();
         mirrored[0] = -1.0;
         assert!(field(mirrored).message.contains("det = -1"));
-        let mut projective = identity;
+        let mut projective = identity.clone();
         projective[12] = 0.5;
         assert!(field(projective).message.contains("last row"));
+        let quaternion = |q: Vec<f64>, t: Vec<f64>| pb::Pose {
+            quaternion: q,
+            translation: t,
+            ..pb::Pose::default()
+        };
+        let e = pose_from_pb(
+            Some(&quaternion(vec![2.0, 0.0, 0.0, 0.0], vec![0.0; 3])),
+            "p",
+        );
+        assert_eq!(e.unwrap_err().field, "p.quaternion");
+        let e = pose_from_pb(
+            Some(&quaternion(vec![1.0, 0.0, 0.0, 0.0], vec![0.0; 2])),
+            "p",
+        );
+        assert_eq!(e.unwrap_err().field, "p.translation");
+        let both = pb::Pose {
+            matrix: identity,
+            ..quaternion(vec![1.0, 0.0, 0.0, 0.0], vec![0.0; 3])
+        };
+        assert!(pose_from_pb(Some(&both), "p")
+            .unwrap_err()
+            .message
+            .contains("not both"));
+    }
+
+    #[test]
+    fn a_pose_comes_as_a_quaternion_or_a_near_rigid_matrix_noted() {
+        let truth = Isometry3::new(
+            nalgebra::Vector3::new(0.4, -1.2, 0.9),
+            nalgebra::Vector3::new(0.1, -0.2, 0.7),
+        );
+        let q = truth.rotation.quaternion();
+        let t = truth.translation.vector;
+        let given = pb::Pose {
+            quaternion: vec![q.w, q.i, q.j, q.k],
+            translation: vec![t.x, t.y, t.z],
+            ..pb::Pose::default()
+        };
+        let (read, warning) = pose_from_pb_noting(Some(&given), "p").unwrap();
+        assert!(warning.is_none());
+        assert!((read.to_homogeneous() - truth.to_homogeneous()).abs().max() < 1e-12);
+        // Printed to four digits: accepted as the nearest rotation, with a warning.
+        let rounded: Vec<f64> = pose_to_pb(&truth)
+            .matrix
+            .iter()
+            .map(|v| (v * 1e4).round() / 1e4)
+            .collect();
+        let (read, warning) = pose_from_pb_noting(pose(rounded).as_ref(), "rig_to_world").unwrap();
+        assert!(warning.unwrap().starts_with("rig_to_world.matrix"));
+        let r = read.rotation.to_rotation_matrix().into_inner();
+        assert!((r.transpose() * r - Matrix3::identity()).abs().max() < 1e-12);
+        assert!((read.to_homogeneous() - truth.to_homogeneous()).abs().max() < 1e-4);
+        let exact = pose_from_pb_noting(Some(&pose_to_pb(&truth)), "p").unwrap();
+        assert!(exact.1.is_none(), "an exact pose brings no warning");
     }
 
     proptest! {

@@ -52,6 +52,8 @@ pub fn route(parts: &Parts) -> Option<&'static str> {
     Some(match method {
         "Match" => "match",
         "Calibrate" => "calibrate",
+        "ImportCalibration" => "import_calibration",
+        "ExportCalibration" => "export_calibration",
         "CreateSession" => "create_session",
         "AddCapture" => "add_capture",
         "GetMap" => "get_map",
@@ -208,6 +210,24 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         self.caller(&request)?;
         let request = request.into_inner();
         let answer = self.service.calibrate(move || Ok(request), timeout).await;
+        respond(answer)
+    }
+
+    async fn import_calibration(
+        &self,
+        request: Request<pb::ImportCalibrationRequest>,
+    ) -> Result<Response<pb::Calibration>, Status> {
+        self.caller(&request)?;
+        let answer = self.service.import_calibration(request.into_inner()).await;
+        respond(answer)
+    }
+
+    async fn export_calibration(
+        &self,
+        request: Request<pb::ExportCalibrationRequest>,
+    ) -> Result<Response<pb::ExportCalibrationResponse>, Status> {
+        self.caller(&request)?;
+        let answer = self.service.export_calibration(request.into_inner()).await;
         respond(answer)
     }
 

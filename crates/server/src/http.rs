@@ -7,12 +7,16 @@
 //!   `image2` `image3`), answered in JSON;
 //! - `POST /v1/calibrate[?timeout_ms=N]`: a `CalibrateRequest` → a `CalibrateResponse`, or a
 //!   multipart upload (parts `pattern`, `options`, `pattern_to_rig`, `image1..3`);
+//! - `POST /v1/calibration/import`: an `ImportCalibrationRequest` (or a multipart upload,
+//!   parts `format` and `file` or `file1..3`) → a `Calibration`; `POST
+//!   /v1/calibration/export`: an `ExportCalibrationRequest` → an `ExportCalibrationResponse`;
 //! - sessions: `POST /v1/sessions` (a `CreateSessionRequest`), `GET /v1/sessions`,
 //!   `GET|DELETE /v1/sessions/{id}`, `POST /v1/sessions/{id}/captures[?timeout_ms=N]` (an
 //!   `AddCaptureRequest`, or a multipart upload with parts `pose` and `segments` or
 //!   `image1..3`), `GET /v1/sessions/{id}/map[?format=json|ply|obj|svg|png][&min_observations=N]`;
 //! - the browser view (`/`, `/sessions/{id}`, `/ui/…`) and its live feed
 //!   `GET /v1/sessions/{id}/events` ([`crate::ui`]);
+//! - `GET /openapi.json`: this API as an OpenAPI 3 document;
 //! - `GET /healthz`: the process is up; `GET /readyz`: it takes work (503 while stopping);
 //! - `GET /metrics`: Prometheus text format.
 //!
@@ -61,11 +65,14 @@ pub fn router(service: Arc<Service>) -> Router {
     Router::new()
         .route("/v1/match", post(match_handler))
         .route("/v1/calibrate", post(calibrate))
+        .route("/v1/calibration/import", post(import_calibration))
+        .route("/v1/calibration/export", post(export_calibration))
         .route("/v1/sessions", post(create_session).get(list_sessions))
         .route("/v1/sessions/{id}", get(get_session).delete(delete_session))
         .route("/v1/sessions/{id}/captures", post(add_capture))
         .route("/v1/sessions/{id}/map", get(get_map))
         .merge(crate::ui::routes())
+        .route("/openapi.json", get(openapi))
         .route("/healthz", get(|| async { "ok\n" }))
         .route("/readyz", get(ready))
         .route(
@@ -77,6 +84,9 @@ pub fn router(service: Arc<Service>) -> Router {
                 )
             }),
         )
+        // A path or method not served answers in the API's error format too.
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         .layer(DefaultBodyLimit::max(max))
         .layer(axum::middleware::from_fn_with_state(
             Arc::clone(&service),
@@ -96,6 +106,8 @@ fn route(parts: &Parts) -> Option<&'static str> {
     Some(match (&parts.method, path) {
         (&Method::POST, "/v1/match") => "match",
         (&Method::POST, "/v1/calibrate") => "calibrate",
+        (&Method::POST, "/v1/calibration/import") => "import_calibration",
+        (&Method::POST, "/v1/calibration/export") => "export_calibration",
         (&Method::POST, "/v1/sessions") => "create_session",
         (&Method::GET, "/v1/sessions") => "list_sessions",
         (&Method::GET, "/v1/sessions/{id}") => "get_session",
@@ -121,7 +133,9 @@ async fn admit(
     next: axum::middleware::Next,
 ) -> Response {
     let path = request.uri().path();
-    if !matches!(path, "/healthz" | "/readyz" | "/metrics") && !crate::ui::is_public(path) {
+    if !matches!(path, "/healthz" | "/readyz" | "/metrics" | "/openapi.json")
+        && !crate::ui::is_public(path)
+    {
         // The key is checked before anything else, by the handlers' own extractor: an
         // unknown caller costs no admission and reads no body. The caller it finds is kept in
         // the request for the handler's extraction.
@@ -302,6 +316,35 @@ pub fn error_response(e: &ServiceError) -> Response {
             .insert(header::RETRY_AFTER, header::HeaderValue::from_static("1"));
     }
     response
+}
+
+/// The HTTP API's OpenAPI 3 document (`src/openapi.json`; a test holds it to the router's
+/// routes, CI validates it).
+pub const OPENAPI: &str = include_str!("openapi.json");
+
+async fn openapi() -> Response {
+    ([(header::CONTENT_TYPE, JSON)], OPENAPI).into_response()
+}
+
+async fn not_found(uri: axum::http::Uri) -> Response {
+    error_response(&ServiceError::NotFound {
+        field: "path".into(),
+        what: format!("route {}", uri.path()),
+    })
+}
+
+async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> Response {
+    let body = serde_json::json!({"error": {
+        "code": "UNIMPLEMENTED",
+        "field": "method",
+        "message": format!("{method} is not served on {}", uri.path()),
+    }});
+    (
+        StatusCode::METHOD_NOT_ALLOWED,
+        [(header::CONTENT_TYPE, JSON)],
+        body.to_string() + "\n",
+    )
+        .into_response()
 }
 
 /// The gRPC name of a code: `InvalidArgument` → `INVALID_ARGUMENT`.
@@ -668,6 +711,89 @@ async fn create_session(
     answer(result, protobuf)
 }
 
+/// `POST /v1/calibration/import`: an `ImportCalibrationRequest` (JSON or protobuf), or a
+/// multipart upload as curl sends files (parts `format`, and `file` or `file1` `file2` `file3`)
+/// → the `Calibration`.
+async fn import_calibration(
+    State(service): State<Arc<Service>>,
+    _: Caller,
+    format: BodyFormat,
+    request: axum::extract::Request,
+) -> Response {
+    let protobuf = format == BodyFormat::Protobuf;
+    let max_bytes = service.limits().max_message_bytes;
+    let result = async {
+        let request = if format == BodyFormat::Multipart {
+            let parts = Multipart::from_request(request, &())
+                .await
+                .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))?;
+            calibration_files_upload(parts, max_bytes).await?
+        } else {
+            let body = read_body(request, max_bytes).await?;
+            decode_body::<pb::ImportCalibrationRequest>(&body, protobuf)?
+        };
+        service.import_calibration(request).await
+    }
+    .await;
+    answer(result, protobuf)
+}
+
+/// The parts of a calibration import upload: `format`, then `file` or `file1..3` in order.
+async fn calibration_files_upload(
+    mut parts: Multipart,
+    max_bytes: usize,
+) -> Result<pb::ImportCalibrationRequest, ServiceError> {
+    let bad = |field: &str, message: &str| ServiceError::Input(InputError::new(field, message));
+    let mut request = pb::ImportCalibrationRequest::default();
+    let mut numbered: [Option<String>; 3] = Default::default();
+    while let Some(field) = parts
+        .next_field()
+        .await
+        .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))?
+    {
+        let name = field.name().unwrap_or_default().to_string();
+        let bytes = field
+            .bytes()
+            .await
+            .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))?;
+        let text =
+            String::from_utf8(bytes.to_vec()).map_err(|_| bad(&name, "is not UTF-8 text"))?;
+        match name.as_str() {
+            "format" => request.format = text.trim().to_string(),
+            "file" => request.files.push(text),
+            "file1" | "file2" | "file3" => {
+                numbered[usize::from(name.as_bytes()[4] - b'1')] = Some(text)
+            }
+            other => {
+                return Err(bad(
+                    other,
+                    "unknown part (expected format, and file or file1, file2, file3)",
+                ))
+            }
+        }
+    }
+    request.files.extend(numbered.into_iter().flatten());
+    Ok(request)
+}
+
+/// `POST /v1/calibration/export`: an `ExportCalibrationRequest` → the files' text.
+async fn export_calibration(
+    State(service): State<Arc<Service>>,
+    _: Caller,
+    format: BodyFormat,
+    request: axum::extract::Request,
+) -> Response {
+    let protobuf = format == BodyFormat::Protobuf;
+    let max_bytes = service.limits().max_message_bytes;
+    let result = async {
+        let body = read_body(request, max_bytes).await?;
+        let request: pb::ExportCalibrationRequest = decode_body(&body, protobuf)?;
+        service.export_calibration(request).await
+    }
+    .await;
+    answer(result, protobuf)
+}
+
 async fn list_sessions(
     State(service): State<Arc<Service>>,
     caller: Caller,
@@ -991,9 +1117,19 @@ impl Upload {
 /// A pose part: a `Pose` in JSON, or its 16 numbers as a bare list (the easy thing to type).
 fn pose_part(name: &str, text: &str) -> Result<pb::Pose, ServiceError> {
     if text.trim_start().starts_with('[') {
-        serde_json::from_str::<Vec<f64>>(text)
-            .map(|matrix| pb::Pose { matrix })
-            .map_err(|e| ServiceError::Input(InputError::new(name, format!("invalid JSON: {e}"))))
+        // 16 numbers, or a nested 4x4 (four rows of four).
+        let flat = serde_json::from_str::<Vec<f64>>(text)
+            .or_else(|_| serde_json::from_str::<Vec<Vec<f64>>>(text).map(|rows| rows.concat()));
+        flat.map(|matrix| pb::Pose {
+            matrix,
+            ..pb::Pose::default()
+        })
+        .map_err(|e| {
+            ServiceError::Input(InputError::new(
+                name,
+                format!("invalid JSON (16 numbers, or four rows of four): {e}"),
+            ))
+        })
     } else {
         Ok(from_json(name, text)?)
     }
@@ -1170,5 +1306,106 @@ mod tests {
         let e = parsed("/m?format=ply&format=obj").err().unwrap();
         assert_eq!(e.field, "query");
         assert!(e.message.contains("format"), "{e}");
+    }
+
+    /// The routes the router serves, read from the sources that declare them (each `route`
+    /// call with its path and method handlers, in this file and `ui.rs`), as (method, OpenAPI
+    /// path) pairs.
+    fn declared_routes() -> Vec<(String, String)> {
+        let mut out = Vec::new();
+        for source in [include_str!("http.rs"), include_str!("ui.rs")] {
+            for (at, _) in source.match_indices(".route(") {
+                let rest = source[at + 7..].trim_start();
+                let Some(rest) = rest.strip_prefix('"') else {
+                    continue;
+                };
+                let path = &rest[..rest.find('"').unwrap()];
+                // The call's text up to its closing parenthesis at depth zero.
+                let mut depth = 1;
+                let call: String = rest
+                    .chars()
+                    .take_while(|&c| {
+                        depth += i32::from(c == '(') - i32::from(c == ')');
+                        depth > 0
+                    })
+                    .collect();
+                let path = path.replace("{*path}", "{path}");
+                for method in ["get", "post", "delete", "put", "patch"] {
+                    let called = [
+                        format!(" {method}("),
+                        format!(".{method}("),
+                        format!("({method}("),
+                    ];
+                    if called.iter().any(|c| call.contains(c.as_str())) {
+                        out.push((method.to_string(), path.clone()));
+                    }
+                }
+            }
+        }
+        out.sort();
+        out.dedup();
+        out
+    }
+
+    #[test]
+    fn the_openapi_document_lists_every_route_and_no_other() {
+        let doc: serde_json::Value = serde_json::from_str(OPENAPI).expect("JSON");
+        assert!(doc["openapi"].as_str().unwrap().starts_with("3."));
+        let mut documented: Vec<(String, String)> = doc["paths"]
+            .as_object()
+            .unwrap()
+            .iter()
+            .flat_map(|(path, item)| {
+                item.as_object()
+                    .unwrap()
+                    .keys()
+                    .filter(|k| ["get", "post", "delete", "put", "patch"].contains(&k.as_str()))
+                    .map(move |m| (m.clone(), path.clone()))
+            })
+            .collect();
+        documented.sort();
+        let declared = declared_routes();
+        assert!(
+            declared.len() >= 15,
+            "the scan found the routes: {declared:?}"
+        );
+        assert_eq!(documented, declared, "OpenAPI paths vs the router's routes");
+    }
+
+    #[tokio::test]
+    async fn every_documented_route_is_served() {
+        use tower::ServiceExt;
+        let store = Arc::new(crate::service::store::memory::MemoryStore::new(
+            Duration::from_secs(60),
+        ));
+        let service =
+            Arc::new(Service::new(Default::default(), store, Duration::from_secs(60)).unwrap());
+        let app = router(service);
+        for (method, path) in declared_routes() {
+            let uri = path
+                .replace("{id}", "0123456789abcdef0123456789abcdef")
+                .replace("{path}", "style.css");
+            let request = axum::extract::Request::builder()
+                .method(method.to_uppercase().as_str())
+                .uri(&uri)
+                .header(header::CONTENT_TYPE, JSON)
+                .body(axum::body::Body::from("{}"))
+                .unwrap();
+            let response = app.clone().oneshot(request).await.unwrap();
+            let status = response.status();
+            // A documented route may refuse the empty request or the unknown session, but
+            // never as a route that does not exist or a method it does not serve.
+            assert_ne!(status, StatusCode::METHOD_NOT_ALLOWED, "{method} {uri}");
+            if status == StatusCode::NOT_FOUND {
+                let body = axum::body::to_bytes(response.into_body(), 1 << 20)
+                    .await
+                    .unwrap();
+                let body: serde_json::Value = serde_json::from_slice(&body).unwrap();
+                assert_ne!(
+                    body["error"]["field"], "path",
+                    "{method} {uri} is not routed"
+                );
+            }
+        }
     }
 }

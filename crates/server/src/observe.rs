@@ -328,7 +328,7 @@ impl<'a> Outcome<'a> {
         let (code, ms) = (self.code, seconds * 1e3);
         let kind = match route {
             "match" => "match",
-            "calibrate" => "calibrate",
+            "calibrate" | "import_calibration" | "export_calibration" => "calibrate",
             _ => "session",
         };
         match (self.error, self.message, self.matched) {

@@ -52,8 +52,15 @@ pub async fn start_with_tls(
     http_addr: SocketAddr,
     tls: Option<ServerTls>,
 ) -> std::io::Result<Running> {
-    let grpc_listener = TcpListener::bind(grpc_addr).await?;
-    let http_listener = TcpListener::bind(http_addr).await?;
+    // A bind error names the address and its setting ("address already in use" alone does
+    // not say which of the two ports is taken).
+    let bind = |setting: &'static str, addr: SocketAddr| async move {
+        TcpListener::bind(addr)
+            .await
+            .map_err(|e| std::io::Error::new(e.kind(), format!("{setting} {addr}: {e}")))
+    };
+    let grpc_listener = bind("grpc_addr", grpc_addr).await?;
+    let http_listener = bind("http_addr", http_addr).await?;
     let (grpc_addr, http_addr) = (grpc_listener.local_addr()?, http_listener.local_addr()?);
     let (stop, _) = watch::channel(false);
 

@@ -270,6 +270,7 @@ fn main() {
             matrix: vec![
                 0.0, -1.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.1, 0.0, 0.0, 0.0, 1.0,
             ],
+            ..pb::Pose::default()
         }),
         options: Some(pb::CalibrateOptions {
             distortion: Some(true),
@@ -328,6 +329,7 @@ fn main() {
             matrix: vec![
                 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0,
             ],
+            ..pb::Pose::default()
         }),
         input: Some(pb::add_capture_request::Input::Segments(triplet(
             &small_lists,

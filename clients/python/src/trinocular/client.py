@@ -142,8 +142,14 @@ def segment_list_array(lst: "pb.SegmentList") -> np.ndarray:
 
 
 def _pose(matrix) -> "pb.Pose":
+    """A Pose from a 4x4 (or 16 numbers, row-major), or a dict {"quaternion": [w, x, y, z],
+    "translation": [x, y, z]}. A matrix printed to a few digits is accepted by the service, which
+    re-orthonormalises it and says so in `CaptureResult.warnings`."""
     if isinstance(matrix, pb.Pose):
         return matrix
+    if isinstance(matrix, dict):
+        return pb.Pose(quaternion=[float(v) for v in matrix["quaternion"]],
+                       translation=[float(v) for v in matrix["translation"]])
     m = np.asarray(matrix, dtype=float)
     if m.shape not in ((4, 4), (16,)):
         raise ValueError(f"rig_to_world must be a 4x4 matrix, got shape {m.shape}")
@@ -341,6 +347,8 @@ class CaptureResult:
     captures: int
     match: MatchResult
     registration: Optional[Dict[str, Any]] = None
+    # What the service accepted with a correction (a near-rigid pose re-orthonormalised).
+    warnings: List[str] = field(default_factory=list)
 
 
 @dataclass
@@ -468,6 +476,25 @@ class Client:
             raw=r,
         )
 
+    def import_calibration(self, format: str, files: Sequence[Union[str, os.PathLike]]) -> Dict[str, Any]:
+        """A calibration (proto3 JSON dict, as `match_images` takes it) from other tools' files:
+        `format` "kalibr" (camchain.yaml), "opencv-yaml" / "opencv-xml" (FileStorage) or "ros"
+        (three CameraInfo YAML files, cameras 1, 2, 3). `files`: paths, or the files' text."""
+        texts = []
+        for f in files:
+            text = str(f)
+            if isinstance(f, os.PathLike) or ("\n" not in text and Path(text).is_file()):
+                text = Path(f).read_text()
+            texts.append(text)
+        r = self._call("ImportCalibration", pb.ImportCalibrationRequest(format=format, files=texts))
+        return _to_dict(r)
+
+    def export_calibration(self, format: str, calibration) -> List[str]:
+        """`calibration` written as other tools' files (one, or three for "ros"); the
+        extrinsics relative to camera 1."""
+        req = pb.ExportCalibrationRequest(format=format, calibration=load_calibration(calibration))
+        return list(self._call("ExportCalibration", req).files)
+
     # -- sessions ------------------------------------------------------------------------------
 
     def create_session(self, calibration, name: str = "", options=None,
@@ -515,7 +542,8 @@ class Client:
             "translation_change_m": g.translation_change_m,
         }
         return CaptureResult(capture_index=r.capture_index, captures=r.map.captures,
-                             match=MatchResult.from_pb(r.match), registration=registration)
+                             match=MatchResult.from_pb(r.match), registration=registration,
+                             warnings=list(r.warnings))
 
     def get_map(self, session_id: str, min_observations: Optional[int] = None) -> Map:
         req = pb.GetMapRequest(session_id=session_id)

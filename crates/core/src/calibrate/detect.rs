@@ -55,6 +55,9 @@ pub enum DetectError {
     BoardNotFound { board: usize, message: String },
     #[error("board {board} is ambiguous: {message}")]
     Ambiguous { board: usize, message: String },
+    /// No grid of squares in the image is a board of the pattern: a picture of something else.
+    #[error("no calibration pattern found: {message}")]
+    NoPattern { message: String },
     #[error(transparent)]
     Pattern(#[from] PatternError),
     #[error(transparent)]
@@ -582,6 +585,8 @@ pub fn detect_until(
     ratios.sort_by(f64::total_cmp);
     ratios.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
     let mut assigned: Vec<Option<(Vec<Cell>, Placement)>> = vec![None; pattern.boards.len()];
+    // The first grid that fitted a board in several ways: which board, and why.
+    let mut ambiguous: Option<(usize, String)> = None;
     let mut grids = 0;
     for &ratio in &ratios {
         for cells in lattices(&quads, ratio) {
@@ -599,17 +604,20 @@ pub fn detect_until(
             grids += 1;
             let board = found[0].board;
             if found.len() > 1 {
+                // Kept for the end: with a board found whole elsewhere this is an ambiguous
+                // board; with none, the picture holds no pattern (a grid on a wall, texture).
                 let mut boards: Vec<usize> = found.iter().map(|p| p.board).collect();
                 boards.dedup();
-                return Err(DetectError::Ambiguous {
+                ambiguous.get_or_insert((
                     board,
-                    message: format!(
+                    format!(
                         "a grid of {} squares fits {} placements (boards {boards:?}); \
                          too few squares visible to tell which cells are missing",
                         cells.len(),
                         found.len()
                     ),
-                });
+                ));
+                continue;
             }
             if let Some((other, _)) = &assigned[board] {
                 if other.len() >= cells.len() && cells.len() * 2 < other.len() {
@@ -627,7 +635,26 @@ pub fn detect_until(
             assigned[board] = Some((cells, found[0]));
         }
     }
+    if assigned.iter().all(Option::is_none) {
+        let message = match &ambiguous {
+            Some((_, why)) => format!("no board found whole ({why})"),
+            None => format!(
+                "{} dark squares in {} segments, and no grid of them is a board of the pattern",
+                quads.len(),
+                segments.len()
+            ),
+        };
+        return Err(DetectError::NoPattern { message });
+    }
     for (board, a) in assigned.iter().enumerate() {
+        if let (None, Some((which, message))) = (a, &ambiguous) {
+            if *which == board {
+                return Err(DetectError::Ambiguous {
+                    board,
+                    message: message.clone(),
+                });
+            }
+        }
         if a.is_none() {
             return Err(DetectError::BoardNotFound {
                 board,

@@ -193,6 +193,59 @@ impl CalibrationPattern {
     }
 }
 
+/// White around a printed board, millimetres (room for its label and the scale bar).
+const PRINT_MARGIN_MM: f64 = 15.0;
+
+impl GridBoard {
+    /// Board `index` as one SVG page at its true size (the document's units are millimetres:
+    /// printed at 100 %, without fit-to-page, a square is `square` wide), with a label saying
+    /// what it is and where it goes in the pattern frame, and a 100 mm bar to check the print.
+    pub fn printable_svg(&self, index: usize) -> String {
+        let mm = |m: f64| m * 1000.0;
+        let side = |n: u32| mm(f64::from(n - 1) * self.pitch + self.square);
+        let (board_w, board_h) = (side(self.cols), side(self.rows));
+        let width = (board_w + 2.0 * PRINT_MARGIN_MM).max(100.0 + 2.0 * PRINT_MARGIN_MM);
+        let height = board_h + 3.0 * PRINT_MARGIN_MM;
+        let mut out = format!(
+            "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{width:.3}mm\" height=\"{height:.3}mm\" \
+             viewBox=\"0 0 {width:.3} {height:.3}\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n"
+        );
+        for (r, c) in self.squares() {
+            out.push_str(&format!(
+                "<rect x=\"{:.3}\" y=\"{:.3}\" width=\"{:.3}\" height=\"{:.3}\" fill=\"black\"/>\n",
+                PRINT_MARGIN_MM + mm(f64::from(c) * self.pitch),
+                PRINT_MARGIN_MM + mm(f64::from(r) * self.pitch),
+                mm(self.square),
+                mm(self.square)
+            ));
+        }
+        let text_y = PRINT_MARGIN_MM + board_h + 7.0;
+        let v = |a: &Vector3<f64>| format!("({:.3}, {:.3}, {:.3})", a.x, a.y, a.z);
+        out.push_str(&format!(
+            "<text x=\"{PRINT_MARGIN_MM}\" y=\"{text_y:.3}\" font-family=\"sans-serif\" font-size=\"3\">\
+             board {index}: {} x {} squares of {} mm, {} mm apart; print at 100 % (no fit to page): \
+             the bar below is 100 mm. Mount with the top-left square's outer corner at {} m, \
+             columns along {} and rows along {} (pattern frame).</text>\n",
+            self.rows,
+            self.cols,
+            mm(self.square),
+            mm(self.pitch),
+            v(&self.origin.coords),
+            v(&self.u_axis),
+            v(&self.v_axis),
+        ));
+        let bar_y = text_y + 6.0;
+        out.push_str(&format!(
+            "<path d=\"M{PRINT_MARGIN_MM} {bar_y:.3} h100 M{PRINT_MARGIN_MM} {:.3} v3 M{:.3} {:.3} v3\" \
+             stroke=\"black\" stroke-width=\"0.4\" fill=\"none\"/>\n</svg>\n",
+            bar_y - 1.5,
+            PRINT_MARGIN_MM + 100.0,
+            bar_y - 1.5
+        ));
+        out
+    }
+}
+
 impl Default for CalibrationPattern {
     /// The paper's kind of object: two boards at a right angle, so that the reference points
     /// are not coplanar. The pattern frame: z up, the boards' common edge along z at the
@@ -219,6 +272,25 @@ impl Default for CalibrationPattern {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_board_prints_at_its_true_size_without_its_missing_cells() {
+        let p = CalibrationPattern::default();
+        let svg = p.boards[0].printable_svg(0);
+        // 8 columns of 40 mm squares at 60 mm: 460 mm of board, plus the margins.
+        assert!(
+            svg.starts_with("<svg ") && svg.contains("width=\"490.000mm\""),
+            "{}",
+            &svg[..200]
+        );
+        let squares = svg.matches("fill=\"black\"").count();
+        assert_eq!(squares, 6 * 8 - 2);
+        assert!(svg.contains("width=\"40.000\" height=\"40.000\""));
+        assert!(svg.contains("h100"), "the 100 mm check bar");
+        // The missing cell (1, 1) has no square at x = 15 + 60, y = 15 + 60.
+        assert!(!svg.contains("x=\"75.000\" y=\"75.000\""));
+        assert!(svg.contains("x=\"135.000\" y=\"75.000\""));
+    }
 
     #[test]
     fn the_default_pattern_is_valid_and_not_coplanar() {

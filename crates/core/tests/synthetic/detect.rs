@@ -89,8 +89,22 @@ fn a_hidden_board_or_noise_is_not_found_and_named() {
         .collect();
     let image = GreyImage::new(512, 512, noise).unwrap();
     match detect(&image, &pattern) {
-        Err(DetectError::BoardNotFound { board, .. }) => assert_eq!(board, 0),
-        other => panic!("expected board 0 not found, got {other:?}"),
+        Err(DetectError::NoPattern { .. }) => {}
+        other => panic!("expected no pattern found in noise, got {other:?}"),
+    }
+    // A picture of something else (the synthetic room) is no pattern either, not an
+    // ambiguous board.
+    let (room, room_rig, _) =
+        trinocular_synth::standard_capture(1, trinocular_synth::Defects::clean(), false);
+    let picture = render_image(&room, room_rig.camera(0), &RenderParams::default(), 1);
+    match detect(&picture, &pattern) {
+        Err(e @ DetectError::NoPattern { .. }) => {
+            assert!(
+                e.to_string().starts_with("no calibration pattern found"),
+                "{e}"
+            )
+        }
+        other => panic!("expected no pattern found in a room, got {other:?}"),
     }
     let _ = pattern_scene(&pattern);
 }

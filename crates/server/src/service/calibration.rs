@@ -204,3 +204,52 @@ fn in_rig_frame(input: &CalibrateInput, camera: &Camera) -> Result<Camera, Input
     )
     .map_err(|e| InputError::new("pattern_to_rig", e.to_string()))
 }
+
+/// Longest calibration file ImportCalibration reads, bytes.
+pub const MAX_CALIBRATION_FILE_BYTES: usize = 1 << 20;
+
+impl Service {
+    /// ImportCalibration: a `Calibration` from other tools' files
+    /// (`trinocular_schema::calibration_files`), parsed on the compute pool.
+    pub async fn import_calibration(
+        &self,
+        request: pb::ImportCalibrationRequest,
+    ) -> Result<pb::Calibration, ServiceError> {
+        use trinocular_schema::calibration_files::{import, CalibrationFormat};
+        let format: CalibrationFormat = request.format.parse()?;
+        if let Some(i) = request
+            .files
+            .iter()
+            .position(|f| f.len() > MAX_CALIBRATION_FILE_BYTES)
+        {
+            return Err(ServiceError::Input(InputError::new(
+                format!("files[{i}]"),
+                format!("longer than {MAX_CALIBRATION_FILE_BYTES} bytes"),
+            )));
+        }
+        self.pool
+            .run(move |_| {
+                let files: Vec<&str> = request.files.iter().map(String::as_str).collect();
+                import(format, &files)
+            })
+            .await?
+            .map_err(ServiceError::Input)
+    }
+
+    /// ExportCalibration: a `Calibration` written as other tools' files.
+    pub async fn export_calibration(
+        &self,
+        request: pb::ExportCalibrationRequest,
+    ) -> Result<pb::ExportCalibrationResponse, ServiceError> {
+        use trinocular_schema::calibration_files::{export, CalibrationFormat};
+        let format: CalibrationFormat = request.format.parse()?;
+        let calibration = request
+            .calibration
+            .ok_or_else(|| InputError::new("calibration", "missing: the calibration to write"))?;
+        let files = self
+            .pool
+            .run(move |_| export(format, &calibration))
+            .await??;
+        Ok(pb::ExportCalibrationResponse { files })
+    }
+}

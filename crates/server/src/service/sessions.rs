@@ -22,9 +22,9 @@ use trinocular_core::map::session::{Added, Placed, SessionParams};
 use trinocular_core::map::{self, FuseParams, MapGate, PosePrior};
 use trinocular_core::segment::Segment3;
 use trinocular_schema::session::{
-    capture_match_request, certain_only, edges_of, edges_to_pb, matrix6_to_vec, pose_from_pb,
-    pose_prior, pose_to_pb, registration_to_pb, status_to_pb, stored_capture_segments,
-    StoredSegments,
+    capture_match_request, certain_only, edges_of, edges_to_pb, matrix6_to_vec,
+    pose_from_pb_noting, pose_prior, pose_to_pb, registration_to_pb, status_to_pb,
+    stored_capture_segments, StoredSegments,
 };
 use trinocular_schema::{match_params, pb, rig_from_calibration, InputError};
 
@@ -280,7 +280,7 @@ impl Service {
                      (global) is not supported",
                 )));
             };
-            let pose = pose_from_pb(Some(&rig_to_world), "rig_to_world")?;
+            let (pose, pose_warning) = pose_from_pb_noting(Some(&rig_to_world), "rig_to_world")?;
             let prior = pose_prior(pose, &rig_to_world_covariance, "rig_to_world_covariance")?;
             let info = self.store.get(&session_id).await?;
             if info.captures >= MAX_CAPTURES_PER_SESSION {
@@ -352,6 +352,7 @@ impl Service {
                     captures: index + 1,
                 }),
                 registration: Some(registration_to_pb(&registration)),
+                warnings: pose_warning.into_iter().collect(),
             })
         }
         .await

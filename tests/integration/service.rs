@@ -704,16 +704,24 @@ fn metrics_count_requests_by_transport_and_code() {
             .unwrap();
         let has = |line: &str| text.lines().any(|l| l == line);
         assert!(
-            has(r#"trinocular_requests_total{code="Ok",route="match",transport="grpc"} 1"#),
+            has(r#"trinocular_requests_total{code="OK",route="match",transport="grpc"} 1"#),
             "{text}"
         );
         assert!(
-            has(r#"trinocular_requests_total{code="InvalidArgument",route="match",transport="http"} 1"#),
+            has(r#"trinocular_requests_total{code="INVALID_ARGUMENT",route="match",transport="http"} 1"#),
             "{text}"
         );
         assert!(has(r#"trinocular_request_duration_seconds_count{route="match",transport="grpc"} 1"#));
         assert!(text.contains(r#"trinocular_stage_duration_seconds_count{stage="predict"} 1"#));
         assert!(has("trinocular_jobs_in_flight 0"));
+        // What is running and what it costs the machine.
+        assert!(has(&format!(
+            r#"trinocular_build_info{{version="{}"}} 1"#,
+            env!("CARGO_PKG_VERSION")
+        )));
+        for process in ["process_resident_memory_bytes", "process_cpu_seconds_total", "process_open_fds"] {
+            assert!(text.lines().any(|l| l.starts_with(process)), "{process} missing");
+        }
         assert!(has("trinocular_jobs_max 8"));
         assert!(has("trinocular_rejections_total 0"));
         running.shutdown().await;
@@ -770,11 +778,11 @@ fn each_request_is_counted_once_under_its_transport_route_and_code() {
             .filter(|l| l.starts_with("trinocular_requests_total{"))
             .collect();
         let mut expected = [
-            r#"trinocular_requests_total{code="Ok",route="create_session",transport="grpc"} 1"#,
-            r#"trinocular_requests_total{code="InvalidArgument",route="get_session",transport="grpc"} 1"#,
-            r#"trinocular_requests_total{code="Ok",route="list_sessions",transport="http"} 1"#,
-            r#"trinocular_requests_total{code="NotFound",route="get_session",transport="http"} 1"#,
-            r#"trinocular_requests_total{code="InvalidArgument",route="calibrate",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="OK",route="create_session",transport="grpc"} 1"#,
+            r#"trinocular_requests_total{code="INVALID_ARGUMENT",route="get_session",transport="grpc"} 1"#,
+            r#"trinocular_requests_total{code="OK",route="list_sessions",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="NOT_FOUND",route="get_session",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="INVALID_ARGUMENT",route="calibrate",transport="http"} 1"#,
         ];
         let mut counted_sorted = counted.clone();
         counted_sorted.sort_unstable();

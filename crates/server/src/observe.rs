@@ -459,12 +459,12 @@ mod tests {
         let text = service.metrics_text();
         let has = |line: &str| text.lines().any(|l| l == line);
         for line in [
-            r#"trinocular_requests_total{code="Ok",route="get_session",transport="http"} 1"#,
-            r#"trinocular_requests_total{code="NotFound",route="get_session",transport="http"} 1"#,
-            r#"trinocular_requests_total{code="ResourceExhausted",route="get_session",transport="http"} 1"#,
-            r#"trinocular_requests_total{code="Ok",route="get_session",transport="grpc"} 1"#,
-            r#"trinocular_requests_total{code="NotFound",route="get_session",transport="grpc"} 1"#,
-            r#"trinocular_requests_total{code="Unavailable",route="get_session",transport="grpc"} 1"#,
+            r#"trinocular_requests_total{code="OK",route="get_session",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="NOT_FOUND",route="get_session",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="RESOURCE_EXHAUSTED",route="get_session",transport="http"} 1"#,
+            r#"trinocular_requests_total{code="OK",route="get_session",transport="grpc"} 1"#,
+            r#"trinocular_requests_total{code="NOT_FOUND",route="get_session",transport="grpc"} 1"#,
+            r#"trinocular_requests_total{code="UNAVAILABLE",route="get_session",transport="grpc"} 1"#,
             "trinocular_rejections_total 1",
             // Each request took exactly 250 ms of the manual clock: three of them per
             // transport, all in the 0.5 s bucket and none in the 0.2 s one.

@@ -382,6 +382,10 @@ fn jpeg_reaches_end(data: &[u8]) -> Result<(), String> {
                 if len < 2 {
                     return Err(format!("invalid JPEG segment length {len}"));
                 }
+                // A frame header (SOF0..SOF15 but DHT C4, JPG C8, DAC CC).
+                if matches!(marker, 0xC0..=0xCF) && !matches!(marker, 0xC4 | 0xC8 | 0xCC) {
+                    jpeg_sampling_supported(data.get(i + 2..i + len).unwrap_or(&[]))?;
+                }
                 // The scan's compressed data follows its header; the loop above then skips
                 // it, as stuffed FF 00 and restart markers are not segment markers.
                 i += len;
@@ -390,6 +394,36 @@ fn jpeg_reaches_end(data: &[u8]) -> Result<(), String> {
                 }
             }
         }
+    }
+}
+
+/// Refuses a frame whose colour components sample more finely than its first (luma)
+/// component in either direction. Encoders never write such files (chroma is subsampled, not
+/// supersampled), and the JPEG decoder the `image` crate uses (zune-jpeg 0.5.15) panics on
+/// some of them in its upsampler (found by `fuzz/fuzz_targets/image_decode.rs`; the input is
+/// in its corpus). `frame`: the SOF segment after its length: precision, height, width,
+/// component count, then 3 bytes per component (id, sampling h<<4|v, table).
+fn jpeg_sampling_supported(frame: &[u8]) -> Result<(), String> {
+    let Some(&count) = frame.get(5) else {
+        return Ok(()); // a short header: the decoder says what is wrong
+    };
+    let sampling: Vec<(u8, u8)> = frame[6..]
+        .chunks_exact(3)
+        .take(usize::from(count))
+        .map(|c| (c[1] >> 4, c[1] & 0x0F))
+        .collect();
+    let Some(&(h0, v0)) = sampling.first() else {
+        return Ok(());
+    };
+    match sampling.iter().position(|&(h, v)| h > h0 || v > v0) {
+        Some(k) => Err(format!(
+            "unsupported JPEG sampling: component {} samples {}x{}, more finely than the \
+             first component's {h0}x{v0}",
+            k + 1,
+            sampling[k].0,
+            sampling[k].1
+        )),
+        None => Ok(()),
     }
 }
 
@@ -846,6 +880,23 @@ mod tests {
         DecodeLimits {
             max_bytes: 1 << 20,
             max_pixels: 1 << 20,
+        }
+    }
+
+    #[test]
+    fn a_jpeg_whose_colour_is_sampled_finer_than_its_luma_is_refused_not_a_panic() {
+        // Found by the image_decode fuzz target: zune-jpeg 0.5.15's upsampler asserts on it.
+        let bytes =
+            include_bytes!("../../../../fuzz/corpus/image_decode/seed-regress-zune-jpeg-upsampler");
+        let limits = DecodeLimits {
+            max_bytes: 1 << 20,
+            max_pixels: 1 << 20,
+        };
+        match decode(bytes, &limits) {
+            Err(DecodeError::Corrupt { message, .. }) => {
+                assert!(message.contains("sampling"), "{message}")
+            }
+            other => panic!("expected the sampling refused, got {other:?}"),
         }
     }
 

@@ -9,8 +9,8 @@
 //! [`Service`]: super::Service
 
 use prometheus::{
-    Encoder, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, Opts, Registry,
-    TextEncoder,
+    Encoder, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts,
+    Registry, TextEncoder,
 };
 
 use trinocular_schema::pb;
@@ -19,6 +19,30 @@ use trinocular_schema::pb;
 const LATENCY_BUCKETS: &[f64] = &[
     0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0,
 ];
+
+/// A code's name as gRPC spells it (`OK`, `INVALID_ARGUMENT`, …): the `code` label.
+pub fn grpc_code_name(code: tonic::Code) -> &'static str {
+    use tonic::Code;
+    match code {
+        Code::Ok => "OK",
+        Code::Cancelled => "CANCELLED",
+        Code::Unknown => "UNKNOWN",
+        Code::InvalidArgument => "INVALID_ARGUMENT",
+        Code::DeadlineExceeded => "DEADLINE_EXCEEDED",
+        Code::NotFound => "NOT_FOUND",
+        Code::AlreadyExists => "ALREADY_EXISTS",
+        Code::PermissionDenied => "PERMISSION_DENIED",
+        Code::ResourceExhausted => "RESOURCE_EXHAUSTED",
+        Code::FailedPrecondition => "FAILED_PRECONDITION",
+        Code::Aborted => "ABORTED",
+        Code::OutOfRange => "OUT_OF_RANGE",
+        Code::Unimplemented => "UNIMPLEMENTED",
+        Code::Internal => "INTERNAL",
+        Code::Unavailable => "UNAVAILABLE",
+        Code::DataLoss => "DATA_LOSS",
+        Code::Unauthenticated => "UNAUTHENTICATED",
+    }
+}
 
 pub struct Metrics {
     registry: Registry,
@@ -86,6 +110,23 @@ impl Metrics {
             ),
             &["stage"],
         )?;
+        // What is running: the crate's version, as the usual `build_info` gauge (value 1).
+        let build_info = IntGaugeVec::new(
+            Opts::new(
+                "trinocular_build_info",
+                "The running build (value 1), by version",
+            ),
+            &["version"],
+        )?;
+        build_info
+            .with_label_values(&[env!("CARGO_PKG_VERSION")])
+            .set(1);
+        registry.register(Box::new(build_info))?;
+        // The process's CPU, memory, open files and start time (`process_*`), from /proc.
+        #[cfg(target_os = "linux")]
+        registry.register(Box::new(
+            prometheus::process_collector::ProcessCollector::for_self(),
+        ))?;
         registry.register(Box::new(stopped.clone()))?;
         registry.register(Box::new(requests.clone()))?;
         registry.register(Box::new(latency.clone()))?;
@@ -117,14 +158,13 @@ impl Metrics {
     /// One answered request, by the transport that answered it, its route and its code:
     /// recorded by the transport's observation layer, which times the request.
     pub fn record_request(&self, transport: &str, route: &str, code: tonic::Code, seconds: f64) {
-        let code = format!("{code:?}");
         self.requests
-            .with_label_values(&[transport, route, code.as_str()])
+            .with_label_values(&[transport, route, grpc_code_name(code)])
             .inc();
         self.latency
             .with_label_values(&[transport, route])
             .observe(seconds);
-        if code == "ResourceExhausted" {
+        if code == tonic::Code::ResourceExhausted {
             self.rejections.inc();
         }
     }

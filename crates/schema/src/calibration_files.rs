@@ -34,6 +34,7 @@ use yaml_rust2::{Yaml, YamlLoader};
 
 use super::{pb, InputError};
 use crate::convert::{camera_to_pb, rig_from_calibration};
+use crate::session::{nearest_rotation, NEAR_RIGID};
 
 /// A file format of calibrations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -321,11 +322,11 @@ fn plumb_bob(d: &[f64], field: &str) -> Result<[f64; 5], InputError> {
     Ok(out)
 }
 
-/// Files print rotations to a few digits: the nearest rotation (SVD) to one within 1e-3 of
-/// orthonormal; one further off is refused.
-fn nearest_rotation(m: &Matrix3<f64>, field: &str) -> Result<Matrix3<f64>, InputError> {
+/// Files print rotations to a few digits: the nearest rotation to one within
+/// [`NEAR_RIGID`] of orthonormal (as a pose may be); one further off is refused.
+fn rotation_of(m: &Matrix3<f64>, field: &str) -> Result<Matrix3<f64>, InputError> {
     let off = (m.transpose() * m - Matrix3::identity()).abs().max();
-    if off > 1e-3 || m.determinant() <= 0.0 {
+    if off > NEAR_RIGID || m.determinant() <= 0.0 {
         return Err(bad(
             field,
             format!(
@@ -334,9 +335,7 @@ fn nearest_rotation(m: &Matrix3<f64>, field: &str) -> Result<Matrix3<f64>, Input
             ),
         ));
     }
-    let svd = m.svd(true, true);
-    let (u, v_t) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
-    Ok(u * v_t)
+    Ok(nearest_rotation(m))
 }
 
 fn fmt(x: f64) -> String {
@@ -464,6 +463,14 @@ mod opencv {
     /// A node's numbers, with its (rows, cols) when it is a matrix.
     type Shaped = (Vec<f64>, Option<(usize, usize)>);
 
+    /// The whitespace-separated values of an XML element's text.
+    fn values<T: std::str::FromStr>(text: &str, field: &str) -> Result<Vec<T>, InputError> {
+        text.split_whitespace()
+            .map(str::parse)
+            .collect::<Result<Vec<T>, _>>()
+            .map_err(|_| bad(field, "not a list of numbers"))
+    }
+
     pub(super) enum XmlNode {
         Matrix {
             rows: usize,
@@ -497,40 +504,26 @@ mod opencv {
                         .and_then(|c| c.text())
                         .map(str::trim)
                 };
+                let data = || values(child("data").unwrap_or(""), &format!("{name}.data"));
                 let value = if node.attribute("type_id") == Some("opencv-nd-matrix") {
-                    let sizes = child("sizes")
-                        .unwrap_or("")
-                        .split_whitespace()
-                        .map(|v| v.parse::<usize>())
-                        .collect::<Result<Vec<_>, _>>()
-                        .map_err(|_| bad(format!("{name}.sizes"), "not counts"))?;
-                    let data = child("data")
-                        .unwrap_or("")
-                        .split_whitespace()
-                        .map(|v| v.parse::<f64>())
-                        .collect::<Result<Vec<_>, _>>()
-                        .map_err(|_| bad(format!("{name}.data"), "not numbers"))?;
+                    // A 1-D array: its sizes multiply to its length.
+                    let sizes: Vec<usize> =
+                        values(child("sizes").unwrap_or(""), &format!("{name}.sizes"))?;
                     XmlNode::Matrix {
                         rows: sizes.iter().product(),
                         cols: 1,
-                        data,
+                        data: data()?,
                     }
                 } else if node.attribute("type_id") == Some("opencv-matrix") {
-                    let parse = |tag: &str| -> Result<usize, InputError> {
+                    let count = |tag: &str| -> Result<usize, InputError> {
                         child(tag)
                             .and_then(|t| t.parse().ok())
                             .ok_or_else(|| bad(format!("{name}.{tag}"), "missing or not a count"))
                     };
-                    let data = child("data")
-                        .unwrap_or("")
-                        .split_whitespace()
-                        .map(|v| v.parse::<f64>())
-                        .collect::<Result<Vec<_>, _>>()
-                        .map_err(|_| bad(format!("{name}.data"), "not numbers"))?;
                     XmlNode::Matrix {
-                        rows: parse("rows")?,
-                        cols: parse("cols")?,
-                        data,
+                        rows: count("rows")?,
+                        cols: count("cols")?,
+                        data: data()?,
                     }
                 } else {
                     XmlNode::Text(node.text().unwrap_or("").trim().to_string())
@@ -574,13 +567,7 @@ mod opencv {
                         XmlNode::Matrix { rows, cols, data } => {
                             (data.clone(), Some((*rows, *cols)))
                         }
-                        XmlNode::Text(t) => (
-                            t.split_whitespace()
-                                .map(|v| v.parse::<f64>())
-                                .collect::<Result<Vec<_>, _>>()
-                                .map_err(|_| bad(key, "not numbers"))?,
-                            None,
-                        ),
+                        XmlNode::Text(t) => (values(t, key)?, None),
                     }))
                 }
             }
@@ -786,7 +773,7 @@ mod ros {
                 Matrix3::identity()
             } else {
                 let field = format!("{file}.rectification_matrix");
-                nearest_rotation(
+                rotation_of(
                     &Matrix3::from_row_slice(&matrix(&doc, "rectification_matrix", &file, 9)?),
                     &field,
                 )?

@@ -140,11 +140,8 @@ pub fn pose_from_pb_noting(
     }
     let (rotation, warning) =
         if orthogonality > POSE_TOLERANCE || (det - 1.0).abs() > POSE_TOLERANCE {
-            // The nearest rotation (polar decomposition by SVD).
-            let svd = r.svd(true, true);
-            let nearest = svd.u.expect("u") * svd.v_t.expect("v_t");
             (
-                nearest,
+                nearest_rotation(&r),
                 Some(format!(
                     "{field}: the rotation block was {orthogonality:.1e} from orthonormal and was \
                  replaced by the nearest rotation"
@@ -157,6 +154,13 @@ pub fn pose_from_pb_noting(
         UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rotation));
     let translation = Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]);
     Ok((Isometry3::from_parts(translation, rotation), warning))
+}
+
+/// The rotation nearest `m` (its polar factor, by SVD): for a matrix already close to one,
+/// which the callers check first (a reflection is not close to any).
+pub(crate) fn nearest_rotation(m: &Matrix3<f64>) -> Matrix3<f64> {
+    let svd = m.svd(true, true);
+    svd.u.expect("u asked for") * svd.v_t.expect("v_t asked for")
 }
 
 /// A `Pose` message.

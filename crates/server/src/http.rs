@@ -50,6 +50,7 @@ use serde::Deserialize;
 use crate::http_server::timed_out_body;
 use crate::observe;
 use crate::service::auth::Caller;
+use crate::service::metrics::grpc_code_name;
 use crate::service::sessions::{map_to_pb, SessionMap};
 use crate::service::{Service, ServiceError};
 use trinocular_schema::{
@@ -299,7 +300,7 @@ impl IntoResponse for CallerRejected {
 /// and count ([`observe`]).
 pub fn error_response(e: &ServiceError) -> Response {
     let mut body = serde_json::json!({
-        "error": {"code": code_name(e.code()), "message": e.to_string()}
+        "error": {"code": grpc_code_name(e.code()), "message": e.to_string()}
     });
     if let Some(field) = e.field() {
         body["error"]["field"] = serde_json::Value::String(field.to_string());
@@ -345,18 +346,6 @@ async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) ->
         body.to_string() + "\n",
     )
         .into_response()
-}
-
-/// The gRPC name of a code: `InvalidArgument` → `INVALID_ARGUMENT`.
-fn code_name(code: tonic::Code) -> String {
-    let mut out = String::new();
-    for (i, c) in format!("{code:?}").chars().enumerate() {
-        if c.is_uppercase() && i > 0 {
-            out.push('_');
-        }
-        out.push(c.to_ascii_uppercase());
-    }
-    out
 }
 
 /// Longest `timeout_ms` accepted: an hour.
@@ -723,16 +712,18 @@ async fn import_calibration(
     let protobuf = format == BodyFormat::Protobuf;
     let max_bytes = service.limits().max_message_bytes;
     let result = async {
-        let request = if format == BodyFormat::Multipart {
+        type Read = Box<dyn FnOnce() -> Result<pb::ImportCalibrationRequest, InputError> + Send>;
+        let read: Read = if format == BodyFormat::Multipart {
             let parts = Multipart::from_request(request, &())
                 .await
                 .map_err(|e| body_error(&e, e.status(), e.body_text(), max_bytes))?;
-            calibration_files_upload(parts, max_bytes).await?
+            let request = calibration_files_upload(parts, max_bytes).await?;
+            Box::new(move || Ok(request))
         } else {
             let body = read_body(request, max_bytes).await?;
-            decode_body::<pb::ImportCalibrationRequest>(&body, protobuf)?
+            Box::new(move || decode_body(&body, protobuf))
         };
-        service.import_calibration(request).await
+        service.import_calibration(read).await
     }
     .await;
     answer(result, protobuf)
@@ -787,8 +778,9 @@ async fn export_calibration(
     let max_bytes = service.limits().max_message_bytes;
     let result = async {
         let body = read_body(request, max_bytes).await?;
-        let request: pb::ExportCalibrationRequest = decode_body(&body, protobuf)?;
-        service.export_calibration(request).await
+        service
+            .export_calibration(move || decode_body(&body, protobuf))
+            .await
     }
     .await;
     answer(result, protobuf)

@@ -122,8 +122,8 @@ async fn session_events(
     caller: Caller,
     Path(id): Path<String>,
 ) -> Response {
-    let first = match service.get_session(&caller, &id).await {
-        Ok(session) => session.captures,
+    let first = match service.session_captures(&caller, &id).await {
+        Ok(captures) => captures,
         Err(e) => return crate::http::error_response(&e),
     };
     let Some(permit) = service.open_event_stream() else {
@@ -163,9 +163,9 @@ async fn session_events(
             if !woken {
                 continue;
             }
-            match service.get_session(&caller, &id).await {
-                Ok(session) if session.captures != known => {
-                    known = session.captures;
+            match service.session_captures(&caller, &id).await {
+                Ok(captures) if captures != known => {
+                    known = captures;
                     if send.send(captures_event(known)).await.is_err() {
                         return;
                     }

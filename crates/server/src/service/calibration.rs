@@ -210,46 +210,49 @@ pub const MAX_CALIBRATION_FILE_BYTES: usize = 1 << 20;
 
 impl Service {
     /// ImportCalibration: a `Calibration` from other tools' files
-    /// (`trinocular_schema::calibration_files`), parsed on the compute pool.
+    /// (`trinocular_schema::calibration_files`). `read` produces the request on the compute
+    /// pool (so an HTTP body is parsed there), within the service's longest request time.
     pub async fn import_calibration(
         &self,
-        request: pb::ImportCalibrationRequest,
+        read: impl FnOnce() -> Result<pb::ImportCalibrationRequest, InputError> + Send + 'static,
     ) -> Result<pb::Calibration, ServiceError> {
         use trinocular_schema::calibration_files::{import, CalibrationFormat};
-        let format: CalibrationFormat = request.format.parse()?;
-        if let Some(i) = request
-            .files
-            .iter()
-            .position(|f| f.len() > MAX_CALIBRATION_FILE_BYTES)
-        {
-            return Err(ServiceError::Input(InputError::new(
-                format!("files[{i}]"),
-                format!("longer than {MAX_CALIBRATION_FILE_BYTES} bytes"),
-            )));
-        }
-        self.pool
-            .run(move |_| {
-                let files: Vec<&str> = request.files.iter().map(String::as_str).collect();
-                import(format, &files)
-            })
-            .await?
-            .map_err(ServiceError::Input)
+        let job = self.pool.run(move |_| {
+            let request = read()?;
+            let format: CalibrationFormat = request.format.parse()?;
+            if let Some(i) = request
+                .files
+                .iter()
+                .position(|f| f.len() > MAX_CALIBRATION_FILE_BYTES)
+            {
+                return Err(InputError::new(
+                    format!("files[{i}]"),
+                    format!("longer than {MAX_CALIBRATION_FILE_BYTES} bytes"),
+                ));
+            }
+            let files: Vec<&str> = request.files.iter().map(String::as_str).collect();
+            import(format, &files)
+        });
+        super::within(job, self.deadline(None)).await
     }
 
-    /// ExportCalibration: a `Calibration` written as other tools' files.
+    /// ExportCalibration: a `Calibration` written as other tools' files; `read` as for
+    /// [`Service::import_calibration`].
     pub async fn export_calibration(
         &self,
-        request: pb::ExportCalibrationRequest,
+        read: impl FnOnce() -> Result<pb::ExportCalibrationRequest, InputError> + Send + 'static,
     ) -> Result<pb::ExportCalibrationResponse, ServiceError> {
         use trinocular_schema::calibration_files::{export, CalibrationFormat};
-        let format: CalibrationFormat = request.format.parse()?;
-        let calibration = request
-            .calibration
-            .ok_or_else(|| InputError::new("calibration", "missing: the calibration to write"))?;
-        let files = self
-            .pool
-            .run(move |_| export(format, &calibration))
-            .await??;
-        Ok(pb::ExportCalibrationResponse { files })
+        let job = self.pool.run(move |_| {
+            let request = read()?;
+            let format: CalibrationFormat = request.format.parse()?;
+            let calibration = request.calibration.ok_or_else(|| {
+                InputError::new("calibration", "missing: the calibration to write")
+            })?;
+            Ok::<_, InputError>(pb::ExportCalibrationResponse {
+                files: export(format, &calibration)?,
+            })
+        });
+        super::within(job, self.deadline(None)).await
     }
 }

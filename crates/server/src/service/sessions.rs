@@ -164,6 +164,13 @@ impl Service {
         .await
     }
 
+    /// A session's capture count, from its stored record alone (nothing decoded): what a live
+    /// view reads at each change.
+    pub async fn session_captures(&self, caller: &Caller, id: &str) -> Result<u64, ServiceError> {
+        check_id(id)?;
+        Ok(self.store.get(&store_id(caller, id)).await?.captures)
+    }
+
     /// The caller's sessions, a page at a time: at most `page_size` (0: the default, 100;
     /// at most 1000) of those whose id comes after `page_token` (empty: the first page), by
     /// id; `next_page_token` is empty on the last page.
@@ -378,13 +385,7 @@ impl Service {
             let info = self.store.get(&stored_id).await?;
             let stored = pb::StoredOptions::decode(&info.record.options[..])
                 .map_err(|e| corrupt("options", e))?;
-            let calibration = pb::Calibration::decode(&info.record.calibration[..])
-                .map_err(|e| corrupt("calibration", e))?;
-            let rig = rig_from_calibration(Some(&calibration))
-                .map(|rig| RigMarker::of(&rig))
-                .map_err(|e| ServiceError::Internal {
-                    detail: format!("stored calibration is not a rig: {e}"),
-                })?;
+            let calibration = info.record.calibration.clone();
             let captures = self.store.captures(&stored_id).await?;
             let refine_poses = stored
                 .map_options
@@ -397,6 +398,15 @@ impl Service {
             let gate = MapGate::of(&match_params(stored.options.as_ref()));
             let (session_id, clock) = (id.to_string(), Arc::clone(&self.clock));
             let job = self.pool.run(move |_| {
+                // The rig's cameras, for the top views: its calibration decomposed here, on
+                // the pool, with the rest of the work.
+                let calibration = pb::Calibration::decode(&calibration[..])
+                    .map_err(|e| corrupt("calibration", e))?;
+                let rig = rig_from_calibration(Some(&calibration))
+                    .map(|rig| RigMarker::of(&rig))
+                    .map_err(|e| ServiceError::Internal {
+                        detail: format!("stored calibration is not a rig: {e}"),
+                    })?;
                 let options = MapBuild {
                     min_observations,
                     refine_poses,

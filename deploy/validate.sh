@@ -120,6 +120,29 @@ check(bool(cfg_mount) and cfg_path == mounts[cfg_mount[0]] + "/trinocular.toml",
 toml_text = cm[0]["data"]["trinocular.toml"]
 m = re.search(r'^url\s*=\s*"([^"]*)"', toml_text, re.M)
 check(m is not None and m.group(1).startswith("redis://"), f"ConfigMap [store] url is redis ({m and m.group(1)})")
+# Memory: the documented bound (docs/HARDENING.md#memory) of the ConfigMap's budgets inside the
+# pod's limit — base 25 MiB + 2 x request bodies + working memory + 24 MiB per compute thread.
+# (tests/hostile runs the ConfigMap's file under a burst and checks the peak RSS against the same
+# limit; compose runs the defaults on <= 4 CPUs, which another test holds under 512 MiB.)
+def mib(q):
+    q = str(q)
+    for suffix, f in (("Gi", 1024.0), ("Mi", 1.0), ("G", 1024.0), ("M", 1.0)):
+        if q.endswith(suffix):
+            return float(q[: -len(suffix)]) * f
+    return float(q) / 2**20
+def toml_int(key):
+    m_ = re.search(rf"^{key}\s*=\s*(\d+)", toml_text, re.M)
+    return int(m_.group(1)) if m_ else None
+budgets = {k: toml_int(k) for k in ("max_bodies_mib", "max_working_mib", "threads")}
+if None in budgets.values():
+    check(False, f"ConfigMap sets max_bodies_mib, max_working_mib and threads: {budgets}")
+else:
+    bound = 25 + 2 * budgets["max_bodies_mib"] + budgets["max_working_mib"] + 24 * budgets["threads"]
+    pod_mib = mib(res["limits"]["memory"])
+    check(bound <= pod_mib, f"k8s memory bound {bound} MiB (ConfigMap budgets) within the pod limit {pod_mib:.0f} MiB")
+climits = svc["trinocular"]["deploy"]["resources"]["limits"]
+check(mib(climits["memory"]) >= 512 and float(climits["cpus"]) <= 4,
+      f"compose: the defaults on {climits['cpus']} CPUs (<= 4) within {climits['memory']} (>= 512 MiB)")
 redis_svcs = [s["metadata"]["name"] for s in kind("Service")]
 check(m is not None and m.group(1).split("//")[1].split(":")[0] in redis_svcs, "ConfigMap redis host is a Service of the manifests")
 svcs = [s for s in kind("Service") if s["metadata"]["name"] == "trinocular"]

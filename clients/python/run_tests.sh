@@ -14,7 +14,21 @@ fi
 export TRINOCULAR_BIN
 [ -x "$TRINOCULAR_BIN" ] || { echo "no server binary at $TRINOCULAR_BIN (cargo build --release)" >&2; exit 1; }
 python3 -m venv "$venv"
-"$venv/bin/python" -m pip install -q --upgrade pip
-"$venv/bin/python" -m pip install -q "$root/clients/python[rerun]" pytest numpy trustme opencv-python-headless
+"$venv/bin/python" -m pip install -q --upgrade pip build
+# The client is built as a wheel (and an sdist, then a wheel from it) outside the source tree,
+# and the wheel installed: building must write nothing into clients/python.
+tree() { (cd "$here" && find . -path ./.pytest_cache -prune -o -name __pycache__ -prune -o -print | sort); }
+before="$(tree)"
+dist="$(mktemp -d)"
+trap 'rm -rf "$dist"' EXIT
+"$venv/bin/python" -m build -q --outdir "$dist" "$here" >/dev/null
+if [ "$before" != "$(tree)" ]; then
+  echo "building the client wrote into the source tree:" >&2
+  diff <(echo "$before") <(tree) >&2
+  exit 1
+fi
+wheel="$(ls "$dist"/trinocular-*.whl)"
+"$venv/bin/python" -m pip uninstall -q -y trinocular 2>/dev/null || true
+"$venv/bin/python" -m pip install -q "$wheel[rerun]" pytest numpy trustme opencv-python-headless
 cd "$here"
-exec "$venv/bin/python" -m pytest -q tests "${@:2}"
+"$venv/bin/python" -m pytest -q tests "${@:2}"

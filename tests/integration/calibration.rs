@@ -121,6 +121,45 @@ fn rendered_pattern_views_calibrate_to_the_true_cameras_and_match_unchanged() {
     eprintln!("worst held-out RMS over 3 rigs x 3 cameras: {worst:.3} px");
 }
 
+/// The pictures shipped in `examples/calibration/` (written by `cargo run --example
+/// calibration_samples`, blurrier and noisier than the renders above) calibrate, and the
+/// cameras recovered put scene points where the cameras they were rendered with do.
+#[test]
+fn the_shipped_sample_pictures_calibrate_to_their_cameras() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/calibration");
+    let images = (1..=3)
+        .map(|i| pb::Image {
+            source: Some(pb::image::Source::Encoded(
+                std::fs::read(dir.join(format!("camera{i}.png"))).expect("a sample picture"),
+            )),
+        })
+        .collect();
+    let truth_text = std::fs::read_to_string(dir.join("true_calibration.json")).expect("truth");
+    let truth_pb: pb::Calibration = api::from_json("true_calibration.json", &truth_text).unwrap();
+    let truth = api::rig_from_calibration(Some(&truth_pb)).unwrap();
+    let req = request(images);
+    let response = api::calibrate::calibrate_request(&req, &Default::default())
+        .expect("valid")
+        .run()
+        .expect("the sample pictures calibrate");
+    for r in &response.reports {
+        assert_eq!(r.boards_found, 2, "{r:?}");
+    }
+    let recovered = api::rig_from_calibration(response.calibration.as_ref()).unwrap();
+    for view in 0..3 {
+        let rms = held_out_rms(&truth, &recovered, view);
+        eprintln!(
+            "sample camera {}: {rms:.3} px RMS on scene points",
+            view + 1
+        );
+        assert!(
+            rms <= PRINTED_PATTERN_RMS_PX,
+            "camera {}: {rms:.3} px",
+            view + 1
+        );
+    }
+}
+
 #[test]
 fn calibrate_over_http_as_curl_sends_it_and_over_grpc() {
     let (_, images) = png_triplet(4);

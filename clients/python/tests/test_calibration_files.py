@@ -102,3 +102,101 @@ def test_a_fisheye_chain_is_refused_naming_the_model(client):
         client.import_calibration("kalibr", [chain])
     assert e.value.field == "cam0.distortion_model"
     assert "equidistant" in str(e.value)
+
+
+# What a usable calibration must reach against the true cameras on scene points, pixels: the
+# usual acceptance of a calibration's reprojection error. (Trinocular's own `calibrate` is held
+# to 0.2 px in tests/integration/calibration.rs; OpenCV's calibration of these renders lands at
+# 0.05–0.31 px over eight draws of the board poses, its own error, which the import does not
+# change: the imported cameras are also compared with OpenCV's projections to 1e-9 px.)
+CALIBRATION_RMS_PX = 0.5
+
+
+def test_calibrate_with_opencv_then_import(client, tmp_path):
+    """The documented path for a rig calibrated with a planar checkerboard (docs/
+    CALIBRATION_FILES.md): sixteen views of the board per camera and sixteen all three see,
+    OpenCV's calibrateCamera (Zhang's method) per camera, stereoCalibrate from camera 1 to
+    cameras 2 and 3, the result written with cv2.FileStorage under the names stereoCalibrate's
+    samples use and imported by the service: the imported cameras project as OpenCV's, and put
+    scene points where the true cameras do."""
+    import checkerboard as cb
+
+    rng = np.random.default_rng(3)
+    board = cb.object_points().astype(np.float32)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+
+    def views(n, seen_by):
+        """The board's corners in `n` poses as each camera of `seen_by` finds them; a pose
+        where one does not find the board is dropped, as a user drops that picture."""
+        found = [[] for _ in seen_by]
+        while len(found[0]) < n:
+            (R, t), = cb.board_poses(rng, 1, seen_by)
+            pictures = [cb.render(cb.TRUE[k], R, t, rng) for k in seen_by]
+            detected = [cv2.findChessboardCorners(p, (cb.COLS, cb.ROWS)) for p in pictures]
+            if all(ok for ok, _ in detected):
+                for f, p, (_, c) in zip(found, pictures, detected):
+                    f.append(cv2.cornerSubPix(p, c, (5, 5), (-1, -1), criteria))
+        return found
+
+    # Each camera's own sixteen views, the board over its whole picture (intrinsics), then sixteen
+    # views all three cameras see (extrinsics).
+    own = [views(16, (k,))[0] for k in range(3)]
+    shared = views(16, (0, 1, 2))
+    fs = cv2.FileStorage(str(tmp_path / "stereo.yaml"), cv2.FILE_STORAGE_WRITE)
+    Ks, Ds, extrinsics = [], [], [(np.eye(3), np.zeros((3, 1)))]
+    for k in range(3):
+        rms, K, D, _, _ = cv2.calibrateCamera([board] * 16, own[k], cb.SIZE, None, None)
+        assert rms < 0.5, f"camera {k + 1}: OpenCV's own RMS {rms} px"
+        Ks.append(K)
+        Ds.append(D)
+        fs.write(f"cameraMatrix{k + 1}", K)
+        fs.write(f"distCoeffs{k + 1}", D)
+    for k in (1, 2):
+        out = cv2.stereoCalibrate([board] * 16, shared[0], shared[k], Ks[0], Ds[0], Ks[k], Ds[k],
+                                  cb.SIZE, flags=cv2.CALIB_FIX_INTRINSIC)
+        print(f"stereo 1-{k + 1}: RMS {out[0]:.3f} px")
+        extrinsics.append((out[5], out[6]))
+        fs.write(f"R1{k + 1}", out[5])
+        fs.write(f"T1{k + 1}", out[6])
+    fs.write("imageSize", np.array(cb.SIZE))
+    fs.release()
+
+    calibration = client.import_calibration("opencv-yaml", [tmp_path / "stereo.yaml"])
+    points_cam1 = np.column_stack([rng.uniform(-0.6, 0.6, 400), rng.uniform(-0.45, 0.45, 400),
+                                   rng.uniform(0.7, 3.0, 400)])
+    points_cam1[:, :2] *= points_cam1[:, 2:] / 1.5  # spread with depth, to fill the view
+    truths = []
+    for K, D, rvec, tvec in cb.TRUE:
+        truth, _ = cv2.projectPoints(points_cam1, rvec, tvec, K, D)
+        truth = truth.reshape(-1, 2)
+        truths.append((truth, ((truth >= 0) & (truth < np.array(cb.SIZE))).all(axis=1)))
+    # The imported rig frame is camera 1's frame as OpenCV estimated it: a principal point a
+    # pixel off turns it by a tenth of a degree, which moves no 3D segment relative to the rig.
+    # That rotation is fitted once, on camera 1's projections (Gauss-Newton on a rotation
+    # vector, camera 1 at the origin as in both frames); cameras 2 and 3 then test the rig's
+    # geometry itself.
+    truth1, seen1 = truths[0]
+
+    def camera1_residual(rvec):
+        ours, _ = cv2.projectPoints(points_cam1[seen1], rvec, np.zeros(3), Ks[0], Ds[0])
+        return (ours.reshape(-1, 2) - truth1[seen1]).ravel()
+
+    rvec = np.zeros(3)
+    for _ in range(10):
+        r0 = camera1_residual(rvec)
+        J = np.column_stack([(camera1_residual(rvec + 1e-7 * e) - r0) / 1e-7 for e in np.eye(3)])
+        rvec = rvec - np.linalg.lstsq(J, r0, rcond=None)[0]
+    aligned = points_cam1 @ cv2.Rodrigues(rvec)[0].T
+    points_rig = aligned @ A
+    for k, (camera, (truth, seen)) in enumerate(zip(calibration["cameras"], truths)):
+        assert seen.sum() > 200
+        # Imported as OpenCV calibrated it.
+        R, T = extrinsics[k]
+        theirs, _ = cv2.projectPoints(points_cam1, cv2.Rodrigues(R)[0], T, Ks[k], Ds[k])
+        gap = np.abs(_ours(camera, points_cam1 @ A) - theirs.reshape(-1, 2)).max()
+        assert gap < 1e-9, f"camera {k + 1}: {gap} px from OpenCV's own projections"
+        # Against the true camera, up to the frame's rotation.
+        d = _ours(camera, points_rig[seen]) - truth[seen]
+        rms = float(np.sqrt((d ** 2).sum(axis=1).mean()))
+        print(f"camera {k + 1}: {rms:.3f} px RMS over {seen.sum()} scene points")
+        assert rms <= CALIBRATION_RMS_PX, f"camera {k + 1}: {rms:.3f} px RMS against the true camera"

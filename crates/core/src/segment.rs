@@ -187,11 +187,11 @@ impl LineNoise {
     }
 }
 
-/// Most candidates a crowding query looks at per orientation bin.
-const MAX_CROWDING_CANDIDATES: usize = 512;
-/// Orientation bins of [`crowding`]: parallel neighbours (within 10°) share a bin or sit in
-/// the next one.
-const CROWDING_BINS: usize = 18;
+/// Most candidates a crowding query looks at.
+const MAX_CROWDING_CANDIDATES: usize = 1536;
+/// Side of the windows of [`Crowding`]'s grid over the segments' midpoints, pixels (about
+/// twice [`CROWDING_RADIUS_PX`]: a query's rectangle, 16 px across, spans two or three).
+const CROWDING_CELL_PX: f64 = 16.0;
 
 /// For each segment, the distance to its nearest parallel neighbour that runs alongside it
 /// (the neighbour's midpoint projects onto the segment), pixels across — lengthened for a
@@ -199,9 +199,10 @@ const CROWDING_BINS: usize = 18;
 /// none is within [`CROWDING_RADIUS_PX`]. Segments on one line (closer than a third of a
 /// pixel) are pieces, not neighbours.
 ///
-/// Segments are sorted into 10° orientation bins, each by its position across the bin's
-/// direction; a segment looks in its bin and the two next to it, in the window of positions
-/// a neighbour alongside can have (O(n log n), no image-sized structure).
+/// The segments' midpoints are put in a grid of square windows; a segment looks only in the
+/// windows that the rectangle a neighbour's midpoint can lie in (alongside it, within the
+/// radius across) touches. The grid covers the midpoints' bounding box with at most a few
+/// windows per segment, so it never grows with the image.
 pub fn crowding(segments: &[Segment2], model: CrowdingModel) -> Vec<f64> {
     let all: Vec<usize> = (0..segments.len()).collect();
     Crowding::new(segments).distances(segments, &all, model)
@@ -213,42 +214,26 @@ struct Shape {
     dir: nalgebra::Vector2<f64>,
     mid: Point2<f64>,
     len: f64,
-    bin: usize,
 }
 
-/// One segment in its orientation bin, sorted by position across the bin: what a query
-/// reads, laid out in a row.
+/// One segment in its window of the grid: what a query reads, laid out in a row.
 #[derive(Clone, Copy)]
 struct Entry {
-    rho: f64,
     dir: nalgebra::Vector2<f64>,
     mid: Point2<f64>,
     index: u32,
 }
 
-/// The orientation bin of a unit direction: by the fast approximate angle, and by the exact
-/// one only where the two could disagree (within the approximation's error of a border).
-fn orientation_bin(dir: nalgebra::Vector2<f64>, bin_width: f64) -> usize {
-    use crate::angle::{angle_key, approx_angle_key, APPROX_ANGLE_KEY_ERROR};
-    let bin_of = |theta: f64| ((theta / bin_width) as usize).min(CROWDING_BINS - 1);
-    let approx = approx_angle_key(dir, std::f64::consts::PI);
-    let lo = bin_of((approx - APPROX_ANGLE_KEY_ERROR).max(0.0));
-    let hi = bin_of(approx + APPROX_ANGLE_KEY_ERROR);
-    if lo == hi
-        && approx > APPROX_ANGLE_KEY_ERROR
-        && approx < std::f64::consts::PI - APPROX_ANGLE_KEY_ERROR
-    {
-        lo
-    } else {
-        bin_of(angle_key(dir, std::f64::consts::PI))
-    }
-}
-
 /// The index behind [`crowding`]: built once per list, asked as often as needed.
 pub struct Crowding {
-    normals: [nalgebra::Vector2<f64>; CROWDING_BINS],
     shapes: Vec<Option<Shape>>,
-    bins: Vec<Vec<Entry>>,
+    /// The grid: window (cx, cy) holds `entries[starts[cy·nx + cx]..starts[cy·nx + cx + 1]]`.
+    origin: Point2<f64>,
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    starts: Vec<u32>,
+    entries: Vec<Entry>,
     /// The longest segment's length, pixels: how far a midpoint can be from the segments it
     /// overlaps.
     longest: f64,
@@ -256,12 +241,6 @@ pub struct Crowding {
 
 impl Crowding {
     pub fn new(segments: &[Segment2]) -> Crowding {
-        let bin_width = std::f64::consts::PI / CROWDING_BINS as f64;
-        let normals: [nalgebra::Vector2<f64>; CROWDING_BINS] = std::array::from_fn(|b| {
-            let theta = (b as f64 + 0.5) * bin_width;
-            nalgebra::Vector2::new(-theta.sin(), theta.cos())
-        });
-        let normal_of_bin = |b: usize| normals[b];
         let shapes: Vec<Option<Shape>> = segments
             .iter()
             .map(|s| {
@@ -269,36 +248,77 @@ impl Crowding {
                 if !(len > 0.0 && len.is_finite()) {
                     return None;
                 }
-                let dir = (s.end - s.start) / len;
-                let bin = orientation_bin(dir, bin_width);
                 Some(Shape {
                     start: s.start,
-                    dir,
+                    dir: (s.end - s.start) / len,
                     mid: nalgebra::center(&s.start, &s.end),
                     len,
-                    bin,
                 })
             })
             .collect();
-        let mut bins: Vec<Vec<Entry>> = vec![Vec::new(); CROWDING_BINS];
+        let (mut lo, mut hi) = (
+            Point2::new(f64::INFINITY, f64::INFINITY),
+            Point2::new(f64::NEG_INFINITY, f64::NEG_INFINITY),
+        );
+        for sh in shapes.iter().flatten() {
+            lo = lo.inf(&sh.mid);
+            hi = hi.sup(&sh.mid);
+        }
+        if !(lo.x <= hi.x && lo.y <= hi.y) {
+            (lo, hi) = (Point2::origin(), Point2::origin());
+        }
+        // Far-flung midpoints (a client's list may hold any coordinates) widen the windows
+        // rather than multiply them: at most about four per segment.
+        let count = shapes.iter().flatten().count();
+        let max_cells = (4 * count).max(64) as f64;
+        let (w, h) = (hi.x - lo.x, hi.y - lo.y);
+        let mut cell = CROWDING_CELL_PX;
+        while (w / cell + 1.0) * (h / cell + 1.0) > max_cells {
+            cell *= 2.0;
+        }
+        let nx = (w / cell) as usize + 1;
+        let ny = (h / cell) as usize + 1;
+        let cell_of = |p: &Point2<f64>| {
+            let cx = (((p.x - lo.x) / cell) as usize).min(nx - 1);
+            let cy = (((p.y - lo.y) / cell) as usize).min(ny - 1);
+            cy * nx + cx
+        };
+        let mut starts = vec![0u32; nx * ny + 1];
+        for sh in shapes.iter().flatten() {
+            starts[cell_of(&sh.mid) + 1] += 1;
+        }
+        for c in 0..nx * ny {
+            starts[c + 1] += starts[c];
+        }
+        let mut cursor = starts.clone();
+        let mut entries = vec![
+            Entry {
+                dir: nalgebra::Vector2::zeros(),
+                mid: Point2::origin(),
+                index: 0,
+            };
+            count
+        ];
         for (i, shape) in shapes.iter().enumerate() {
             if let Some(sh) = shape {
-                bins[sh.bin].push(Entry {
-                    rho: sh.mid.coords.dot(&normal_of_bin(sh.bin)),
+                let c = cell_of(&sh.mid);
+                entries[cursor[c] as usize] = Entry {
                     dir: sh.dir,
                     mid: sh.mid,
                     index: i as u32,
-                });
+                };
+                cursor[c] += 1;
             }
-        }
-        for b in &mut bins {
-            b.sort_unstable_by(|x, y| x.rho.total_cmp(&y.rho));
         }
         let longest = shapes.iter().flatten().map(|sh| sh.len).fold(0.0, f64::max);
         Crowding {
-            normals,
             shapes,
-            bins,
+            origin: lo,
+            cell,
+            nx,
+            ny,
+            starts,
+            entries,
             longest,
         }
     }
@@ -370,28 +390,49 @@ impl Crowding {
         let Some(sh) = &self.shapes[i] else {
             return;
         };
-        // A neighbour's midpoint is within `reach_px` across this segment and its half length
-        // (plus `beyond_px`) along it from its midpoint; measured across bin b's direction,
-        // which is off the segment's by an angle θ, that is within
-        // reach·|cos θ| + (½·length + beyond)·|sin θ| — and
-        // |sin θ| is the segment's direction dotted with the bin's normal. A bin nearly
-        // parallel to the segment is searched in a narrow window, the next ones wider.
+        // A neighbour's midpoint lies in the rectangle from `beyond_px` before the start to
+        // `beyond_px` past the end along the segment, `reach_px` either side across it: the
+        // windows its bounding box touches (widened by a rounding margin) hold every such
+        // midpoint; each is then tested exactly.
         const ROUNDING_PX: f64 = 1e-6;
         let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
-        for db in [CROWDING_BINS - 1, 0, 1] {
-            let b = (sh.bin + db) % CROWDING_BINS;
-            let normal = self.normals[b];
-            let window =
-                reach_px + (0.5 * sh.len + beyond_px) * sh.dir.dot(&normal).abs() + ROUNDING_PX;
-            let rho = sh.mid.coords.dot(&normal);
-            let list = &self.bins[b];
-            let from = list.partition_point(|e| e.rho < rho - window);
-            // A client's list may pile thousands of copies onto one line: the scan is
-            // bounded, and a segment with that many candidates is crowded anyway.
-            for other in list[from..].iter().take(MAX_CROWDING_CANDIDATES) {
-                if other.rho > rho + window {
-                    break;
+        let half_extent = (0.5 * sh.len + beyond_px) * sh.dir.abs() + reach_px * n.abs();
+        let centre = sh.mid;
+        let (lo, hi) = (
+            centre - half_extent.add_scalar(ROUNDING_PX),
+            centre + half_extent.add_scalar(ROUNDING_PX),
+        );
+        let index = |v: f64, origin: f64, n: usize| -> Option<usize> {
+            let k = ((v - origin) / self.cell).floor();
+            (k.is_finite()).then(|| k.clamp(0.0, (n - 1) as f64) as usize)
+        };
+        if hi.x < self.origin.x
+            || hi.y < self.origin.y
+            || lo.x > self.origin.x + self.nx as f64 * self.cell
+            || lo.y > self.origin.y + self.ny as f64 * self.cell
+        {
+            return;
+        }
+        let (Some(x0), Some(x1), Some(y0), Some(y1)) = (
+            index(lo.x, self.origin.x, self.nx),
+            index(hi.x, self.origin.x, self.nx),
+            index(lo.y, self.origin.y, self.ny),
+            index(hi.y, self.origin.y, self.ny),
+        ) else {
+            return;
+        };
+        // A client's list may pile thousands of copies onto one place: the scan is bounded,
+        // and a segment with that many candidates is crowded anyway.
+        let mut budget = MAX_CROWDING_CANDIDATES;
+        for cy in y0..=y1 {
+            let row = cy * self.nx;
+            let cells =
+                &self.entries[self.starts[row + x0] as usize..self.starts[row + x1 + 1] as usize];
+            for other in cells {
+                if budget == 0 {
+                    return;
                 }
+                budget -= 1;
                 let j = other.index as usize;
                 if j == i || other.dir.dot(&sh.dir).abs() < PARALLEL_COS {
                     continue;
@@ -409,6 +450,61 @@ impl Crowding {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_grid_finds_exactly_the_neighbours_every_pair_would() {
+        // Random segments, many near-parallel (a room's), some far away: each query's visits
+        // are those of the definition applied to every other segment.
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut uniform = |lo: f64, hi: f64| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            lo + (hi - lo) * (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut segments: Vec<Segment2> = (0..400)
+            .map(|k| {
+                let (x, y) = (uniform(0.0, 300.0), uniform(0.0, 300.0));
+                let angle = if k % 3 == 0 {
+                    uniform(0.0, std::f64::consts::TAU)
+                } else {
+                    (k % 2) as f64 * std::f64::consts::FRAC_PI_2 + uniform(-0.2, 0.2)
+                };
+                let len = uniform(2.0, 80.0);
+                seg((x, y), (x + len * angle.cos(), y + len * angle.sin()))
+            })
+            .collect();
+        segments.push(seg((5000.0, -3000.0), (5040.0, -3000.0)));
+        let index = Crowding::new(&segments);
+        for (reach, beyond) in [(CROWDING_RADIUS_PX, 0.0), (16.0, 0.5 * index.longest)] {
+            for i in 0..segments.len() {
+                let mut got = Vec::new();
+                index.for_each_near(i, reach, beyond, |j, along, across| {
+                    got.push((j, along.to_bits(), across.to_bits()))
+                });
+                got.sort_unstable();
+                let sh = index.shapes[i].as_ref().unwrap();
+                let n = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
+                let expected: Vec<(usize, u64, u64)> = index
+                    .shapes
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(j, other)| {
+                        let other = other.as_ref()?;
+                        let along = (other.mid - sh.start).dot(&sh.dir);
+                        let across = (other.mid - sh.start).dot(&n).abs();
+                        (j != i
+                            && other.dir.dot(&sh.dir).abs() >= PARALLEL_COS
+                            && along > -beyond
+                            && along < sh.len + beyond
+                            && across <= reach)
+                            .then_some((j, along.to_bits(), across.to_bits()))
+                    })
+                    .collect();
+                assert_eq!(got, expected, "segment {i}");
+            }
+        }
+    }
 
     fn seg(a: (f64, f64), b: (f64, f64)) -> Segment2 {
         Segment2::new(Point2::new(a.0, a.1), Point2::new(b.0, b.1))

@@ -47,7 +47,29 @@ pub struct Buckets {
     ny: usize,
     offsets: Vec<u32>,
     entries: Vec<Entry>,
+    /// Each entry's segment's line, beside `entries` (same index): its unit normal and its
+    /// offset along it, so that a verification rejects a segment whose line is far from the
+    /// prediction without reading the segment itself.
+    lines: Vec<EntryLine>,
     period: f64,
+}
+
+/// A segment's line as n·p = offset, n = (dir.y, −dir.x): n·p − offset is
+/// [`RectSegment::line_distance`] up to rounding.
+#[derive(Debug, Clone, Copy)]
+struct EntryLine {
+    normal: Vector2<f64>,
+    offset: f64,
+}
+
+impl EntryLine {
+    fn of(s: &RectSegment) -> EntryLine {
+        let normal = Vector2::new(s.dir.y, -s.dir.x);
+        EntryLine {
+            normal,
+            offset: normal.dot(&s.a.coords),
+        }
+    }
 }
 
 impl Buckets {
@@ -101,6 +123,7 @@ impl Buckets {
             ny,
             offsets: vec![0; nx * ny + 1],
             entries: Vec::new(),
+            lines: Vec::new(),
             period,
         };
 
@@ -139,6 +162,10 @@ impl Buckets {
                 a.angle.total_cmp(&b.angle).then(a.segment.cmp(&b.segment))
             });
         }
+        grid.lines = entries
+            .iter()
+            .map(|e| EntryLine::of(&segments[e.segment as usize]))
+            .collect();
         grid.offsets = offsets;
         grid.entries = entries;
         grid
@@ -216,24 +243,38 @@ impl Buckets {
         tolerance: f64,
         mut visit: impl FnMut(u32),
     ) {
-        let c = cy * self.nx + cx;
+        self.for_each_entry_in_cell(cy * self.nx + cx, angle, tolerance, |_, s| visit(s));
+    }
+
+    /// Calls `visit(i, segment)` for the entries of window `c` whose angle key lies within
+    /// `tolerance` of `angle`, `i` the entry's index within the window.
+    #[inline]
+    fn for_each_entry_in_cell(
+        &self,
+        c: usize,
+        angle: f64,
+        tolerance: f64,
+        mut visit: impl FnMut(usize, u32),
+    ) {
         let cell = &self.entries[self.offsets[c] as usize..self.offsets[c + 1] as usize];
         if cell.is_empty() {
             return;
         }
         if tolerance * 2.0 >= self.period {
-            cell.iter().for_each(|e| visit(e.segment));
+            cell.iter()
+                .enumerate()
+                .for_each(|(i, e)| visit(i, e.segment));
             return;
         }
         let lo = angle - tolerance;
         let hi = angle + tolerance;
         let mut scan = |lo: f64, hi: f64| {
             let start = cell.partition_point(|e| e.angle < lo);
-            for e in &cell[start..] {
+            for (i, e) in cell[start..].iter().enumerate() {
                 if e.angle > hi {
                     break;
                 }
-                visit(e.segment);
+                visit(start + i, e.segment);
             }
         };
         if lo < 0.0 {
@@ -245,6 +286,42 @@ impl Buckets {
         } else {
             scan(lo, hi);
         }
+    }
+}
+
+impl Buckets {
+    /// [`Buckets::for_each_in_cell`], skipping the segments whose line passes farther than
+    /// `distance` from both `q0` and `q1` on the same side: no point of the segment `q0`–`q1`
+    /// is then within `distance` of that line (the distance along it is affine). Exact up to a
+    /// rounding margin in the skipping's favour of keeping, so a caller that tests the
+    /// distances itself gets the same segments it would accept from `for_each_in_cell`.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub fn for_each_in_cell_near(
+        &self,
+        cx: usize,
+        cy: usize,
+        angle: f64,
+        tolerance: f64,
+        (q0, q1): (Point2<f64>, Point2<f64>),
+        distance: f64,
+        mut visit: impl FnMut(u32),
+    ) {
+        let c = cy * self.nx + cx;
+        let start = self.offsets[c] as usize;
+        let lines = &self.lines[start..self.offsets[c + 1] as usize];
+        // The margin covers the difference between n·p − offset here and the caller's
+        // n·(p − a): a few ulps of the coordinates.
+        let limit = distance + 1e-9 * (1.0 + q0.coords.abs().max() + q1.coords.abs().max());
+        self.for_each_entry_in_cell(c, angle, tolerance, |i, segment| {
+            let line = &lines[i];
+            let da = line.normal.dot(&q0.coords) - line.offset;
+            let db = line.normal.dot(&q1.coords) - line.offset;
+            if (da > limit && db > limit) || (da < -limit && db < -limit) {
+                return;
+            }
+            visit(segment);
+        });
     }
 }
 
@@ -357,6 +434,56 @@ mod tests {
             },
         );
         assert!(found.contains(&2) && !found.contains(&0));
+    }
+
+    #[test]
+    fn the_near_windows_skip_only_lines_far_from_the_whole_query() {
+        // Random segments and queries: `for_each_in_cell_near` gives what `for_each_in_cell`
+        // gives less the segments whose line is beyond the distance at both ends of the query
+        // on one side, computed as the matcher does (`line_distance`).
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut uniform = |lo: f64, hi: f64| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            lo + (hi - lo) * (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let segs: Vec<RectSegment> = (0..300)
+            .map(|_| {
+                let (x, y) = (uniform(0.0, 200.0), uniform(0.0, 200.0));
+                let (dx, dy) = (uniform(-30.0, 30.0), uniform(-30.0, 30.0));
+                seg(x, y, x + dx, y + dy)
+            })
+            .collect();
+        let b = Buckets::build(&segs, Vector2::new(0.8, 0.6), 2.0, period(true));
+        let mut skipped = 0;
+        for _ in 0..300 {
+            let q0 = Point2::new(uniform(0.0, 200.0), uniform(0.0, 200.0));
+            let q1 = q0 + Vector2::new(uniform(-40.0, 40.0), uniform(-40.0, 40.0));
+            let (angle, tolerance, distance) = (uniform(0.0, 2.0 * PI), uniform(0.0, 1.0), 2.0);
+            let (mut all, mut near) = (Vec::new(), Vec::new());
+            b.for_each_cell_on_path(q0, q1, distance, |cx, cy| {
+                b.for_each_in_cell(cx, cy, angle, tolerance, |s| all.push(s));
+                b.for_each_in_cell_near(cx, cy, angle, tolerance, (q0, q1), distance, |s| {
+                    near.push(s)
+                });
+            });
+            let expected: Vec<u32> = all
+                .iter()
+                .copied()
+                .filter(|&s| {
+                    let sk = &segs[s as usize];
+                    let (da, db) = (sk.line_distance(q0), sk.line_distance(q1));
+                    !((da > distance && db > distance) || (da < -distance && db < -distance))
+                })
+                .collect();
+            skipped += all.len() - near.len();
+            assert_eq!(near, expected);
+        }
+        assert!(
+            skipped > 1000,
+            "the test must exercise the skipping: {skipped}"
+        );
     }
 
     #[test]

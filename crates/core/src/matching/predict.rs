@@ -514,8 +514,11 @@ impl Search<'_> {
         let Scratch { stamp, found, .. } = scratch;
         found.clear();
         let stamp = &mut stamp[k];
+        // Only segments whose line comes within `tol` of the prediction somewhere can verify
+        // it (the residual is the distance at two points between q0 and q1): the windows
+        // skip the others from their own copy of the lines, without reading the segments.
         grid_k.for_each_cell_on_path(q0, q1, tol, |cx, cy| {
-            grid_k.for_each_in_cell(cx, cy, key_q, window_tol, |ik| {
+            grid_k.for_each_in_cell_near(cx, cy, key_q, window_tol, (q0, q1), tol, |ik| {
                 if first_visit(stamp, ik, generation) {
                     found.push(ik);
                 }

@@ -16,6 +16,7 @@ use prost::Message;
 use serde_json::{json, Value};
 use tonic::Code;
 use trinocular::api::{self, pb};
+use trinocular::service::config::Config;
 use trinocular::service::{server, Limits, Service};
 
 use common::{example_request, runtime};
@@ -1070,23 +1071,6 @@ fn burst_of_largest_requests(server: &common::ServerProcess, side: u32, n: u64) 
     })
 }
 
-/// `key = value` in `section` of a TOML text (the shipped ConfigMap's, which is flat).
-fn toml_value(text: &str, section: &str, key: &str) -> Option<String> {
-    let mut in_section = false;
-    for line in text.lines().map(str::trim) {
-        if line.starts_with('[') {
-            in_section = line == format!("[{section}]");
-        } else if in_section {
-            if let Some((k, v)) = line.split_once('=') {
-                if k.trim() == key {
-                    return Some(v.split('#').next()?.trim().trim_matches('"').to_string());
-                }
-            }
-        }
-    }
-    None
-}
-
 /// Issue 18: with the limits `deploy/` ships, a burst of the largest requests those limits
 /// accept is refused (429 / RESOURCE_EXHAUSTED) and retried rather than let through, and the
 /// server's peak RSS stays under the container's memory limit. The Kubernetes ConfigMap's
@@ -1120,12 +1104,11 @@ fn with_the_kubernetes_limits_a_burst_stays_under_the_pods_memory_limit() {
                 .flatten()
         })
         .expect("the Deployment's memory limit, in Mi or Gi");
-    let value = |section, key| {
-        toml_value(&toml, section, key)
-            .unwrap_or_else(|| panic!("[{section}] {key} in the ConfigMap"))
-    };
-    let (threads, max_jobs) = (value("compute", "threads"), value("compute", "max_jobs"));
-    let max_pixels: f64 = value("limits", "max_image_pixels").parse().unwrap();
+    // The limits the server will run with, read by the service's own configuration loader.
+    let limits = Config::from_layers(&Config::layers(Some(&toml)))
+        .expect("the ConfigMap's trinocular.toml is a valid configuration")
+        .limits();
+    let (threads, max_jobs) = (limits.threads.to_string(), limits.max_jobs.to_string());
     let config = std::env::temp_dir().join(format!("trinocular-k8s-{}.toml", std::process::id()));
     std::fs::write(&config, &toml).unwrap();
     // The ConfigMap's file, but the store (Redis in the cluster) and the addresses, which the
@@ -1146,7 +1129,7 @@ fn with_the_kubernetes_limits_a_burst_stays_under_the_pods_memory_limit() {
         &[("TRINOCULAR__LOG__JSON", "false")],
     );
     let _ = std::fs::remove_file(&config);
-    let side = max_pixels.sqrt() as u32;
+    let side = (limits.max_image_pixels as f64).sqrt() as u32;
     let (answered, refused) = burst_of_largest_requests(&server, side, 3);
     assert_eq!(answered, 3);
     assert!(

@@ -455,13 +455,8 @@ mod tests {
     fn the_grid_finds_exactly_the_neighbours_every_pair_would() {
         // Random segments, many near-parallel (a room's), some far away: each query's visits
         // are those of the definition applied to every other segment.
-        let mut state = 0x9E37_79B9_7F4A_7C15u64;
-        let mut uniform = |lo: f64, hi: f64| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            lo + (hi - lo) * (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = trinocular_synth::Rng::new(11);
+        let mut uniform = |lo: f64, hi: f64| rng.range(lo, hi);
         let mut segments: Vec<Segment2> = (0..400)
             .map(|k| {
                 let (x, y) = (uniform(0.0, 300.0), uniform(0.0, 300.0));

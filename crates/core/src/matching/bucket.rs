@@ -441,13 +441,8 @@ mod tests {
         // Random segments and queries: `for_each_in_cell_near` gives what `for_each_in_cell`
         // gives less the segments whose line is beyond the distance at both ends of the query
         // on one side, computed as the matcher does (`line_distance`).
-        let mut state = 0x2545_F491_4F6C_DD1Du64;
-        let mut uniform = |lo: f64, hi: f64| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            lo + (hi - lo) * (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = trinocular_synth::Rng::new(11);
+        let mut uniform = |lo: f64, hi: f64| rng.range(lo, hi);
         let segs: Vec<RectSegment> = (0..300)
             .map(|_| {
                 let (x, y) = (uniform(0.0, 200.0), uniform(0.0, 200.0));

@@ -92,8 +92,8 @@ pod = dep[0]["spec"]["template"]["spec"]
 c = pod["containers"][0]
 ports = {p["containerPort"] for p in c["ports"]}
 check(ports == {8080, 50051}, f"k8s Deployment containerPorts {sorted(ports)}")
-rp, lp = c["readinessProbe"]["httpGet"], c["livenessProbe"]["httpGet"]
-check((rp["path"], rp["port"]) == ("/readyz", 8080), f"k8s readinessProbe {rp}")
+sp_, lp = c["startupProbe"].get("httpGet", {}), c["livenessProbe"]["httpGet"]
+check((sp_.get("path"), sp_.get("port")) == ("/readyz", 8080), f"k8s startupProbe {sp_}")
 check((lp["path"], lp["port"]) == ("/healthz", 8080), f"k8s livenessProbe {lp}")
 check(pod.get("terminationGracePeriodSeconds") == 30, "k8s terminationGracePeriodSeconds 30")
 pre = c.get("lifecycle", {}).get("preStop", {})
@@ -101,7 +101,7 @@ check("sleep" in json.dumps(pre), f"k8s preStop sleep {pre}")
 res = c.get("resources", {})
 check(all(k in res.get(s, {}) for s in ("requests", "limits") for k in ("cpu", "memory")), "k8s resources requests+limits cpu/memory")
 check(pod["securityContext"].get("runAsNonRoot") is True, "k8s runAsNonRoot")
-check(c.get("startupProbe", {}).get("grpc", {}).get("port") == 50051, "k8s gRPC probe on 50051 (grpc.health.v1)")
+check(c.get("readinessProbe", {}).get("grpc", {}).get("port") == 50051, "k8s gRPC readiness probe on 50051 (grpc.health.v1)")
 images = [x["image"] for d in k8s for x in d.get("spec", {}).get("template", {}).get("spec", {}).get("containers", [])]
 images += [s.get("image", "") for s in svc.values()]
 check(all(":" in i and not i.endswith(":latest") for i in images if i), f"no latest or untagged images: {images}")

@@ -311,11 +311,49 @@ fn health_and_readiness() {
             http.get(format!("http://{}{path}", running.http_addr))
                 .send()
         };
+        // What the Kubernetes gRPC readiness probe asks: grpc.health.v1 for the service "".
+        let channel =
+            tonic::transport::Channel::from_shared(format!("http://{}", running.grpc_addr))
+                .unwrap()
+                .connect()
+                .await
+                .unwrap();
+        let health = tonic_health::pb::health_client::HealthClient::new(channel);
+        let grpc_ready_becomes = |want: tonic_health::pb::health_check_response::ServingStatus| {
+            let mut health = health.clone();
+            async move {
+                // The watchdog passes readiness on every 500 ms.
+                for _ in 0..40 {
+                    let status = health
+                        .check(tonic_health::pb::HealthCheckRequest {
+                            service: String::new(),
+                        })
+                        .await
+                        .unwrap()
+                        .into_inner()
+                        .status();
+                    if status == want {
+                        return true;
+                    }
+                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                }
+                false
+            }
+        };
+        use tonic_health::pb::health_check_response::ServingStatus;
         assert_eq!(get("/healthz").await.unwrap().status(), 200);
         assert_eq!(get("/readyz").await.unwrap().status(), 200);
+        assert!(grpc_ready_becomes(ServingStatus::Serving).await);
         service.set_ready(false);
         assert_eq!(get("/readyz").await.unwrap().status(), 503);
         assert_eq!(get("/healthz").await.unwrap().status(), 200);
+        assert!(
+            grpc_ready_becomes(ServingStatus::NotServing).await,
+            "gRPC health \"\" must follow /readyz"
+        );
+        service.set_ready(true);
+        assert_eq!(get("/readyz").await.unwrap().status(), 200);
+        assert!(grpc_ready_becomes(ServingStatus::Serving).await);
         running.shutdown().await;
     });
 }

@@ -131,6 +131,36 @@ async fn post(url: &str, content_type: &str, body: Vec<u8>) -> (u16, String) {
     (status, response.text().await.expect("body"))
 }
 
+/// [`post`], but `None` when the server closed the connection while the body was still
+/// being written (broken pipe or reset): what a client sees of a refusal sent before the
+/// body was read. Any other failure (no server, say) panics as in [`post`].
+async fn post_or_cut(url: &str, content_type: &str, body: Vec<u8>) -> Option<(u16, String)> {
+    let sent = reqwest::Client::new()
+        .post(url)
+        .header("content-type", content_type)
+        .body(body)
+        .send()
+        .await;
+    let response = match sent {
+        Ok(response) => response,
+        Err(e) => {
+            let mut source: Option<&(dyn std::error::Error + 'static)> = Some(&e);
+            while let Some(s) = source {
+                if let Some(io) = s.downcast_ref::<std::io::Error>() {
+                    use std::io::ErrorKind::{BrokenPipe, ConnectionReset};
+                    if matches!(io.kind(), BrokenPipe | ConnectionReset) {
+                        return None;
+                    }
+                }
+                source = s.source();
+            }
+            panic!("HTTP answer: {e:?}");
+        }
+    };
+    let status = response.status().as_u16();
+    Some((status, response.text().await.expect("body")))
+}
+
 /// Posts JSON, returning the status and the body as JSON.
 async fn post_json(url: &str, body: &Value) -> (u16, Value) {
     let (status, text) = post(url, "application/json", body.to_string().into_bytes()).await;
@@ -1045,10 +1075,13 @@ fn burst_of_largest_requests(server: &common::ServerProcess, side: u32, n: u64) 
                 let mut refused = 0u32;
                 loop {
                     if seed % 2 == 0 {
-                        match post(&http_url, "application/x-protobuf", body.clone()).await {
-                            (200, _) => return refused,
-                            (429, _) => {}
-                            (status, body) => panic!("{status}: {body}"),
+                        match post_or_cut(&http_url, "application/x-protobuf", body.clone()).await {
+                            Some((200, _)) => return refused,
+                            // A refusal the server sends before reading a body it will not
+                            // take, closing the connection: a client still writing may see
+                            // the pipe break before it reads the 429.
+                            Some((429, _)) | None => {}
+                            Some((status, body)) => panic!("{status}: {body}"),
                         }
                     } else {
                         match grpc.r#match(request.clone()).await {

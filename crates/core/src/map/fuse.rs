@@ -46,6 +46,11 @@ struct Item {
     tol_b: f64,
     /// Covariance of (a, b), world frame, the capture's pose uncertainty included.
     cov: Matrix6<f64>,
+    /// How far each end may lie past where it is seen, along the line, because the capture's
+    /// pose is uncertain there, beyond the map gate's position tolerance (metres; 0 without a
+    /// gate): the part of the segment the map cannot vouch for.
+    pull_a: f64,
+    pull_b: f64,
     /// The capturing rig's origin.
     rig: Point3<f64>,
 }
@@ -167,16 +172,38 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
                 let (va, vb) = ((tol_a / 2.45).powi(2), (tol_b / 2.45).powi(2));
                 Matrix6::from_diagonal(&nalgebra::Vector6::new(va, va, va, vb, vb, vb))
             };
-            let moved = Measured {
+            let measured = Measured {
                 start: s.start,
                 end: s.end,
                 covariance: own,
                 uncertain: false,
-            }
-            .transformed_with(&c.rig_to_world, &c.pose_covariance)
+            };
+            let with_pose = measured.transformed_with(&c.rig_to_world, &c.pose_covariance);
+            let (pull_a, pull_b) = params.gate.as_ref().map_or((0.0, 0.0), |g| {
+                // Along the line, the pose's part alone: the match has already pulled in the
+                // ends its own images place poorly.
+                let pose = with_pose.covariance - measured.transformed(&c.rig_to_world).covariance;
+                let d = (b - a) / len;
+                let along = |k: usize| {
+                    let block = pose.fixed_view::<3, 3>(3 * k, 3 * k);
+                    (d.transpose() * block * d)[(0, 0)].max(0.0).sqrt()
+                };
+                let k = (-2.0 * (1.0 - g.confidence).ln()).sqrt();
+                let tolerance =
+                    |p: &Point3<f64>| g.position_m.max(g.position_rel * (p - rig).norm());
+                let pull_a = (k * along(0) - tolerance(&a)).max(0.0);
+                let pull_b = (k * along(1) - tolerance(&b)).max(0.0);
+                // Nothing left: the segment still places its line, and one point of it.
+                let scale = (len / (pull_a + pull_b)).min(1.0);
+                if scale.is_finite() {
+                    (pull_a * scale, pull_b * scale)
+                } else {
+                    (0.0, 0.0)
+                }
+            });
             // Where a segment ends is no measurement of its line: seen from a line at a small
             // angle, a receding segment's along-line spread would pass for doubt across it.
-            .across_only(0.0);
+            let moved = with_pose.across_only(0.0);
             let key = [s.start.x, s.start.y, s.start.z, s.end.x, s.end.y, s.end.z];
             let item = Item {
                 a,
@@ -187,6 +214,8 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
                 tol_a,
                 tol_b,
                 cov: moved.covariance,
+                pull_a,
+                pull_b,
                 rig,
             };
             keyed.push((key, item));
@@ -326,6 +355,22 @@ fn extent_of(items: &[Item], group: &[usize], line: &Line) -> (f64, f64) {
         .fold((f64::MAX, f64::MIN), |(lo, hi), t| (lo.min(t), hi.max(t)))
 }
 
+/// [`extent_of`] with each member's ends pulled in where its capture's pose may have carried
+/// them past the true ends by more than the map's tolerance: a map segment reports the part
+/// of its line some member vouches for.
+fn trusted_extent_of(items: &[Item], group: &[usize], line: &Line) -> (f64, f64) {
+    group
+        .iter()
+        .flat_map(|&m| {
+            let s = &items[m];
+            [
+                line.at(&(s.a + s.dir * s.pull_a)),
+                line.at(&(s.b - s.dir * s.pull_b)),
+            ]
+        })
+        .fold((f64::MAX, f64::MIN), |(lo, hi), t| (lo.min(t), hi.max(t)))
+}
+
 /// Weighted total-least-squares line of `group`: each member is a uniform density along its
 /// length, weighted by 1/tolerance² (far, less precise observations count less), so the
 /// weight of a member is its length over its tolerance squared. The direction is the
@@ -373,11 +418,11 @@ fn canonical(d: Vector3<f64>) -> Vector3<f64> {
 }
 
 /// One map segment from a group: the line its members' information agrees on, between the
-/// extreme projections of their ends, with its covariance and, under `gate`, whether it
-/// keeps the map's promise.
+/// extreme projections of the ends they vouch for ([`trusted_extent_of`]), with its
+/// covariance and, under `gate`, whether it keeps the map's promise.
 fn merge(items: &[Item], group: &[usize], gate: Option<&MapGate>) -> Option<MapSegment> {
     let line = fused_line(items, group, fit(items, group));
-    let (lo, hi) = extent_of(items, group, &line.line);
+    let (lo, hi) = trusted_extent_of(items, group, &line.line);
     let mut captures: Vec<u32> = group.iter().map(|&m| items[m].capture).collect();
     captures.sort_unstable();
     captures.dedup();

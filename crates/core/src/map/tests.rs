@@ -547,6 +547,62 @@ fn the_gate_leaves_out_what_a_capture_placed_by_its_odometry_alone_saw() {
 }
 
 #[test]
+fn a_capture_placed_loosely_along_a_line_does_not_carry_its_end_past_the_truth() {
+    // A wall edge from x = 0 to 2 m. Capture 0, its pose exact, saw 0.2–1.5 m of it; capture
+    // 1 saw 0.2–1.9 m, but its pose is known to 4 cm along x (across the edge to 2 mm): where
+    // its ends lie along the edge is that uncertain, and 2.45σ of it exceeds the 3 cm
+    // tolerance at that range by 6–7 cm.
+    let (pa, pb) = (pose(1.0, 0.0, 0.0), pose(1.2, 0.2, 10.0));
+    let mut n = Noise(11);
+    let sa = seen(&pa, &[(p(0.2, 3.0, 0.8), p(1.5, 3.0, 0.8))], &mut n, 0.0);
+    let sb = seen(&pb, &[(p(0.2, 3.0, 0.8), p(1.9, 3.0, 0.8))], &mut n, 0.0);
+    let (ca, cb) = (with_sigma(&sa, 0.002), with_sigma(&sb, 0.002));
+    let along_x = nalgebra::Matrix6::from_diagonal(&nalgebra::Vector6::new(
+        1e-10,
+        1e-10,
+        1e-10,
+        0.04 * 0.04,
+        0.002 * 0.002,
+        1e-6,
+    ));
+    let captures = [
+        Capture {
+            id: 0,
+            rig_to_world: pa,
+            segments: &sa,
+            covariances: &ca,
+            ..Default::default()
+        },
+        Capture {
+            id: 1,
+            rig_to_world: pb,
+            segments: &sb,
+            covariances: &cb,
+            pose_covariance: along_x,
+        },
+    ];
+    let gated = FuseParams {
+        gate: Some(super::MapGate::of(&crate::matching::MatchParams::default())),
+        ..FuseParams::default()
+    };
+    let map = fuse(&captures, &gated);
+    assert_eq!(map.len(), 1, "{map:?}");
+    assert_eq!(map[0].captures, vec![0, 1]);
+    assert!(!map[0].uncertain, "{:?}", map[0]);
+    let (lo, hi) = {
+        let (a, b) = (map[0].start.x, map[0].end.x);
+        (a.min(b), a.max(b))
+    };
+    // The sure capture's start stands; capture 1's end is pulled in by the excess.
+    assert!((lo - 0.2).abs() < 0.002, "start {lo}");
+    assert!(hi > 1.8 && hi < 1.86, "end {hi}");
+    // Without the gate's promise the map reports every observed end.
+    let everything = fuse(&captures, &FuseParams::default());
+    let hi = everything[0].start.x.max(everything[0].end.x);
+    assert!((hi - 1.9).abs() < 0.002, "end {hi}");
+}
+
+#[test]
 fn a_gate_out_of_range_is_named() {
     let mut params = FuseParams {
         gate: Some(super::MapGate::of(&crate::matching::MatchParams::default())),

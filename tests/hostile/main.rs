@@ -120,15 +120,9 @@ async fn unloaded_p99(server: &Server, request: &pb::MatchRequest) -> Duration {
 
 /// Posts `body` as `content_type`, returning the status and the body's text.
 async fn post(url: &str, content_type: &str, body: Vec<u8>) -> (u16, String) {
-    let response = reqwest::Client::new()
-        .post(url)
-        .header("content-type", content_type)
-        .body(body)
-        .send()
+    post_or_cut(url, content_type, body)
         .await
-        .expect("HTTP answer");
-    let status = response.status().as_u16();
-    (status, response.text().await.expect("body"))
+        .expect("HTTP answer: the server closed the connection while the body was being written")
 }
 
 /// [`post`], but `None` when the server closed the connection while the body was still

@@ -201,3 +201,13 @@ pub async fn grpc_connect(
     let channel = tonic::transport::Endpoint::new(url)?.connect().await?;
     Ok(trinocular::api::pb::trinocular_client::TrinocularClient::new(channel))
 }
+
+/// A plaintext channel to the gRPC listener at `addr`, for the standard services (health,
+/// reflection) that have no client of ours.
+pub async fn grpc_channel(addr: std::net::SocketAddr) -> tonic::transport::Channel {
+    tonic::transport::Channel::from_shared(format!("http://{addr}"))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap()
+}

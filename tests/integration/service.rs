@@ -312,12 +312,7 @@ fn health_and_readiness() {
                 .send()
         };
         // What the Kubernetes gRPC readiness probe asks: grpc.health.v1 for the service "".
-        let channel =
-            tonic::transport::Channel::from_shared(format!("http://{}", running.grpc_addr))
-                .unwrap()
-                .connect()
-                .await
-                .unwrap();
+        let channel = crate::common::grpc_channel(running.grpc_addr).await;
         let health = tonic_health::pb::health_client::HealthClient::new(channel);
         let grpc_ready_becomes = |want: tonic_health::pb::health_check_response::ServingStatus| {
             let mut health = health.clone();
@@ -441,12 +436,7 @@ fn grpc_health_and_reflection_work_like_grpcurl_expects() {
     };
     runtime().block_on(async {
         let running = start(small_limits()).await;
-        let channel =
-            tonic::transport::Channel::from_shared(format!("http://{}", running.grpc_addr))
-                .unwrap()
-                .connect()
-                .await
-                .unwrap();
+        let channel = crate::common::grpc_channel(running.grpc_addr).await;
         let mut health = HealthClient::new(channel.clone());
         for service in ["", "trinocular.v1.Trinocular"] {
             let reply = health

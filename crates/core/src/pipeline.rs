@@ -755,6 +755,12 @@ pub(crate) fn principal_variances(
     ((mean + spread).max(0.0), (mean - spread).max(0.0))
 }
 
+/// The radius, in standard deviations, within which a round two-dimensional Gaussian error
+/// lies with probability `confidence`: √(−2 ln(1 − c)), 2.45 at 0.95.
+pub(crate) fn round_quantile(confidence: f64) -> f64 {
+    (-2.0 * (1.0 - confidence).ln()).sqrt()
+}
+
 /// Whether an error across the line, Gaussian with principal variances `(major, minor)`, lies
 /// within `radius` with probability at least `confidence` — the promise asked exactly. The
 /// error is two-dimensional, and an elongated ellipse (a line's depth is known far worse than
@@ -762,7 +768,7 @@ pub(crate) fn principal_variances(
 /// the same major axis: the round bound refused half the segments it need not have.
 pub(crate) fn within_radius(variances: (f64, f64), radius: f64, confidence: f64) -> bool {
     let (major, minor) = variances;
-    let round_bound = (-2.0 * (1.0 - confidence).ln()).sqrt();
+    let round_bound = round_quantile(confidence);
     if round_bound * major.sqrt() <= radius {
         return true; // inside even if the error were round
     }
@@ -928,7 +934,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     let u = est.direction();
     // The promise: at the gate's confidence, the direction within its bound, and the midpoint
     // and both ends across the line within the position bound at their range.
-    let k = (-2.0 * (1.0 - params.gate_confidence).ln()).sqrt();
+    let k = round_quantile(params.gate_confidence);
     let centre = rig.centroid();
     let tolerance = |p: &nalgebra::Point3<f64>| position_tolerance(params, &centre, p);
     // An end that may lie past the true end by more than the tolerance (a receding line, whose

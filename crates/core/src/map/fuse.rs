@@ -24,7 +24,7 @@ use rstar::RTree;
 
 use super::{Capture, FuseParams, MapGate, MapSegment, Measured};
 use crate::geometry::across_basis;
-use crate::pipeline::{principal_variances, within_radius};
+use crate::pipeline::{principal_variances, round_quantile, within_radius};
 
 /// A member may lie this many times its own lateral tolerance from the fitted line: the line
 /// is itself uncertain, by about as much again (quadrature).
@@ -172,43 +172,37 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
                 let (va, vb) = ((tol_a / 2.45).powi(2), (tol_b / 2.45).powi(2));
                 Matrix6::from_diagonal(&nalgebra::Vector6::new(va, va, va, vb, vb, vb))
             };
-            let measured = Measured {
+            let placed = Measured {
                 start: s.start,
                 end: s.end,
                 covariance: own,
                 uncertain: false,
-            };
-            let with_pose = measured.transformed_with(&c.rig_to_world, &c.pose_covariance);
+            }
+            .transformed(&c.rig_to_world);
+            let spread = placed.pose_spread(&c.rig_to_world, &c.pose_covariance);
+            let dir = (b - a) / len;
             let (pull_a, pull_b) = params.gate.as_ref().map_or((0.0, 0.0), |g| {
-                // Along the line, the pose's part alone: the match has already pulled in the
-                // ends its own images place poorly.
-                let pose = with_pose.covariance - measured.transformed(&c.rig_to_world).covariance;
-                let d = (b - a) / len;
-                let along = |k: usize| {
-                    let block = pose.fixed_view::<3, 3>(3 * k, 3 * k);
-                    (d.transpose() * block * d)[(0, 0)].max(0.0).sqrt()
-                };
-                let k = (-2.0 * (1.0 - g.confidence).ln()).sqrt();
-                let tolerance =
-                    |p: &Point3<f64>| g.position_m.max(g.position_rel * (p - rig).norm());
-                let pull_a = (k * along(0) - tolerance(&a)).max(0.0);
-                let pull_b = (k * along(1) - tolerance(&b)).max(0.0);
-                // Nothing left: the segment still places its line, and one point of it.
-                let scale = (len / (pull_a + pull_b)).min(1.0);
-                if scale.is_finite() {
-                    (pull_a * scale, pull_b * scale)
-                } else {
-                    (0.0, 0.0)
-                }
+                pulls(
+                    &[a, b],
+                    &dir,
+                    len,
+                    &spread,
+                    |p| g.position_m.max(g.position_rel * (p - rig).norm()),
+                    g.confidence,
+                )
             });
             // Where a segment ends is no measurement of its line: seen from a line at a small
             // angle, a receding segment's along-line spread would pass for doubt across it.
-            let moved = with_pose.across_only(0.0);
+            let moved = Measured {
+                covariance: placed.covariance + spread,
+                ..placed
+            }
+            .across_only(0.0);
             let key = [s.start.x, s.start.y, s.start.z, s.end.x, s.end.y, s.end.z];
             let item = Item {
                 a,
                 b,
-                dir: (b - a) / len,
+                dir,
                 len,
                 capture: c.id,
                 tol_a,
@@ -235,6 +229,34 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
             .then_with(|| s1.capture.cmp(&s2.capture))
     });
     keyed.into_iter().map(|(_, s)| s).collect()
+}
+
+/// How far to pull in each end (`ends`, a segment of length `len` along `dir`) so that, at
+/// `confidence`, it does not lie past where it was seen by more than `tolerance` there,
+/// given the covariance `spread` its capture's pose uncertainty gives the endpoints. Only the
+/// pose's part counts: the match has already pulled in the ends its own images place poorly.
+/// A segment with nothing left keeps one point, and still places its line.
+fn pulls(
+    ends: &[Point3<f64>; 2],
+    dir: &Vector3<f64>,
+    len: f64,
+    spread: &Matrix6<f64>,
+    tolerance: impl Fn(&Point3<f64>) -> f64,
+    confidence: f64,
+) -> (f64, f64) {
+    let k = round_quantile(confidence);
+    let pull = |i: usize| {
+        let block = spread.fixed_view::<3, 3>(3 * i, 3 * i);
+        let along = (dir.transpose() * block * dir)[(0, 0)].max(0.0).sqrt();
+        (k * along - tolerance(&ends[i])).max(0.0)
+    };
+    let (pull_a, pull_b) = (pull(0), pull(1));
+    let scale = (len / (pull_a + pull_b)).min(1.0);
+    if scale.is_finite() {
+        (pull_a * scale, pull_b * scale)
+    } else {
+        (0.0, 0.0)
+    }
 }
 
 /// The R-tree key of a segment: its bounding box inflated by `inflate` metres, and the

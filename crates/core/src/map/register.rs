@@ -73,9 +73,20 @@ impl Measured {
         pose_covariance: &Matrix6<f64>,
     ) -> Measured {
         let mut moved = self.transformed(pose);
+        moved.covariance += moved.pose_spread(pose, pose_covariance);
+        moved
+    }
+
+    /// The covariance of this segment's endpoints (already in the world frame) that an
+    /// uncertainty `pose_covariance` of `pose`, which placed it, gives them (first order).
+    pub(crate) fn pose_spread(
+        &self,
+        pose: &Isometry3<f64>,
+        pose_covariance: &Matrix6<f64>,
+    ) -> Matrix6<f64> {
         let origin = pose.translation.vector;
         let mut jacobian = Matrix6::zeros();
-        for (i, p) in [moved.start, moved.end].into_iter().enumerate() {
+        for (i, p) in [self.start, self.end].into_iter().enumerate() {
             let lever = p.coords - origin;
             jacobian
                 .fixed_view_mut::<3, 3>(3 * i, 0)
@@ -84,8 +95,7 @@ impl Measured {
                 .fixed_view_mut::<3, 3>(3 * i, 3)
                 .copy_from(&Matrix3::identity());
         }
-        moved.covariance += jacobian * pose_covariance * jacobian.transpose();
-        moved
+        jacobian * pose_covariance * jacobian.transpose()
     }
 
     fn length(&self) -> f64 {
@@ -889,6 +899,7 @@ fn block_diag(r: &Matrix3<f64>) -> Matrix6<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::map::test_room::edge;
 
     /// A box room's edges around the origin: floor and ceiling rectangles and the four
     /// vertical corners, plus a few shelves, each with an isotropic 5 mm covariance.
@@ -940,12 +951,8 @@ mod tests {
     /// A wall with only vertical edges in view: a radiator's fins 8 cm apart and a few door
     /// and cupboard edges, no certain segment in any other direction.
     fn vertical_edges() -> Vec<Measured> {
-        let cov = Matrix6::identity() * 0.003f64.powi(2);
-        let vertical = |x: f64, y: f64, z0: f64, z1: f64| Measured {
-            start: Point3::new(x, y, z0),
-            end: Point3::new(x, y, z1),
-            covariance: cov,
-            uncertain: false,
+        let vertical = |x: f64, y: f64, z0: f64, z1: f64| {
+            edge(Point3::new(x, y, z0), Point3::new(x, y, z1), 0.003)
         };
         let mut edges: Vec<Measured> = (0..10)
             .map(|k| vertical(-0.4 + 0.08 * k as f64, 3.0, 0.2, 0.8))
@@ -991,13 +998,7 @@ mod tests {
         // Lines along x fix everything but the position along x; only a radiator's fins fix
         // that, and the capture sees eight of the map's twelve: matched in place or one fin
         // over, it is explained exactly as well.
-        let cov = Matrix6::identity() * 0.003f64.powi(2);
-        let line = |a: [f64; 3], b: [f64; 3]| Measured {
-            start: Point3::from(a),
-            end: Point3::from(b),
-            covariance: cov,
-            uncertain: false,
-        };
+        let line = |a: [f64; 3], b: [f64; 3]| edge(Point3::from(a), Point3::from(b), 0.003);
         let along_x = [
             line([-2.0, 3.0, 0.0], [2.0, 3.0, 0.0]),
             line([-2.0, 3.0, 2.4], [2.0, 3.0, 2.4]),

@@ -35,11 +35,16 @@ pub(crate) fn box_room(sigma_m: f64, west_shelves: bool) -> Vec<Measured> {
     }
     edges
         .into_iter()
-        .map(|(start, end)| Measured {
-            start,
-            end,
-            covariance: Matrix6::identity() * sigma_m.powi(2),
-            uncertain: false,
-        })
+        .map(|(start, end)| edge(start, end, sigma_m))
         .collect()
+}
+
+/// A certain edge from `start` to `end` with `sigma_m` of isotropic noise at each end.
+pub(crate) fn edge(start: Point3<f64>, end: Point3<f64>, sigma_m: f64) -> Measured {
+    Measured {
+        start,
+        end,
+        covariance: Matrix6::identity() * sigma_m.powi(2),
+        uncertain: false,
+    }
 }

@@ -400,6 +400,33 @@ fn with_sigma(segments: &[Segment3], sigma: f64) -> Vec<nalgebra::Matrix6<f64>> 
     vec![nalgebra::Matrix6::identity() * sigma * sigma; segments.len()]
 }
 
+/// A capture's pose, segments and their covariances.
+type Seen<'a> = (Isometry3<f64>, &'a [Segment3], &'a [nalgebra::Matrix6<f64>]);
+
+/// Captures 0 and 1: the first posed exactly, the second known to `pose_covariance`.
+fn two_captures<'a>(
+    first: Seen<'a>,
+    second: Seen<'a>,
+    pose_covariance: nalgebra::Matrix6<f64>,
+) -> [Capture<'a>; 2] {
+    [
+        Capture {
+            id: 0,
+            rig_to_world: first.0,
+            segments: first.1,
+            covariances: first.2,
+            ..Default::default()
+        },
+        Capture {
+            id: 1,
+            rig_to_world: second.0,
+            segments: second.1,
+            covariances: second.2,
+            pose_covariance,
+        },
+    ]
+}
+
 #[test]
 fn a_segment_seen_again_is_known_better_and_its_covariance_says_so() {
     let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
@@ -466,22 +493,7 @@ fn where_a_segment_ends_is_no_doubt_across_the_fused_line() {
         let mut block = cb[0].fixed_view_mut::<3, 3>(3 * k, 3 * k);
         block += along * along.transpose() * 0.3f64.powi(2);
     }
-    let captures = [
-        Capture {
-            id: 0,
-            rig_to_world: pa,
-            segments: &sa,
-            covariances: &ca,
-            ..Default::default()
-        },
-        Capture {
-            id: 1,
-            rig_to_world: pb,
-            segments: &sb,
-            covariances: &cb,
-            ..Default::default()
-        },
-    ];
+    let captures = two_captures((pa, &sa, &ca), (pb, &sb, &cb), nalgebra::Matrix6::zeros());
     let map = fuse(&captures, &FuseParams::default());
     assert_eq!(map.len(), 1);
     assert!(map[0].position_sigma_m < 0.003, "{:?}", map[0]);
@@ -502,22 +514,7 @@ fn the_gate_leaves_out_what_a_capture_placed_by_its_odometry_alone_saw() {
     );
     let (ca, cb) = (with_sigma(&sa, 0.003), with_sigma(&sb, 0.003));
     let odometry = super::PosePrior::odometry(pb, 3.0, 0.3, 0.05, 0.01).covariance;
-    let captures = [
-        Capture {
-            id: 0,
-            rig_to_world: pa,
-            segments: &sa,
-            covariances: &ca,
-            ..Default::default()
-        },
-        Capture {
-            id: 1,
-            rig_to_world: pb,
-            segments: &sb,
-            covariances: &cb,
-            pose_covariance: odometry,
-        },
-    ];
+    let captures = two_captures((pa, &sa, &ca), (pb, &sb, &cb), odometry);
     let gate = super::MapGate::of(&crate::matching::MatchParams::default());
     let gated = FuseParams {
         gate: Some(gate),
@@ -565,22 +562,7 @@ fn a_capture_placed_loosely_along_a_line_does_not_carry_its_end_past_the_truth()
         0.002 * 0.002,
         1e-6,
     ));
-    let captures = [
-        Capture {
-            id: 0,
-            rig_to_world: pa,
-            segments: &sa,
-            covariances: &ca,
-            ..Default::default()
-        },
-        Capture {
-            id: 1,
-            rig_to_world: pb,
-            segments: &sb,
-            covariances: &cb,
-            pose_covariance: along_x,
-        },
-    ];
+    let captures = two_captures((pa, &sa, &ca), (pb, &sb, &cb), along_x);
     let gated = FuseParams {
         gate: Some(super::MapGate::of(&crate::matching::MatchParams::default())),
         ..FuseParams::default()

@@ -235,7 +235,8 @@ fn world_items(captures: &[Capture], params: &FuseParams) -> Vec<Item> {
 /// `confidence`, it does not lie past where it was seen by more than `tolerance` there,
 /// given the covariance `spread` its capture's pose uncertainty gives the endpoints. Only the
 /// pose's part counts: the match has already pulled in the ends its own images place poorly.
-/// A segment with nothing left keeps one point, and still places its line.
+/// A segment with nothing left keeps one point, and still places its line; a spread that is
+/// not a number pulls nothing (the gate then judges the segment by that same spread).
 fn pulls(
     ends: &[Point3<f64>; 2],
     dir: &Vector3<f64>,
@@ -248,14 +249,15 @@ fn pulls(
     let pull = |i: usize| {
         let block = spread.fixed_view::<3, 3>(3 * i, 3 * i);
         let along = (dir.transpose() * block * dir)[(0, 0)].max(0.0).sqrt();
-        (k * along - tolerance(&ends[i])).max(0.0)
+        // At most the whole length, and nothing for a spread that is not a number.
+        (k * along - tolerance(&ends[i])).max(0.0).min(len)
     };
     let (pull_a, pull_b) = (pull(0), pull(1));
-    let scale = (len / (pull_a + pull_b)).min(1.0);
-    if scale.is_finite() {
+    if pull_a + pull_b > len {
+        let scale = len / (pull_a + pull_b);
         (pull_a * scale, pull_b * scale)
     } else {
-        (0.0, 0.0)
+        (pull_a, pull_b)
     }
 }
 
@@ -636,5 +638,35 @@ impl UnionFind {
         }
         self.parent[b] = a;
         self.size[a] += self.size[b];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pulls_stay_within_the_segment_whatever_the_spread() {
+        let ends = [Point3::new(0.0, 3.0, 1.0), Point3::new(2.0, 3.0, 1.0)];
+        let dir = Vector3::x();
+        let tolerance = |_: &Point3<f64>| 0.03;
+        let pull = |spread: Matrix6<f64>| pulls(&ends, &dir, 2.0, &spread, tolerance, 0.95);
+        // 4 cm along the line at both ends: 2.45 × 4 − 3 = 6.8 cm each.
+        let (a, b) = pull(Matrix6::identity() * 0.04f64.powi(2));
+        assert!((a - 0.068).abs() < 1e-3 && (a - b).abs() < 1e-12, "{a} {b}");
+        // Within the tolerance: nothing.
+        assert_eq!(pull(Matrix6::identity() * 0.01f64.powi(2)), (0.0, 0.0));
+        // Nothing left: one point of the segment kept.
+        let (a, b) = pull(Matrix6::identity() * 10.0);
+        assert!(
+            (a + b - 2.0).abs() < 1e-12 && (a - b).abs() < 1e-12,
+            "{a} {b}"
+        );
+        // A spread that is not a number (an infinite variance across makes one) pulls nothing.
+        assert_eq!(
+            pull(Matrix6::from_diagonal_element(f64::INFINITY)),
+            (0.0, 0.0)
+        );
+        assert_eq!(pull(Matrix6::identity() * f64::NAN), (0.0, 0.0));
     }
 }

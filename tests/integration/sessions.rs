@@ -979,7 +979,7 @@ fn captures_are_registered_to_the_map_and_the_map_uses_the_refined_poses() {
     // from the truth; GetMap with `refine_poses` solves them all and must bring the median
     // error below the given poses'. (The goal, a median of 0.2 degrees and 1 cm, is
     // met on the shared rooms but not on this sparse panorama — 8 to 50 segments a capture,
-    // its middle captures sharing too little: 0.36 degrees and 1.9 cm; docs/SESSIONS.md.)
+    // its middle captures sharing too little: 0.27 degrees and 1.2 cm; docs/SESSIONS.md.)
     // 30 degrees apart, as the shared rooms' sessions.
     let (calibration, captures) = panorama(12);
     let offsets = [

@@ -13,9 +13,11 @@
 //! Poses are perturbed as in [`super::register`]: a rotation vector about the rig's origin
 //! (world axes), then a translation.
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, UnitQuaternion, Vector6};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, UnitQuaternion, Vector6};
 
-use super::register::{register, Measured, PosePrior, RegisterParams, RegistrationStatus};
+use super::register::{
+    register_seen, Measured, PosePrior, RegisterParams, RegistrationStatus, Sector,
+};
 
 /// What two captures' segments say about where one rig was in the other's frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -79,7 +81,11 @@ pub fn register_pair(
         rig_to_world: predicted,
         covariance: relative_covariance(from, to),
     };
-    let got = register(to_segments, from_segments, &prior, params);
+    // `to`'s segments are in its rig frame: it looked from the origin.
+    let seen_from: Vec<Sector> = Sector::of(Point3::origin(), to_segments)
+        .into_iter()
+        .collect();
+    let got = register_seen(to_segments, &seen_from, from_segments, &prior, params);
     if got.status != RegistrationStatus::Registered {
         return None;
     }

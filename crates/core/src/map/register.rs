@@ -15,7 +15,9 @@
 //! 2. **Hypotheses.** Two candidate pairs of non-parallel segments fix all six degrees of
 //!    freedom, and two parallel ones well apart fix the heading and the floor position,
 //!    the prior holding the rest; each such pair of pairs, among the longest segments, is
-//!    solved with the prior and scored by a truncated χ² over every capture segment (MSAC). A scene of many
+//!    solved with the prior and scored by a truncated χ² over every capture segment (MSAC);
+//!    a segment the pose places where none of the map's captures looked ([`Sector`]) costs
+//!    what an inlier would, not the truncation, since the map could not have had it. A scene of many
 //!    parallel edges, where the nearest reference is often the wrong one, is why
 //!    association is not simply nearest-neighbour from the prior.
 //! 3. **Refinement.** From the best hypothesis: associate each segment with its best
@@ -292,10 +294,86 @@ const MAX_GAP_M: f64 = 0.2;
 const SOLVE_STEPS: usize = 5;
 const REFINE_ROUNDS: usize = 8;
 
+/// Where a capture's segments were seen from: the rig's origin and the span of directions
+/// about the vertical (world z) its segments cover. A map segment can only have been seen
+/// within such a span; a capture segment that a pose places outside every span of the map
+/// is one the map could not have, and leaving it unexplained is no evidence against that
+/// pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sector {
+    origin: Point3<f64>,
+    /// The span's bounding directions across the floor, unit vectors, counter-clockwise
+    /// from `from` to `to` (less than a half-turn apart).
+    from: [f64; 2],
+    to: [f64; 2],
+}
+
+impl Sector {
+    /// The span of `segments` (world frame) seen from `origin`; `None` without segments or
+    /// when they surround it (more than a half-turn: then everything counts as seen).
+    pub fn of(origin: Point3<f64>, segments: &[Measured]) -> Option<Sector> {
+        let azimuths: Vec<f64> = segments
+            .iter()
+            .flat_map(|s| [s.start, s.end])
+            .map(|p| (p.y - origin.y).atan2(p.x - origin.x))
+            .filter(|a| a.is_finite())
+            .collect();
+        let (sin, cos) = azimuths
+            .iter()
+            .fold((0.0, 0.0), |(s, c), a| (s + a.sin(), c + a.cos()));
+        if azimuths.is_empty() || (sin == 0.0 && cos == 0.0) {
+            return None;
+        }
+        // Offsets from the mean direction: the span runs from the least to the greatest.
+        let mean = f64::atan2(sin, cos);
+        let (lo, hi) = azimuths
+            .iter()
+            .map(|a| wrapped(a - mean))
+            .fold((0.0f64, 0.0f64), |(lo, hi), d| (lo.min(d), hi.max(d)));
+        let unit = |a: f64| [a.cos(), a.sin()];
+        (hi - lo < std::f64::consts::PI).then_some(Sector {
+            origin,
+            from: unit(mean + lo),
+            to: unit(mean + hi),
+        })
+    }
+
+    /// Whether `p` lies within the span (at any height or range). Two cross products, not
+    /// an arc tangent: registration asks it of every unexplained segment of every hypothesis.
+    fn covers(&self, p: &Point3<f64>) -> bool {
+        let v = [p.x - self.origin.x, p.y - self.origin.y];
+        let cross = |a: [f64; 2], b: [f64; 2]| a[0] * b[1] - a[1] * b[0];
+        cross(self.from, v) >= 0.0 && cross(v, self.to) >= 0.0
+    }
+}
+
+/// An angle in (−π, π].
+fn wrapped(a: f64) -> f64 {
+    let turn = std::f64::consts::TAU;
+    a - turn * ((a + std::f64::consts::PI) / turn).floor()
+}
+
+/// What an unexplained capture segment costs where the map could not have seen it: what an
+/// inlier is expected to cost (χ²'s mean for its 4 degrees of freedom), so that a pose gains
+/// nothing by placing segments out of sight rather than on their partners.
+const UNSEEN_COST: f64 = 4.0;
+
 /// Registers `capture` (rig frame) to `map` (world frame) from `prior`: see the module
 /// documentation. Deterministic: the same inputs give the same pose.
 pub fn register(
     map: &[Measured],
+    capture: &[Measured],
+    prior: &PosePrior,
+    params: &RegisterParams,
+) -> Registration {
+    register_seen(map, &[], capture, prior, params)
+}
+
+/// [`register`] with where the map's segments were seen from (`seen_from`; empty: all
+/// anywhere).
+pub fn register_seen(
+    map: &[Measured],
+    seen_from: &[Sector],
     capture: &[Measured],
     prior: &PosePrior,
     params: &RegisterParams,
@@ -332,6 +410,7 @@ pub fn register(
         prior_information,
         references: &references,
         segments: &segments,
+        seen_from,
     };
     let candidates = problem.candidates();
     let best = problem.best_hypothesis(&candidates);
@@ -435,6 +514,7 @@ struct Problem<'a> {
     prior_information: Matrix6<f64>,
     references: &'a [Reference],
     segments: &'a [Measured],
+    seen_from: &'a [Sector],
 }
 
 /// The residual of a pairing (both endpoints, across the reference's line), its Jacobian in
@@ -626,7 +706,8 @@ impl Problem<'_> {
             .filter(|(k, list)| !self.segments[*k].uncertain && !list.is_empty())
             .map(|(k, list)| {
                 let world = self.segments[k].transformed(pose);
-                list.iter()
+                let best = list
+                    .iter()
                     .filter(|&&(j, _)| !self.references[j].uncertain)
                     .filter_map(|&(j, _)| {
                         let pair = Pair {
@@ -635,7 +716,12 @@ impl Problem<'_> {
                         };
                         self.chi2_moved(pair, &world, pose, &slack)
                     })
-                    .fold(INLIER_GATE, f64::min)
+                    .fold(INLIER_GATE, f64::min);
+                if best < INLIER_GATE {
+                    best
+                } else {
+                    self.unexplained(&world)
+                }
             })
             .sum::<f64>()
             // Segments without candidates cost the full truncation, as before.
@@ -645,6 +731,21 @@ impl Problem<'_> {
                     .enumerate()
                     .filter(|(k, list)| !self.segments[*k].uncertain && list.is_empty())
                     .count() as f64
+    }
+
+    /// What a capture segment at `world` costs when nothing in the map explains it: the
+    /// inlier gate, or [`UNSEEN_COST`] where no capture of the map looked.
+    fn unexplained(&self, world: &Measured) -> f64 {
+        let seen = self.seen_from.is_empty()
+            || self
+                .seen_from
+                .iter()
+                .any(|s| s.covers(&world.start) || s.covers(&world.end));
+        if seen {
+            INLIER_GATE
+        } else {
+            UNSEEN_COST
+        }
     }
 
     /// A hypothesis from a start (a perturbation of the prior): what it associates as
@@ -1151,6 +1252,95 @@ mod tests {
         // What the lines fix is corrected: across the row and the heading.
         assert!(off.y.abs() < 0.005, "{off:?}");
         assert!(rotation_error_deg(&got.rig_to_world, &truth) < 0.1);
+    }
+
+    #[test]
+    fn a_row_running_past_where_the_map_looked_is_not_moved_one_post_over() {
+        // As above, posts 12 cm apart: one post over is then so much nearer the odometry that
+        // the true fit costs 9.8 more, past `AMBIGUOUS_COST`. What tells them apart is where
+        // the map's capture looked: its lines and posts end where its view did, and the post
+        // the capture sees past them is one the map could not have had.
+        let line = |a: [f64; 3], b: [f64; 3]| edge(Point3::from(a), Point3::from(b), 0.003);
+        // Lines along x from the left, ending where `end(y)` says.
+        let along_x = |end: &dyn Fn(f64) -> f64| {
+            [
+                line([-2.0, 3.0, 0.0], [end(3.0), 3.0, 0.0]),
+                line([-2.0, 3.0, 2.4], [end(3.0), 3.0, 2.4]),
+                line([-1.5, 2.5, 1.0], [end(2.5), 2.5, 1.0]),
+                line([-1.5, 2.8, 1.6], [end(2.8), 2.8, 1.6]),
+            ]
+        };
+        let post = |k: usize| {
+            let x = -0.6 + 0.12 * k as f64;
+            line([x, 3.0, 0.2], [x, 3.0, 0.8])
+        };
+        // The map's capture stood at (-0.5, 0.5) and its view ended at an azimuth of 67.5°,
+        // between post 9 (68.6°) and post 10 (66.3°).
+        let edge_of_view = |y: f64| -0.5 + (y - 0.5) / 67.5f64.to_radians().tan();
+        let map: Vec<Measured> = along_x(&edge_of_view)
+            .into_iter()
+            .chain((0..10).map(post))
+            .collect();
+        let looked = Sector::of(Point3::new(-0.5, 0.5, 1.2), &map).expect("a span");
+        let seen: Vec<Measured> = along_x(&|_| 1.5)
+            .into_iter()
+            .chain((2..11).map(post))
+            .collect();
+        let truth = Isometry3::new(Vector3::new(0.1, 0.2, 1.2), Vector3::z() * 0.1);
+        let capture: Vec<Measured> = seen
+            .iter()
+            .map(|m| m.transformed(&truth.inverse()))
+            .collect();
+        let odometry = Isometry3::new(Vector3::new(-0.02, 0.03, 0.0), Vector3::z() * 0.0175);
+        let prior = PosePrior::with_default_covariance(odometry * truth);
+        let params = RegisterParams::default();
+        let off = |r: &Registration| r.rig_to_world.translation.vector - truth.translation.vector;
+        let given = off(&Registration {
+            rig_to_world: prior.rig_to_world,
+            ..register(&map, &capture, &prior, &params)
+        });
+        // Not told where the map looked, registration takes the fit one post over.
+        let blind = register(&map, &capture, &prior, &params);
+        assert!(off(&blind).x < -0.1, "{:?}", off(&blind));
+        // Told, the post past the view costs what an inlier would, the two fits are as good
+        // as each other, and the odometry places the capture along the row.
+        let got = register_seen(&map, &[looked], &capture, &prior, &params);
+        assert_eq!(got.status, RegistrationStatus::Registered);
+        assert!(
+            off(&got).x.abs() <= given.x.abs() + 1e-3,
+            "{:?}, given {given:?}",
+            off(&got)
+        );
+        assert!(
+            got.covariance[(3, 3)].sqrt() >= 0.02,
+            "{:?}",
+            got.covariance
+        );
+        assert!(off(&got).y.abs() < 0.005, "{:?}", off(&got));
+        assert!(rotation_error_deg(&got.rig_to_world, &truth) < 0.1);
+    }
+
+    #[test]
+    fn a_sector_spans_what_its_segments_cover_across_the_half_turn() {
+        // Segments either side of the -x axis, where the azimuth wraps from π to -π.
+        let line = |a: [f64; 3], b: [f64; 3]| edge(Point3::from(a), Point3::from(b), 0.003);
+        let segments = [
+            line([-3.0, 0.5, 0.0], [-3.0, 1.0, 0.0]),
+            line([-3.0, -0.5, 0.0], [-3.0, -1.0, 0.0]),
+        ];
+        let sector = Sector::of(Point3::origin(), &segments).expect("a span");
+        assert!(sector.covers(&Point3::new(-3.0, 0.0, 1.0)));
+        assert!(sector.covers(&Point3::new(-3.0, 0.9, 0.0)));
+        assert!(!sector.covers(&Point3::new(-3.0, 1.2, 0.0)));
+        assert!(!sector.covers(&Point3::new(3.0, 0.0, 0.0)));
+        // All round: no span.
+        let around = [
+            line([3.0, 0.0, 0.0], [3.0, 1.0, 0.0]),
+            line([-3.0, 0.0, 0.0], [-3.0, 1.0, 0.0]),
+            line([0.0, -3.0, 0.0], [1.0, -3.0, 0.0]),
+        ];
+        assert!(Sector::of(Point3::origin(), &around).is_none());
+        assert!(Sector::of(Point3::origin(), &[]).is_none());
     }
 
     #[test]

@@ -18,10 +18,10 @@
 //! stored captures and their edges (replicas reading one store agree); the same captures
 //! sent in another order may find slightly different edges.
 
-use nalgebra::Matrix6;
+use nalgebra::{Matrix6, Point3};
 
 use super::poses::{register_pair, RelativePose};
-use super::register::{register, Measured, PosePrior, RegisterParams, Registration};
+use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
 
 /// A capture already in the session.
 #[derive(Debug, Clone, Copy)]
@@ -100,19 +100,32 @@ pub fn add_capture(
     // capture's pose. A capture known only by its odometry is left out: its pose error is
     // shared by all its segments, and many segments each given that error's spread as if
     // independent would let wrong pairs in by the dozen.
-    let references: Vec<Measured> = near
+    let mut references: Vec<Measured> = Vec::new();
+    // Where the map's captures looked; one that saw all round sees everything.
+    let mut seen_from: Option<Vec<Sector>> = Some(Vec::new());
+    for (i, pose) in near
         .iter()
         .map(|&(_, i)| (i, &current[i]))
         .filter(|(_, pose)| well_placed(pose))
         .take(params.map_captures)
-        .flat_map(|(i, pose)| {
-            placed[i]
-                .segments
-                .iter()
-                .map(move |m| m.transformed_with(&pose.rig_to_world, &pose.covariance))
-        })
-        .collect();
-    let registration = register(&references, segments, prior, &params.register);
+    {
+        let moved: Vec<Measured> = placed[i]
+            .segments
+            .iter()
+            .map(|m| m.transformed_with(&pose.rig_to_world, &pose.covariance))
+            .collect();
+        if moved.is_empty() {
+            continue;
+        }
+        let sector = Sector::of(Point3::from(pose.rig_to_world.translation.vector), &moved);
+        seen_from = seen_from.zip(sector).map(|(mut all, s)| {
+            all.push(s);
+            all
+        });
+        references.extend(moved);
+    }
+    let seen_from = seen_from.unwrap_or_default();
+    let registration = register_seen(&references, &seen_from, segments, prior, &params.register);
 
     // The pairs start from where registration put the new capture, with the spread its
     // odometry gives it, against each earlier capture where the graph puts it, with the

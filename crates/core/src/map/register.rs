@@ -17,9 +17,9 @@
 //!    the prior holding the rest; each such pair of pairs, among the longest segments, is
 //!    solved with the prior and scored by a truncated χ² over every capture segment (MSAC);
 //!    a segment the pose places where none of the map's captures looked ([`Sector`]) costs
-//!    what an inlier would, not the truncation, since the map could not have had it. A scene of many
-//!    parallel edges, where the nearest reference is often the wrong one, is why
-//!    association is not simply nearest-neighbour from the prior.
+//!    what an inlier would, not the truncation, since the map could not have had it. A
+//!    scene of many parallel edges, where the nearest reference is often the wrong one, is
+//!    why association is not simply nearest-neighbour from the prior.
 //! 3. **Refinement.** From the best hypothesis: associate each segment with its best
 //!    reference within the measurement gate, solve by Gauss–Newton, re-associate, until the
 //!    inliers no longer change. The covariance is the inverse of the information of the
@@ -369,8 +369,8 @@ pub fn register(
     register_seen(map, &[], capture, prior, params)
 }
 
-/// [`register`] with where the map's segments were seen from (`seen_from`; empty: all
-/// anywhere).
+/// [`register`] told where the map's segments were seen from (`seen_from`; empty: from
+/// everywhere, as [`register`]).
 pub fn register_seen(
     map: &[Measured],
     seen_from: &[Sector],

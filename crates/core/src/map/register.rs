@@ -1165,29 +1165,48 @@ mod tests {
         assert!(deg < 0.1 && m < 0.005, "{deg} deg, {m} m");
     }
 
+    /// A wall at y = 3 with lines along x (x from -2 or -1.5 to `ends`): with [`post`], the
+    /// rows the tests below register against.
+    fn lines_along_x(ends: [f64; 4]) -> Vec<Measured> {
+        let line = |a: [f64; 3], b: [f64; 3]| edge(Point3::from(a), Point3::from(b), 0.003);
+        vec![
+            line([-2.0, 3.0, 0.0], [ends[0], 3.0, 0.0]),
+            line([-2.0, 3.0, 2.4], [ends[1], 3.0, 2.4]),
+            line([-1.5, 2.5, 1.0], [ends[2], 2.5, 1.0]),
+            line([-1.5, 2.8, 1.6], [ends[3], 2.8, 1.6]),
+        ]
+    }
+
+    /// The `k`th vertical post of a row `pitch` apart from `first_x`, on that wall.
+    fn post(first_x: f64, pitch: f64, k: usize) -> Measured {
+        let x = first_x + pitch * k as f64;
+        edge(Point3::new(x, 3.0, 0.2), Point3::new(x, 3.0, 0.8), 0.003)
+    }
+
+    /// The rig pose the row tests capture from.
+    fn row_truth() -> Isometry3<f64> {
+        Isometry3::new(Vector3::new(0.1, 0.2, 1.2), Vector3::z() * 0.1)
+    }
+
+    /// `world` as a rig at `rig_to_world` saw it.
+    fn seen_from_rig(world: &[Measured], rig_to_world: &Isometry3<f64>) -> Vec<Measured> {
+        world
+            .iter()
+            .map(|m| m.transformed(&rig_to_world.inverse()))
+            .collect()
+    }
+
     #[test]
     fn a_repetitive_row_leaves_its_direction_as_uncertain_as_the_alternatives() {
         // Lines along x fix everything but the position along x; only a radiator's fins fix
         // that, and the capture sees eight of the map's twelve: matched in place or one fin
         // over, it is explained exactly as well.
-        let line = |a: [f64; 3], b: [f64; 3]| edge(Point3::from(a), Point3::from(b), 0.003);
-        let along_x = [
-            line([-2.0, 3.0, 0.0], [2.0, 3.0, 0.0]),
-            line([-2.0, 3.0, 2.4], [2.0, 3.0, 2.4]),
-            line([-1.5, 2.5, 1.0], [1.5, 2.5, 1.0]),
-            line([-1.5, 2.8, 1.6], [1.5, 2.8, 1.6]),
-        ];
-        let fin = |k: usize| {
-            let x = -0.44 + 0.08 * k as f64;
-            line([x, 3.0, 0.2], [x, 3.0, 0.8])
-        };
+        let along_x = lines_along_x([2.0, 2.0, 1.5, 1.5]);
+        let fin = |k| post(-0.44, 0.08, k);
         let map: Vec<Measured> = along_x.iter().copied().chain((0..12).map(fin)).collect();
         let seen: Vec<Measured> = along_x.iter().copied().chain((2..10).map(fin)).collect();
-        let truth = Isometry3::new(Vector3::new(0.1, 0.2, 1.2), Vector3::z() * 0.1);
-        let capture: Vec<Measured> = seen
-            .iter()
-            .map(|m| m.transformed(&truth.inverse()))
-            .collect();
+        let truth = row_truth();
+        let capture = seen_from_rig(&seen, &truth);
         // The odometry is 6 cm off along x: nearer the fit one fin over than the true one.
         let prior =
             PosePrior::with_default_covariance(Isometry3::translation(0.06, 0.0, 0.0) * truth);
@@ -1212,24 +1231,12 @@ mod tests {
         // than the one post over, within `AMBIGUOUS_COST`; under about 10 cm apart the
         // difference exceeds it, and the rivals' spread is what owns up to the row, as in
         // `a_repetitive_row_leaves_its_direction_as_uncertain_as_the_alternatives`.)
-        let line = |a: [f64; 3], b: [f64; 3]| edge(Point3::from(a), Point3::from(b), 0.003);
-        let along_x = [
-            line([-2.0, 3.0, 0.0], [2.0, 3.0, 0.0]),
-            line([-2.0, 3.0, 2.4], [2.0, 3.0, 2.4]),
-            line([-1.5, 2.5, 1.0], [1.5, 2.5, 1.0]),
-            line([-1.5, 2.8, 1.6], [1.5, 2.8, 1.6]),
-        ];
-        let fin = |k: usize| {
-            let x = -0.75 + 0.15 * k as f64;
-            line([x, 3.0, 0.2], [x, 3.0, 0.8])
-        };
+        let along_x = lines_along_x([2.0, 2.0, 1.5, 1.5]);
+        let fin = |k| post(-0.75, 0.15, k);
         let map: Vec<Measured> = along_x.iter().copied().chain((0..10).map(fin)).collect();
         let seen: Vec<Measured> = along_x.iter().copied().chain((2..11).map(fin)).collect();
-        let truth = Isometry3::new(Vector3::new(0.1, 0.2, 1.2), Vector3::z() * 0.1);
-        let capture: Vec<Measured> = seen
-            .iter()
-            .map(|m| m.transformed(&truth.inverse()))
-            .collect();
+        let truth = row_truth();
+        let capture = seen_from_rig(&seen, &truth);
         // The odometry is 2 cm off along the row, towards the fit one fin over, 3 cm off
         // across it and a degree off in heading.
         let odometry = Isometry3::new(Vector3::new(-0.02, 0.03, 0.0), Vector3::z() * 0.0175);
@@ -1260,45 +1267,27 @@ mod tests {
         // the true fit costs 9.8 more, past `AMBIGUOUS_COST`. What tells them apart is where
         // the map's capture looked: its lines and posts end where its view did, and the post
         // the capture sees past them is one the map could not have had.
-        let line = |a: [f64; 3], b: [f64; 3]| edge(Point3::from(a), Point3::from(b), 0.003);
-        // Lines along x from the left, ending where `end(y)` says.
-        let along_x = |end: &dyn Fn(f64) -> f64| {
-            [
-                line([-2.0, 3.0, 0.0], [end(3.0), 3.0, 0.0]),
-                line([-2.0, 3.0, 2.4], [end(3.0), 3.0, 2.4]),
-                line([-1.5, 2.5, 1.0], [end(2.5), 2.5, 1.0]),
-                line([-1.5, 2.8, 1.6], [end(2.8), 2.8, 1.6]),
-            ]
-        };
-        let post = |k: usize| {
-            let x = -0.6 + 0.12 * k as f64;
-            line([x, 3.0, 0.2], [x, 3.0, 0.8])
-        };
+        let posts = |k| post(-0.6, 0.12, k);
         // The map's capture stood at (-0.5, 0.5) and its view ended at an azimuth of 67.5°,
         // between post 9 (68.6°) and post 10 (66.3°).
         let edge_of_view = |y: f64| -0.5 + (y - 0.5) / 67.5f64.to_radians().tan();
-        let map: Vec<Measured> = along_x(&edge_of_view)
+        let (wall, lower, upper) = (edge_of_view(3.0), edge_of_view(2.5), edge_of_view(2.8));
+        let map: Vec<Measured> = lines_along_x([wall, wall, lower, upper])
             .into_iter()
-            .chain((0..10).map(post))
+            .chain((0..10).map(posts))
             .collect();
         let looked = Sector::of(Point3::new(-0.5, 0.5, 1.2), &map).expect("a span");
-        let seen: Vec<Measured> = along_x(&|_| 1.5)
+        let seen: Vec<Measured> = lines_along_x([1.5; 4])
             .into_iter()
-            .chain((2..11).map(post))
+            .chain((2..11).map(posts))
             .collect();
-        let truth = Isometry3::new(Vector3::new(0.1, 0.2, 1.2), Vector3::z() * 0.1);
-        let capture: Vec<Measured> = seen
-            .iter()
-            .map(|m| m.transformed(&truth.inverse()))
-            .collect();
+        let truth = row_truth();
+        let capture = seen_from_rig(&seen, &truth);
         let odometry = Isometry3::new(Vector3::new(-0.02, 0.03, 0.0), Vector3::z() * 0.0175);
         let prior = PosePrior::with_default_covariance(odometry * truth);
         let params = RegisterParams::default();
         let off = |r: &Registration| r.rig_to_world.translation.vector - truth.translation.vector;
-        let given = off(&Registration {
-            rig_to_world: prior.rig_to_world,
-            ..register(&map, &capture, &prior, &params)
-        });
+        let given = prior.rig_to_world.translation.vector - truth.translation.vector;
         // Not told where the map looked, registration takes the fit one post over.
         let blind = register(&map, &capture, &prior, &params);
         assert!(off(&blind).x < -0.1, "{:?}", off(&blind));

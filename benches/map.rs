@@ -1,13 +1,18 @@
-//! Session map benchmarks (criterion, release): `fuse/12` and `fuse/50` fuse that many
-//! synthetic captures of one room, ~300 noisy, partly fragmented segments each (3,600 and
-//! 15,000 segments), on the default rayon pool — what a GetMap recomputes from stored
-//! captures.
+//! Session map benchmarks (criterion, release):
+//! - `fuse/12` and `fuse/50` fuse that many synthetic captures of one room, ~300 noisy,
+//!   partly fragmented segments each (3,600 and 15,000 segments), on the default rayon pool
+//!   — what a GetMap recomputes from stored captures;
+//! - `pose_graph/{50,500,2000}`: the session's pose graph (`map::poses::optimise`) of a robot
+//!   mowing a hall in rows 40 captures long, each capture tied to the two before it in its
+//!   row and the two nearest in the row before — every row a loop closure — its odometry
+//!   1° and 2 cm off: what every AddCapture and a refined GetMap solve.
 //!
 //!     cargo bench --bench map
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
-use trinocular::map::{fuse, Capture, FuseParams};
+use trinocular::map::poses::{optimise, RelativePose};
+use trinocular::map::{fuse, Capture, FuseParams, PosePrior};
 use trinocular::segment::Segment3;
 
 /// Uniform in [-1, 1], deterministic (xorshift).
@@ -120,5 +125,68 @@ fn bench_fuse(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_fuse);
+/// The mowing session of `pose_graph/n`: priors and edges.
+fn mowing(n: usize) -> (Vec<PosePrior>, Vec<RelativePose>) {
+    const ROW: usize = 40;
+    let mut r = Noise(0x9a7);
+    let truth = |k: usize| {
+        let (row, at) = (k / ROW, k % ROW);
+        let x = if row % 2 == 0 { at } else { ROW - 1 - at } as f64 * 0.4;
+        Isometry3::new(
+            Vector3::new(x, row as f64 * 0.5, 1.2),
+            Vector3::z() * (0.3 * (k as f64 * 0.7).sin()),
+        )
+    };
+    let priors = (0..n)
+        .map(|k| {
+            let off = Isometry3::new(
+                Vector3::new(0.02 * r.next(), 0.02 * r.next(), 0.0),
+                Vector3::z() * 1f64.to_radians() * r.next(),
+            );
+            PosePrior::odometry(off * truth(k), 3.0, 0.3, 0.05, 0.01)
+        })
+        .collect();
+    let mut edges = Vec::new();
+    let mut tie = |from: usize, to: usize| {
+        edges.push(RelativePose {
+            from,
+            to,
+            pose: truth(to).inverse() * truth(from),
+            information: nalgebra::Matrix6::identity() * 1e5,
+            inliers: 20,
+        })
+    };
+    for k in 1..n {
+        let (row, at) = (k / ROW, k % ROW);
+        for back in 1..=2 {
+            if at >= back {
+                tie(k, k - back);
+            }
+        }
+        if row > 0 {
+            // The same place in the row before, which ran the other way.
+            let below = row * ROW - 1 - at;
+            tie(k, below);
+            if at + 1 < ROW {
+                tie(k, below - 1);
+            }
+        }
+    }
+    (priors, edges)
+}
+
+fn bench_pose_graph(c: &mut Criterion) {
+    let mut group = c.benchmark_group("pose_graph");
+    group.sample_size(10);
+    for n in [50usize, 500, 2000] {
+        let (priors, edges) = mowing(n);
+        group.throughput(Throughput::Elements(n as u64));
+        group.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+            b.iter(|| optimise(&priors, &edges))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_fuse, bench_pose_graph);
 criterion_main!(benches);

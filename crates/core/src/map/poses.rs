@@ -10,10 +10,15 @@
 //! are solved together by Gauss–Newton — so where a panoramic session comes back to its start,
 //! the loop closes and the correction spreads along it.
 //!
+//! The normal equations are banded, not dense ([`super::envelope`]): a session of thousands of
+//! captures solves in what its band costs.
+//!
 //! Poses are perturbed as in [`super::register`]: a rotation vector about the rig's origin
 //! (world axes), then a translation.
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, UnitQuaternion, Vector6};
+use nalgebra::{Isometry3, Matrix6, Point3, UnitQuaternion, Vector6};
+
+use super::envelope::{narrow_order, Envelope};
 
 use super::register::{
     register_seen, Measured, PosePrior, RegisterParams, RegistrationStatus, Sector,
@@ -179,24 +184,35 @@ pub fn optimise_from(
         Some(s) if s.len() == n => s.to_vec(),
         _ => priors.iter().map(|p| p.rig_to_world).collect(),
     };
+    // An edge from a capture to itself, or to one that is not there, says nothing.
+    let relative: Vec<&RelativePose> = relative
+        .iter()
+        .filter(|r| r.from < n && r.to < n && r.from != r.to)
+        .collect();
+    // The captures in an order that keeps each near those it is tied to: the information
+    // matrix is then a narrow envelope of blocks (`super::envelope`).
+    let links: Vec<(usize, usize)> = relative.iter().map(|r| (r.from, r.to)).collect();
+    let mut position = vec![0; n];
+    for (p, &capture) in narrow_order(n, &links).iter().enumerate() {
+        position[capture] = p;
+    }
+    let zero = Envelope::new(n, links.iter().map(|&(a, b)| (position[a], position[b])));
     // What the edge says against what the poses of its two ends say.
     let residual = |from: &Isometry3<f64>, to: &Isometry3<f64>, r: &RelativePose| {
         difference(&r.pose, &(to.inverse() * from))
     };
-    let mut hessian = DMatrix::<f64>::zeros(6 * n, 6 * n);
+    let mut factor = None;
     for _ in 0..STEPS {
-        hessian.fill(0.0);
-        let mut gradient = DVector::<f64>::zeros(6 * n);
+        let mut hessian = zero.clone();
+        let mut gradient = vec![Vector6::<f64>::zeros(); n];
         for (i, (p, info)) in priors.iter().zip(&informations).enumerate() {
             let Some(info) = info else { continue };
             let e = difference(&poses[i], &p.rig_to_world);
             // d e / d ξᵢ is the identity to first order.
-            add_block(&mut hessian, i, i, info);
-            let g = info * e;
-            let mut rows = gradient.rows_mut(6 * i, 6);
-            rows -= g;
+            hessian.add(position[i], position[i], info);
+            gradient[position[i]] -= info * e;
         }
-        for r in relative {
+        for r in &relative {
             let (from, to) = (poses[r.from], poses[r.to]);
             let e0 = residual(&from, &to, r);
             let mut jacobian = nalgebra::SMatrix::<f64, 6, 12>::zeros();
@@ -211,29 +227,32 @@ pub fn optimise_from(
             let jt_i = jacobian.transpose() * r.information;
             let h = jt_i * jacobian;
             let g = jt_i * e0;
-            for (a, na) in [r.from, r.to].into_iter().enumerate() {
-                let mut rows = gradient.rows_mut(6 * na, 6);
-                rows -= g.fixed_rows::<6>(6 * a);
-                for (b, nb) in [r.from, r.to].into_iter().enumerate() {
-                    let block: Matrix6<f64> = h.fixed_view::<6, 6>(6 * a, 6 * b).into_owned();
-                    add_block(&mut hessian, na, nb, &block);
-                }
+            let ends = [position[r.from], position[r.to]];
+            for (a, &pa) in ends.iter().enumerate() {
+                gradient[pa] -= g.fixed_rows::<6>(6 * a);
             }
+            // The lower triangle only: the envelope is symmetric.
+            let block = |a: usize, b: usize| -> Matrix6<f64> {
+                h.fixed_view::<6, 6>(6 * a, 6 * b).into_owned()
+            };
+            hessian.add(ends[0], ends[0], &block(0, 0));
+            hessian.add(ends[1], ends[1], &block(1, 1));
+            hessian.add(ends[1], ends[0], &block(1, 0));
         }
-        let Some(step) = hessian.clone().cholesky().map(|c| c.solve(&gradient)) else {
+        factor = hessian.cholesky();
+        let Some(step) = factor.as_ref().and_then(|f| f.solve(&gradient)) else {
             break;
         };
         for (i, pose) in poses.iter_mut().enumerate() {
-            let xi = Vector6::from_iterator(step.rows(6 * i, 6).iter().copied());
-            *pose = perturbed(pose, &xi);
+            *pose = perturbed(pose, &step[position[i]]);
         }
-        if step.amax() < SETTLED {
+        if step.iter().map(|v| v.amax()).fold(0.0, f64::max) < SETTLED {
             break;
         }
     }
     // The marginal covariances: the inverse of the information at the solution (the last
-    // step is too small to change it).
-    let covariance = hessian.cholesky().map(|c| c.inverse());
+    // step is too small to change it), its diagonal blocks only.
+    let covariance = factor.and_then(|f| f.inverse_diagonal());
     poses
         .into_iter()
         .enumerate()
@@ -241,16 +260,10 @@ pub fn optimise_from(
             rig_to_world,
             covariance: covariance
                 .as_ref()
-                .map(|c| Matrix6::from_fn(|r, k| c[(6 * i + r, 6 * i + k)]))
+                .map(|c| c[position[i]])
                 .unwrap_or(priors[i].covariance),
         })
         .collect()
-}
-
-/// Adds `m` to the 6x6 block of `h` at block row `r`, block column `c`.
-fn add_block(h: &mut DMatrix<f64>, r: usize, c: usize, m: &Matrix6<f64>) {
-    let mut view = h.view_mut((6 * r, 6 * c), (6, 6));
-    view += m;
 }
 
 #[cfg(test)]

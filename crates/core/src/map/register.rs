@@ -36,8 +36,8 @@
 //! independent.
 
 use nalgebra::{
-    Isometry3, Matrix2x3, Matrix3, Matrix4, Matrix6, Point3, SMatrix, Translation3, UnitQuaternion,
-    Vector3, Vector4, Vector6,
+    Isometry3, Matrix2, Matrix2x3, Matrix3, Matrix4, Matrix6, Point3, SMatrix, Translation3,
+    UnitQuaternion, Vector2, Vector3, Vector4, Vector6,
 };
 
 use crate::geometry::across_basis;
@@ -59,11 +59,13 @@ impl Measured {
     /// The segment moved by `pose`, its covariance rotated with it.
     pub fn transformed(&self, pose: &Isometry3<f64>) -> Measured {
         let r = pose.rotation.to_rotation_matrix().into_inner();
-        let big = block_diag(&r);
+        // Block by block (R C_ij Rᵀ): the endpoints rotate alike.
+        let c = &self.covariance;
+        let rotated = |i: usize, j: usize| r * c.fixed_view::<3, 3>(3 * i, 3 * j) * r.transpose();
         Measured {
             start: pose * self.start,
             end: pose * self.end,
-            covariance: big * self.covariance * big.transpose(),
+            covariance: from_blocks(&rotated(0, 0), &rotated(1, 1), &rotated(0, 1)),
             uncertain: self.uncertain,
         }
     }
@@ -88,18 +90,19 @@ impl Measured {
         pose: &Isometry3<f64>,
         pose_covariance: &Matrix6<f64>,
     ) -> Matrix6<f64> {
+        // An endpoint p moves by −[p − o]ₓ δθ + δt: J_i = [−L_i  I], and block (i, j) of
+        // J U Jᵀ is (J_i U) J_jᵀ.
         let origin = pose.translation.vector;
-        let mut jacobian = Matrix6::zeros();
-        for (i, p) in [self.start, self.end].into_iter().enumerate() {
-            let lever = p.coords - origin;
-            jacobian
-                .fixed_view_mut::<3, 3>(3 * i, 0)
-                .copy_from(&(-lever.cross_matrix()));
-            jacobian
-                .fixed_view_mut::<3, 3>(3 * i, 3)
-                .copy_from(&Matrix3::identity());
-        }
-        jacobian * pose_covariance * jacobian.transpose()
+        let levers = [self.start, self.end].map(|p| (p.coords - origin).cross_matrix());
+        let u = pose_covariance;
+        let (u_rr, u_rt) = (u.fixed_view::<3, 3>(0, 0), u.fixed_view::<3, 3>(0, 3));
+        let (u_tr, u_tt) = (u.fixed_view::<3, 3>(3, 0), u.fixed_view::<3, 3>(3, 3));
+        let ju = levers.map(|l| (u_tr - l * u_rr, u_tt - l * u_rt));
+        let block = |i: usize, j: usize| {
+            let (rotation, translation) = &ju[i];
+            translation - rotation * levers[j].transpose()
+        };
+        from_blocks(&block(0, 0), &block(1, 1), &block(0, 1))
     }
 
     fn length(&self) -> f64 {
@@ -468,6 +471,7 @@ pub fn register_seen(
 /// A map segment as a line to measure against.
 struct Reference {
     a: Point3<f64>,
+    middle: Point3<f64>,
     direction: Vector3<f64>,
     length: f64,
     /// Across the line: two unit vectors, as rows.
@@ -488,6 +492,7 @@ impl Reference {
         let (e1, e2) = across_basis(&direction);
         Some(Reference {
             a: m.start,
+            middle: nalgebra::center(&m.start, &m.end),
             direction,
             length,
             across: Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]),
@@ -525,6 +530,83 @@ struct Linearised {
     covariance: Matrix4<f64>,
 }
 
+/// A capture segment's two ends against a reference's line: where each falls along it
+/// (a fraction of the reference, clamped to it) and its two residuals across it.
+struct Ends {
+    fractions: [f64; 2],
+    residuals: [Vector2<f64>; 2],
+}
+
+impl Ends {
+    /// `None` when the segment does not overlap the reference along the line, up to a gap.
+    fn of(r: &Reference, world: &Measured) -> Option<Ends> {
+        let (f0, f1) = (r.fraction(&world.start), r.fraction(&world.end));
+        let gap = MAX_GAP_M / r.length;
+        if f0.max(f1) < -gap || f0.min(f1) > 1.0 + gap {
+            return None;
+        }
+        let fractions = [f0.clamp(0.0, 1.0), f1.clamp(0.0, 1.0)];
+        let across =
+            |q: &Point3<f64>, f: f64| r.across * (q - (r.a + r.direction * (f * r.length)));
+        Some(Ends {
+            fractions,
+            residuals: [
+                across(&world.start, fractions[0]),
+                across(&world.end, fractions[1]),
+            ],
+        })
+    }
+
+    fn residual(&self) -> Vector4<f64> {
+        let [e0, e1] = self.residuals;
+        Vector4::new(e0[0], e0[1], e1[0], e1[1])
+    }
+
+    /// Block (i, j) of the residuals' covariance: the capture's endpoints' (i, j) block,
+    /// plus the reference's endpoints' weighed by where each end's foot falls on it, seen
+    /// across the line.
+    fn block(&self, r: &Reference, world: &Measured, i: usize, j: usize) -> Matrix2<f64> {
+        let (fi, fj) = (self.fractions[i], self.fractions[j]);
+        let mut m = world
+            .covariance
+            .fixed_view::<3, 3>(3 * i, 3 * j)
+            .into_owned();
+        for (k, wk) in [1.0 - fi, fi].into_iter().enumerate() {
+            for (l, wl) in [1.0 - fj, fj].into_iter().enumerate() {
+                m += r.covariance.fixed_view::<3, 3>(3 * k, 3 * l) * (wk * wl);
+            }
+        }
+        r.across * m * r.across.transpose()
+    }
+}
+
+/// The symmetric 6×6 matrix of two endpoints' 3×3 blocks (0, 0), (1, 1) and (0, 1).
+fn from_blocks(b00: &Matrix3<f64>, b11: &Matrix3<f64>, b01: &Matrix3<f64>) -> Matrix6<f64> {
+    let mut m = Matrix6::zeros();
+    m.fixed_view_mut::<3, 3>(0, 0).copy_from(b00);
+    m.fixed_view_mut::<3, 3>(3, 3).copy_from(b11);
+    m.fixed_view_mut::<3, 3>(0, 3).copy_from(b01);
+    m.fixed_view_mut::<3, 3>(3, 0).copy_from(&b01.transpose());
+    m
+}
+
+/// The inverse of a symmetric 2×2 matrix, `None` unless it is positive definite.
+fn inverse_2x2(s: &Matrix2<f64>) -> Option<Matrix2<f64>> {
+    let det = s.m11 * s.m22 - s.m12 * s.m21;
+    (s.m11 > 0.0 && det > 0.0 && det.is_finite())
+        .then(|| Matrix2::new(s.m22, -s.m12, -s.m21, s.m11) / det)
+}
+
+/// The 4×4 covariance of both ends' residuals from its blocks.
+fn assembled(s00: &Matrix2<f64>, s11: &Matrix2<f64>, s01: &Matrix2<f64>) -> Matrix4<f64> {
+    let mut s = Matrix4::zeros();
+    s.fixed_view_mut::<2, 2>(0, 0).copy_from(s00);
+    s.fixed_view_mut::<2, 2>(2, 2).copy_from(s11);
+    s.fixed_view_mut::<2, 2>(0, 2).copy_from(s01);
+    s.fixed_view_mut::<2, 2>(2, 0).copy_from(&s01.transpose());
+    s
+}
+
 impl Problem<'_> {
     /// The pose at perturbation `xi` (rotation vector about the rig's origin, translation)
     /// of the prior.
@@ -539,35 +621,11 @@ impl Problem<'_> {
 
     fn linearise(&self, pair: Pair, pose: &Isometry3<f64>) -> Option<Linearised> {
         let world = self.segments[pair.segment].transformed(pose);
-        self.linearise_moved(pair, &world, pose)
-    }
-
-    /// [`Problem::linearise`] with the capture segment already moved by `pose` (`world`):
-    /// scoring a pose moves each segment once for all its candidates.
-    fn linearise_moved(
-        &self,
-        pair: Pair,
-        world: &Measured,
-        pose: &Isometry3<f64>,
-    ) -> Option<Linearised> {
         let r = &self.references[pair.reference];
-        let (f0, f1) = (r.fraction(&world.start), r.fraction(&world.end));
-        // The ends must overlap the reference along the line, up to a gap.
-        let gap = MAX_GAP_M / r.length;
-        if f0.max(f1) < -gap || f0.min(f1) > 1.0 + gap {
-            return None;
-        }
+        let ends = Ends::of(r, &world)?;
         let origin = pose.translation.vector;
-        let mut residual = Vector4::zeros();
         let mut jacobian = SMatrix::<f64, 4, 6>::zeros();
-        // Maps the capture's endpoints, then the reference's, to the four residuals.
-        let mut from_capture = SMatrix::<f64, 4, 6>::zeros();
-        let mut from_reference = SMatrix::<f64, 4, 6>::zeros();
-        for (i, (q, f)) in [(world.start, f0), (world.end, f1)].into_iter().enumerate() {
-            let f = f.clamp(0.0, 1.0);
-            let foot = r.a + r.direction * (f * r.length);
-            let e = r.across * (q - foot);
-            residual.fixed_rows_mut::<2>(2 * i).copy_from(&e);
+        for (i, q) in [world.start, world.end].into_iter().enumerate() {
             let lever = q.coords - origin;
             let d_rotation = -(r.across * lever.cross_matrix());
             jacobian
@@ -576,42 +634,52 @@ impl Problem<'_> {
             jacobian
                 .fixed_view_mut::<2, 3>(2 * i, 3)
                 .copy_from(&r.across);
-            from_capture
-                .fixed_view_mut::<2, 3>(2 * i, 3 * i)
-                .copy_from(&r.across);
-            from_reference
-                .fixed_view_mut::<2, 3>(2 * i, 0)
-                .copy_from(&(r.across * (1.0 - f)));
-            from_reference
-                .fixed_view_mut::<2, 3>(2 * i, 3)
-                .copy_from(&(r.across * f));
         }
-        let covariance = from_capture * world.covariance * from_capture.transpose()
-            + from_reference * r.covariance * from_reference.transpose();
+        let [s00, s11, s01] = [(0, 0), (1, 1), (0, 1)].map(|(i, j)| ends.block(r, &world, i, j));
         Some(Linearised {
-            residual,
+            residual: ends.residual(),
             jacobian,
-            covariance,
+            covariance: assembled(&s00, &s11, &s01),
         })
     }
 
     /// χ² of a pairing at `pose`, its covariance widened by the pose's own `uncertainty`.
     fn chi2(&self, pair: Pair, pose: &Isometry3<f64>, uncertainty: &Matrix6<f64>) -> Option<f64> {
-        let world = self.segments[pair.segment].transformed(pose);
-        self.chi2_moved(pair, &world, pose, uncertainty)
+        let world = self.segments[pair.segment].transformed_with(pose, uncertainty);
+        self.chi2_within(pair.reference, &world, f64::INFINITY)
     }
 
-    fn chi2_moved(
-        &self,
-        pair: Pair,
-        world: &Measured,
-        pose: &Isometry3<f64>,
-        uncertainty: &Matrix6<f64>,
-    ) -> Option<f64> {
-        let l = self.linearise_moved(pair, world, pose)?;
-        let s = l.covariance + l.jacobian * uncertainty * l.jacobian.transpose();
-        let chol = s.cholesky()?;
-        Some(l.residual.dot(&chol.solve(&l.residual)))
+    /// χ² of a capture segment already moved by a pose and widened by its uncertainty
+    /// ([`Measured::transformed_with`]) against reference `reference`, when it is within
+    /// `gate`; `None` beyond the gate, off the reference's ends or degenerate.
+    ///
+    /// The pose's uncertainty moves the residual as it moves the segment's endpoints, so its
+    /// share of the residual's covariance is the endpoints' spread seen across the line —
+    /// computed once per segment and pose, not per pairing. The χ² of one end's two residuals
+    /// under their own 2×2 block is a lower bound of the whole (a marginal's), so a pairing
+    /// beyond the gate is mostly refused from one 2×2 block; the whole is the first end's
+    /// plus the second's given the first.
+    fn chi2_within(&self, reference: usize, world: &Measured, gate: f64) -> Option<f64> {
+        let r = &self.references[reference];
+        let ends = Ends::of(r, world)?;
+        let [e0, e1] = ends.residuals;
+        let s00 = ends.block(r, world, 0, 0);
+        let s00_inv = inverse_2x2(&s00)?;
+        let first = e0.dot(&(s00_inv * e0));
+        if first > gate {
+            return None;
+        }
+        let s11 = ends.block(r, world, 1, 1);
+        if e1.dot(&(inverse_2x2(&s11)? * e1)) > gate {
+            return None;
+        }
+        // The second end given the first (Schur complement): the whole χ² from 2×2 blocks.
+        let s01 = ends.block(r, world, 0, 1);
+        let gain = s01.transpose() * s00_inv;
+        let rest = e1 - gain * e0;
+        let rest_inv = inverse_2x2(&(s11 - gain * s01))?;
+        let chi2 = first + rest.dot(&(rest_inv * rest));
+        (chi2 <= gate).then_some(chi2)
     }
 
     /// Per capture segment, the references it may be under the prior, best first.
@@ -634,9 +702,8 @@ impl Problem<'_> {
             .sqrt();
         self.segments
             .iter()
-            .enumerate()
-            .map(|(k, s)| {
-                let world = s.transformed(&pose);
+            .map(|s| {
+                let world = s.transformed_with(&pose, &self.prior.covariance);
                 let mid = nalgebra::center(&world.start, &world.end);
                 let reach =
                     3.0 * (sigma_t + sigma_r * (mid - origin).norm()) + 0.5 * s.length() + 0.1;
@@ -645,17 +712,11 @@ impl Problem<'_> {
                     .iter()
                     .enumerate()
                     .filter(|(_, r)| {
-                        let rmid = r.a + r.direction * (0.5 * r.length);
-                        (rmid - mid).norm() <= reach + 0.5 * r.length
+                        let within = reach + 0.5 * r.length;
+                        (r.middle - mid).norm_squared() <= within * within
                     })
                     .filter_map(|(j, _)| {
-                        let pair = Pair {
-                            segment: k,
-                            reference: j,
-                        };
-                        self.chi2_moved(pair, &world, &pose, &self.prior.covariance)
-                            .filter(|c| *c <= CANDIDATE_GATE)
-                            .map(|c| (j, c))
+                        self.chi2_within(j, &world, CANDIDATE_GATE).map(|c| (j, c))
                     })
                     .collect();
                 found.sort_by(|x, y| x.1.total_cmp(&y.1).then(x.0.cmp(&y.0)));
@@ -705,17 +766,11 @@ impl Problem<'_> {
             .enumerate()
             .filter(|(k, list)| !self.segments[*k].uncertain && !list.is_empty())
             .map(|(k, list)| {
-                let world = self.segments[k].transformed(pose);
+                let world = self.segments[k].transformed_with(pose, &slack);
                 let best = list
                     .iter()
                     .filter(|&&(j, _)| !self.references[j].uncertain)
-                    .filter_map(|&(j, _)| {
-                        let pair = Pair {
-                            segment: k,
-                            reference: j,
-                        };
-                        self.chi2_moved(pair, &world, pose, &slack)
-                    })
+                    .filter_map(|&(j, _)| self.chi2_within(j, &world, INLIER_GATE))
                     .fold(INLIER_GATE, f64::min);
                 if best < INLIER_GATE {
                     best
@@ -917,19 +972,14 @@ impl Problem<'_> {
             .enumerate()
             .filter(|(_, list)| !list.is_empty())
             .filter_map(|(k, list)| {
-                let world = self.segments[k].transformed(pose);
+                let world = self.segments[k].transformed_with(pose, uncertainty);
                 list.iter()
-                    .filter_map(|&(j, _)| {
-                        let pair = Pair {
-                            segment: k,
-                            reference: j,
-                        };
-                        self.chi2_moved(pair, &world, pose, uncertainty)
-                            .map(|c| (pair, c))
-                    })
-                    .filter(|(_, c)| *c <= INLIER_GATE)
+                    .filter_map(|&(j, _)| self.chi2_within(j, &world, INLIER_GATE).map(|c| (j, c)))
                     .min_by(|x, y| x.1.total_cmp(&y.1))
-                    .map(|(pair, _)| pair)
+                    .map(|(j, _)| Pair {
+                        segment: k,
+                        reference: j,
+                    })
             })
             .collect()
     }

@@ -437,6 +437,7 @@ fn fuse_stored(
     // Nothing is registered again here. Not refined, they are as given, and taken as exact.
     let poses: Vec<PosePrior> = if options.refine_poses {
         let edges: Vec<RelativePose> = stored.iter().flat_map(|(_, e)| e.clone()).collect();
+        check_graph(stored.len(), &edges)?;
         map::session::solve_poses(&placed(&stored), &edges)
     } else {
         priors
@@ -536,6 +537,26 @@ fn placed(stored: &[(StoredSegments, Vec<RelativePose>)]) -> Vec<Placed<'_>> {
         .collect()
 }
 
+/// Refuses a session whose pose graph would take longer to solve than a request may
+/// ([`map::session::MAX_GRAPH_WORK`]), from its edges alone, before anything is allocated
+/// for it.
+fn check_graph(captures: usize, edges: &[RelativePose]) -> Result<(), ServiceError> {
+    let work = map::session::graph_work(captures, edges);
+    if work > map::session::MAX_GRAPH_WORK {
+        return Err(ServiceError::Input(InputError::new(
+            "session_id",
+            format!(
+                "the session's pose graph is too wide to solve: its captures tie back to so \
+                 many others that a solve takes {work} products of 6x6 blocks, the most is {}; \
+                 start another session (or read this one's map with the map option \
+                 refine_poses false)",
+                map::session::MAX_GRAPH_WORK
+            ),
+        )));
+    }
+    Ok(())
+}
+
 /// Places a new capture's segments (rig frame, as the match answered them) in the session
 /// (on the compute pool): registered to the stored captures as a map, and to each one it
 /// overlaps as an edge of the pose graph (`map::session::add_capture`).
@@ -546,6 +567,7 @@ fn place_capture(
 ) -> Result<Added, ServiceError> {
     let stored = decode_captures(captures)?;
     let edges: Vec<RelativePose> = stored.iter().flat_map(|(_, e)| e.clone()).collect();
+    check_graph(stored.len(), &edges)?;
     let capture = StoredSegments::measured_of(segments);
     Ok(map::session::add_capture(
         &placed(&stored),
@@ -554,4 +576,66 @@ fn place_capture(
         &capture,
         &SessionParams::default(),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Isometry3;
+
+    /// A stored capture with no segments, at the origin, tied by `edges`.
+    fn stored(index: usize, edges: &[RelativePose]) -> Vec<u8> {
+        let prior = PosePrior::with_default_covariance(Isometry3::identity());
+        pb::StoredCapture {
+            rig_to_world: Some(pose_to_pb(&prior.rig_to_world)),
+            prior_rig_to_world: Some(pose_to_pb(&prior.rig_to_world)),
+            prior_covariance: matrix6_to_vec(&prior.covariance),
+            pose_covariance: matrix6_to_vec(&prior.covariance),
+            edges: edges_to_pb(
+                &edges
+                    .iter()
+                    .filter(|e| e.from == index)
+                    .copied()
+                    .collect::<Vec<_>>(),
+            ),
+            ..Default::default()
+        }
+        .encode_to_vec()
+    }
+
+    #[test]
+    fn a_session_whose_pose_graph_is_too_wide_is_refused_naming_it() {
+        // A square hall mown in rows of 100, each capture tied to the one before it and to
+        // its neighbour in the row before.
+        let edge = |from: usize, to: usize| RelativePose {
+            from,
+            to,
+            pose: Isometry3::identity(),
+            information: Matrix6::identity(),
+            inliers: 10,
+        };
+        let tied = |n: usize| -> Vec<Vec<u8>> {
+            let edges: Vec<RelativePose> = (1..n)
+                .flat_map(|k| {
+                    let mut e = vec![edge(k, k - 1)];
+                    if k >= 100 {
+                        e.push(edge(k, k - 100));
+                    }
+                    e
+                })
+                .collect();
+            (0..n).map(|k| stored(k, &edges)).collect()
+        };
+        let prior = PosePrior::with_default_covariance(Isometry3::identity());
+        let small = tied(300);
+        assert!(place_capture(&small, &[], &prior).is_ok());
+        let wide = tied(10_000);
+        match place_capture(&wide, &[], &prior) {
+            Err(ServiceError::Input(e)) => {
+                assert_eq!(e.field, "session_id");
+                assert!(e.message.contains("too wide"), "{}", e.message);
+            }
+            other => panic!("expected a refusal naming session_id, got {other:?}"),
+        }
+    }
 }

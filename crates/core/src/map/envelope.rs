@@ -28,13 +28,7 @@ impl Envelope {
     /// The zero matrix of `n` block rows whose non-zero off-diagonal blocks are among
     /// `links` (pairs of block indices, either order).
     pub fn new(n: usize, links: impl IntoIterator<Item = (usize, usize)>) -> Envelope {
-        let mut first: Vec<usize> = (0..n).collect();
-        for (a, b) in links {
-            let (hi, lo) = if a > b { (a, b) } else { (b, a) };
-            if hi < n {
-                first[hi] = first[hi].min(lo);
-            }
-        }
+        let first = first_blocks(n, links);
         let mut start = Vec::with_capacity(n + 1);
         let mut total = 0;
         for (i, f) in first.iter().enumerate() {
@@ -194,18 +188,28 @@ pub fn ordered_work(n: usize, links: &[(usize, usize)]) -> u64 {
     for (p, &node) in narrow_order(n, links).iter().enumerate() {
         position[node] = p;
     }
-    let mut first: Vec<usize> = (0..n).collect();
-    for &(a, b) in links {
-        if a < n && b < n {
-            let (hi, lo) = (position[a].max(position[b]), position[a].min(position[b]));
-            first[hi] = first[hi].min(lo);
-        }
-    }
-    first
+    let placed = links
+        .iter()
+        .filter(|&&(a, b)| a < n && b < n)
+        .map(|&(a, b)| (position[a], position[b]));
+    first_blocks(n, placed)
         .iter()
         .enumerate()
         .map(|(i, f)| ((i - f + 1) as u64).pow(2))
         .sum()
+}
+
+/// Each block row's first non-zero block of `n` rows linked by `links` (either order; links
+/// past `n` ignored).
+fn first_blocks(n: usize, links: impl IntoIterator<Item = (usize, usize)>) -> Vec<usize> {
+    let mut first: Vec<usize> = (0..n).collect();
+    for (a, b) in links {
+        let (hi, lo) = (a.max(b), a.min(b));
+        if hi < n {
+            first[hi] = first[hi].min(lo);
+        }
+    }
+    first
 }
 
 /// An order of `n` nodes linked by `links` that keeps every node near those it links to:

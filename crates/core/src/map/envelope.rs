@@ -184,10 +184,7 @@ impl Factor {
 /// one Cholesky takes (and as many the marginal covariances take). Computed from the links
 /// alone, before anything is allocated.
 pub fn ordered_work(n: usize, links: &[(usize, usize)]) -> u64 {
-    let mut position = vec![0; n];
-    for (p, &node) in narrow_order(n, links).iter().enumerate() {
-        position[node] = p;
-    }
+    let position = narrow_positions(n, links);
     let placed = links
         .iter()
         .filter(|&&(a, b)| a < n && b < n)
@@ -210,6 +207,15 @@ fn first_blocks(n: usize, links: impl IntoIterator<Item = (usize, usize)>) -> Ve
         }
     }
     first
+}
+
+/// Where [`narrow_order`] puts each node: `position[node]`.
+pub fn narrow_positions(n: usize, links: &[(usize, usize)]) -> Vec<usize> {
+    let mut position = vec![0; n];
+    for (p, &node) in narrow_order(n, links).iter().enumerate() {
+        position[node] = p;
+    }
+    position
 }
 
 /// An order of `n` nodes linked by `links` that keeps every node near those it links to:
@@ -338,11 +344,7 @@ mod tests {
         // position, so each row holds two blocks.
         let scramble = |k: usize| (k * 17) % 40;
         let links: Vec<(usize, usize)> = (1..40).map(|k| (scramble(k - 1), scramble(k))).collect();
-        let order = narrow_order(40, &links);
-        let mut position = vec![0; 40];
-        for (p, &v) in order.iter().enumerate() {
-            position[v] = p;
-        }
+        let position = narrow_positions(40, &links);
         let placed: Vec<(usize, usize)> = links
             .iter()
             .map(|&(a, b)| (position[a], position[b]))

@@ -18,7 +18,7 @@
 
 use nalgebra::{Isometry3, Matrix6, Point3, UnitQuaternion, Vector6};
 
-use super::envelope::{narrow_order, Envelope};
+use super::envelope::{narrow_positions, Envelope};
 
 use super::register::{
     register_seen, Measured, PosePrior, RegisterParams, RegistrationStatus, Sector,
@@ -192,10 +192,7 @@ pub fn optimise_from(
     // The captures in an order that keeps each near those it is tied to: the information
     // matrix is then a narrow envelope of blocks (`super::envelope`).
     let links: Vec<(usize, usize)> = relative.iter().map(|r| (r.from, r.to)).collect();
-    let mut position = vec![0; n];
-    for (p, &capture) in narrow_order(n, &links).iter().enumerate() {
-        position[capture] = p;
-    }
+    let position = narrow_positions(n, &links);
     let zero = Envelope::new(n, links.iter().map(|&(a, b)| (position[a], position[b])));
     // What the edge says against what the poses of its two ends say.
     let residual = |from: &Isometry3<f64>, to: &Isometry3<f64>, r: &RelativePose| {

@@ -471,7 +471,6 @@ pub fn register_seen(
 /// A map segment as a line to measure against.
 struct Reference {
     a: Point3<f64>,
-    middle: Point3<f64>,
     direction: Vector3<f64>,
     length: f64,
     /// Across the line: two unit vectors, as rows.
@@ -492,7 +491,6 @@ impl Reference {
         let (e1, e2) = across_basis(&direction);
         Some(Reference {
             a: m.start,
-            middle: nalgebra::center(&m.start, &m.end),
             direction,
             length,
             across: Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]),
@@ -580,13 +578,19 @@ impl Ends {
     }
 }
 
-/// The symmetric 6×6 matrix of two endpoints' 3×3 blocks (0, 0), (1, 1) and (0, 1).
-fn from_blocks(b00: &Matrix3<f64>, b11: &Matrix3<f64>, b01: &Matrix3<f64>) -> Matrix6<f64> {
-    let mut m = Matrix6::zeros();
-    m.fixed_view_mut::<3, 3>(0, 0).copy_from(b00);
-    m.fixed_view_mut::<3, 3>(3, 3).copy_from(b11);
-    m.fixed_view_mut::<3, 3>(0, 3).copy_from(b01);
-    m.fixed_view_mut::<3, 3>(3, 0).copy_from(&b01.transpose());
+/// The symmetric matrix (M = 2N) of the diagonal blocks (0, 0), (1, 1) and the block (0, 1)
+/// of two ends: their endpoints' 3×3 (M = 6) or their residuals' 2×2 (M = 4).
+fn from_blocks<const N: usize, const M: usize>(
+    b00: &SMatrix<f64, N, N>,
+    b11: &SMatrix<f64, N, N>,
+    b01: &SMatrix<f64, N, N>,
+) -> SMatrix<f64, M, M> {
+    debug_assert_eq!(M, 2 * N);
+    let mut m = SMatrix::<f64, M, M>::zeros();
+    m.fixed_view_mut::<N, N>(0, 0).copy_from(b00);
+    m.fixed_view_mut::<N, N>(N, N).copy_from(b11);
+    m.fixed_view_mut::<N, N>(0, N).copy_from(b01);
+    m.fixed_view_mut::<N, N>(N, 0).copy_from(&b01.transpose());
     m
 }
 
@@ -595,16 +599,6 @@ fn inverse_2x2(s: &Matrix2<f64>) -> Option<Matrix2<f64>> {
     let det = s.m11 * s.m22 - s.m12 * s.m21;
     (s.m11 > 0.0 && det > 0.0 && det.is_finite())
         .then(|| Matrix2::new(s.m22, -s.m12, -s.m21, s.m11) / det)
-}
-
-/// The 4×4 covariance of both ends' residuals from its blocks.
-fn assembled(s00: &Matrix2<f64>, s11: &Matrix2<f64>, s01: &Matrix2<f64>) -> Matrix4<f64> {
-    let mut s = Matrix4::zeros();
-    s.fixed_view_mut::<2, 2>(0, 0).copy_from(s00);
-    s.fixed_view_mut::<2, 2>(2, 2).copy_from(s11);
-    s.fixed_view_mut::<2, 2>(0, 2).copy_from(s01);
-    s.fixed_view_mut::<2, 2>(2, 0).copy_from(&s01.transpose());
-    s
 }
 
 impl Problem<'_> {
@@ -639,13 +633,13 @@ impl Problem<'_> {
         Some(Linearised {
             residual: ends.residual(),
             jacobian,
-            covariance: assembled(&s00, &s11, &s01),
+            covariance: from_blocks(&s00, &s11, &s01),
         })
     }
 
-    /// χ² of a pairing at `pose`, its covariance widened by the pose's own `uncertainty`.
-    fn chi2(&self, pair: Pair, pose: &Isometry3<f64>, uncertainty: &Matrix6<f64>) -> Option<f64> {
-        let world = self.segments[pair.segment].transformed_with(pose, uncertainty);
+    /// χ² of a pairing at `pose`, from the segments' noise alone.
+    fn chi2(&self, pair: Pair, pose: &Isometry3<f64>) -> Option<f64> {
+        let world = self.segments[pair.segment].transformed(pose);
         self.chi2_within(pair.reference, &world, f64::INFINITY)
     }
 
@@ -712,8 +706,8 @@ impl Problem<'_> {
                     .iter()
                     .enumerate()
                     .filter(|(_, r)| {
-                        let within = reach + 0.5 * r.length;
-                        (r.middle - mid).norm_squared() <= within * within
+                        let rmid = r.a + r.direction * (0.5 * r.length);
+                        (rmid - mid).norm() <= reach + 0.5 * r.length
                     })
                     .filter_map(|(j, _)| {
                         self.chi2_within(j, &world, CANDIDATE_GATE).map(|c| (j, c))
@@ -954,7 +948,7 @@ impl Problem<'_> {
         let pose = self.pose(xi);
         let chi2: f64 = inliers
             .iter()
-            .filter_map(|&pair| self.chi2(pair, &pose, &Matrix6::zeros()))
+            .filter_map(|&pair| self.chi2(pair, &pose))
             .sum();
         chi2 / dof as f64
     }

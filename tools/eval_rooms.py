@@ -46,6 +46,7 @@ import numpy as np
 CHI2_2DOF_95 = 5.991464547107979
 CHI2_2DOF_99 = 9.210340371976184
 LENGTH_BINS = [(0.0, 0.10), (0.10, 0.30), (0.30, 1e9)]
+DIRECTION_SIGMA_BINS = [(0.0, 1.0), (1.0, 2.0), (2.0, 3.0), (3.0, 5.0), (5.0, 1e9)]
 
 
 def request_for(cdir, options, images):
@@ -296,7 +297,7 @@ def main():
                         e_rig = np.concatenate([Tinv[:3, :3] @ e[:3] + Tinv[:3, 3], Tinv[:3, :3] @ e[3:] + Tinv[:3, 3]])
                         m = mahalanobis(sr, cov, e_rig)
                         if m is not None:
-                            chi.append(m)
+                            chi.append((*m, s.get("directionSigmaDeg", 0.0), float(s.get("uncertain", False))))
             classes_all = np.array(classes_all)
             lengths = np.array(lengths)
             res = {"room": room, "input": inp, "captures": len(caps), "segments": n,
@@ -318,6 +319,14 @@ def main():
                 res["pos_in99"] = round(float(np.mean(ch[:, 1] <= CHI2_2DOF_99)), 4)
                 res["dir_median_chi2"] = round(float(np.median(ch[:, 0])), 3)
                 res["pos_median_chi2"] = round(float(np.median(ch[:, 1])), 3)
+                # By the reported direction sigma: where the gate decides (2-4 degrees), is the
+                # covariance too wide or too narrow?
+                for lo, hi in DIRECTION_SIGMA_BINS:
+                    sel = (ch[:, 2] >= lo) & (ch[:, 2] < hi)
+                    if sel.any():
+                        res[f"dir_sigma_{lo:g}_{hi:g}"] = (int(sel.sum()),
+                                                           round(float(np.mean(ch[sel, 0] <= CHI2_2DOF_95)), 3),
+                                                           round(float(np.mean(ch[sel, 1] <= CHI2_2DOF_95)), 3))
                 np.save(os.path.join(work, f"chi2_{room}_{inp}.npy"), ch)
             if a.json:
                 print(json.dumps(res), flush=True)
@@ -327,7 +336,8 @@ def main():
                       + " ".join(f"{k}={res[k]}" for k in res if k.startswith("wrong_"))
                       + (f" calib(n={res['calib_n']}): dir95={res['dir_in95']} dir99={res['dir_in99']} "
                          f"pos95={res['pos_in95']} pos99={res['pos_in99']} med={res['dir_median_chi2']}/{res['pos_median_chi2']}"
-                         if "calib_n" in res else ""), flush=True)
+                         if "calib_n" in res else "")
+                      + "".join(f" {k}=(n, dir95, pos95){res[k]}" for k in res if k.startswith("dir_sigma_")), flush=True)
 
 
 if __name__ == "__main__":

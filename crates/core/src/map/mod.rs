@@ -118,13 +118,16 @@ impl MapGate {
 
 impl Default for FuseParams {
     /// Tuned on the shared `office` session (`tools/eval_map.py`): 1 cm + 0.5% of range
-    /// beat 2 cm + 1% on both error rate and completeness, LSD and image input alike.
+    /// beat 2 cm + 1% on both error rate and completeness, LSD and image input alike. The gap
+    /// is 1 cm, not more: collinear edges a few centimetres apart are two edges (two shelf
+    /// boards either side of a 3 cm divider), and a 5 cm gap joined them into one map
+    /// segment that overran both — most of the lab's wrong map segments (docs/SESSIONS.md).
     fn default() -> Self {
         FuseParams {
             lateral_m: 0.01,
             lateral_rel: 0.005,
             angle_deg: 3.0,
-            max_gap_m: 0.05,
+            max_gap_m: 0.01,
             min_observations: 1,
             gate: None,
         }

@@ -104,7 +104,7 @@ fn fragments_of_one_capture_count_once() {
     let pa = pose(0.0, 0.0, 0.0);
     let world = [
         (p(-1.0, 3.0, 1.0), p(0.2, 3.0, 1.0)),
-        (p(0.22, 3.0, 1.0), p(1.0, 3.0, 1.0)),
+        (p(0.205, 3.0, 1.0), p(1.0, 3.0, 1.0)),
     ];
     let s = seen(&pa, &world, &mut Noise(3), 0.0);
     let map = fuse(
@@ -119,6 +119,44 @@ fn fragments_of_one_capture_count_once() {
     assert_eq!(map.len(), 1);
     assert_eq!((map[0].observations, map[0].captures.clone()), (1, vec![1]));
     assert!((map[0].length() - 2.0).abs() < 1e-9);
+}
+
+/// Two shelf boards either side of a 3 cm divider are two edges on one line: seen by two
+/// captures, each board is one map segment, and none runs across the divider (with the 5 cm
+/// gap this fusion once allowed, one segment spanned both: the lab's wrong map segments).
+#[test]
+fn collinear_edges_either_side_of_a_divider_stay_two() {
+    let world = [
+        (p(-0.8, 3.0, 1.2), p(-0.015, 3.0, 1.2)),
+        (p(0.015, 3.0, 1.2), p(0.8, 3.0, 1.2)),
+    ];
+    let (pa, pb) = (pose(0.0, 0.0, 0.0), pose(0.3, 0.1, 0.2));
+    let (sa, sb) = (
+        seen(&pa, &world, &mut Noise(5), 0.002),
+        seen(&pb, &world, &mut Noise(6), 0.002),
+    );
+    let captures = [
+        Capture {
+            id: 1,
+            rig_to_world: pa,
+            segments: &sa,
+            ..Default::default()
+        },
+        Capture {
+            id: 2,
+            rig_to_world: pb,
+            segments: &sb,
+            ..Default::default()
+        },
+    ];
+    let mut map = fuse(&captures, &FuseParams::default());
+    map.sort_by(|a, b| a.start.x.min(a.end.x).total_cmp(&b.start.x.min(b.end.x)));
+    assert_eq!(map.len(), 2, "{map:?}");
+    for (m, (a, b)) in map.iter().zip(&world) {
+        assert_eq!(m.captures, vec![1, 2]);
+        let (lo, hi) = (m.start.x.min(m.end.x), m.start.x.max(m.end.x));
+        assert!((lo - a.x).abs() < 0.01 && (hi - b.x).abs() < 0.01, "{m:?}");
+    }
 }
 
 #[test]

@@ -66,6 +66,16 @@ fn p(x: f64, y: f64, z: f64) -> Point3<f64> {
     Point3::new(x, y, z)
 }
 
+/// A capture of `segments` at an exact pose, without covariances.
+fn capture(id: u32, rig_to_world: Isometry3<f64>, segments: &[Segment3]) -> Capture<'_> {
+    Capture {
+        id,
+        rig_to_world,
+        segments,
+        ..Default::default()
+    }
+}
+
 #[test]
 fn one_wall_edge_seen_twice_is_one_segment_with_two_observations() {
     let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
@@ -75,20 +85,7 @@ fn one_wall_edge_seen_twice_is_one_segment_with_two_observations() {
         seen(&pa, &wall, &mut n, 0.005),
         seen(&pb, &wall, &mut n, 0.005),
     );
-    let captures = [
-        Capture {
-            id: 4,
-            rig_to_world: pa,
-            segments: &sa,
-            ..Default::default()
-        },
-        Capture {
-            id: 9,
-            rig_to_world: pb,
-            segments: &sb,
-            ..Default::default()
-        },
-    ];
+    let captures = [capture(4, pa, &sa), capture(9, pb, &sb)];
     let map = fuse(&captures, &FuseParams::default());
     assert_eq!(map.len(), 1, "{map:?}");
     assert_eq!(map[0].observations, 2);
@@ -135,20 +132,7 @@ fn collinear_edges_either_side_of_a_divider_stay_two() {
         seen(&pa, &world, &mut Noise(5), 0.002),
         seen(&pb, &world, &mut Noise(6), 0.002),
     );
-    let captures = [
-        Capture {
-            id: 1,
-            rig_to_world: pa,
-            segments: &sa,
-            ..Default::default()
-        },
-        Capture {
-            id: 2,
-            rig_to_world: pb,
-            segments: &sb,
-            ..Default::default()
-        },
-    ];
+    let captures = [capture(1, pa, &sa), capture(2, pb, &sb)];
     let mut map = fuse(&captures, &FuseParams::default());
     map.sort_by(|a, b| a.start.x.min(a.end.x).total_cmp(&b.start.x.min(b.end.x)));
     assert_eq!(map.len(), 2, "{map:?}");

@@ -14,7 +14,10 @@ prints the pooled figures (error over all segments, completeness over all eligib
 the error classes of the issue tracker, the error by 3D length, and (`--calibration`) how
 well the reported covariances describe the true errors of the segments that lie on their
 true edge: the share of squared Mahalanobis errors of direction and position (2 degrees of
-freedom each) within the chi-square 95% and 99% quantiles.
+freedom each) within the chi-square 95% and 99% quantiles, overall and by the reported
+direction sigma (where the accuracy gate decides, 2-5 degrees, a covariance drawn too wide
+would refuse segments it need not). The saved chi2_ROOM_INPUT.npy has one row per segment:
+direction and position chi2, reported direction sigma (degrees), uncertain (0/1).
 
 Which segments are "on their true edge" is decided in the images, not by the 3D error that
 is being tested: a 3D segment is on ground-truth edge j when each of its three image

@@ -14,6 +14,11 @@
 
 use nalgebra::{Matrix6, Vector6};
 
+use crate::checkpoint::{Checkpoint, Stopped};
+
+/// The stage a stopped factorisation or inversion names.
+const STAGE: &str = "pose graph";
+
 /// A symmetric matrix of `n`×`n` blocks of 6×6, its lower triangle held by block rows, each
 /// from `first[i]` to the diagonal.
 #[derive(Debug, Clone)]
@@ -65,11 +70,20 @@ impl Envelope {
         }
     }
 
+    /// [`Envelope::cholesky_until`] without a checkpoint.
+    #[cfg(test)]
+    pub fn cholesky(self) -> Option<Factor> {
+        never_stopped(self.cholesky_until(Checkpoint::NEVER))
+    }
+
     /// The Cholesky factor L (H = L Lᵀ, each diagonal block lower triangular), or `None`
-    /// when the matrix is not positive definite.
-    pub fn cholesky(mut self) -> Option<Factor> {
+    /// when the matrix is not positive definite; asking `checkpoint` before each block row:
+    /// a session's graph may take a second or two, and a request past its deadline should
+    /// not.
+    pub fn cholesky_until(mut self, checkpoint: Checkpoint) -> Result<Option<Factor>, Stopped> {
         let n = self.first.len();
         for i in 0..n {
+            checkpoint.before(STAGE)?;
             let fi = self.first[i];
             for j in fi..=i {
                 let fj = self.first[j];
@@ -81,11 +95,16 @@ impl Envelope {
                 if j < i {
                     // L_ij = S L_jj⁻ᵀ: solve L_jj X = Sᵀ for X = L_ijᵀ.
                     let ljj = self.at(j, j);
-                    let x = ljj.solve_lower_triangular(&s.transpose())?;
+                    let Some(x) = ljj.solve_lower_triangular(&s.transpose()) else {
+                        return Ok(None);
+                    };
                     self.blocks[k] = x.transpose();
                 } else {
                     let sym = (s + s.transpose()) * 0.5;
-                    self.blocks[k] = sym.cholesky()?.l();
+                    let Some(c) = sym.cholesky() else {
+                        return Ok(None);
+                    };
+                    self.blocks[k] = c.l();
                 }
             }
         }
@@ -96,7 +115,7 @@ impl Envelope {
                 column.push(k);
             }
         }
-        Some(Factor { l: self, below })
+        Ok(Some(Factor { l: self, below }))
     }
 }
 
@@ -135,10 +154,20 @@ impl Factor {
         Some(x)
     }
 
-    /// The diagonal blocks of H⁻¹. Σ = L⁻ᵀL⁻¹ gives LᵀΣ = L⁻¹, lower triangular, so for
-    /// j ≥ i, Σ_ij = L_ii⁻ᵀ(δ_ij L_ii⁻¹ − Σ_k L_kiᵀ Σ_kj) over the rows k > i of column i;
-    /// from the last row up, every Σ_kj it needs lies within the envelope.
+    /// [`Factor::inverse_diagonal_until`] without a checkpoint.
+    #[cfg(test)]
     pub fn inverse_diagonal(&self) -> Option<Vec<Matrix6<f64>>> {
+        never_stopped(self.inverse_diagonal_until(Checkpoint::NEVER))
+    }
+
+    /// The diagonal blocks of H⁻¹, asking `checkpoint` before each block row. Σ = L⁻ᵀL⁻¹
+    /// gives LᵀΣ = L⁻¹, lower triangular, so for j ≥ i, Σ_ij = L_ii⁻ᵀ(δ_ij L_ii⁻¹ −
+    /// Σ_k L_kiᵀ Σ_kj) over the rows k > i of column i; from the last row up, every Σ_kj it
+    /// needs lies within the envelope.
+    pub fn inverse_diagonal_until(
+        &self,
+        checkpoint: Checkpoint,
+    ) -> Result<Option<Vec<Matrix6<f64>>>, Stopped> {
         let l = &self.l;
         let n = l.first.len();
         let mut sigma = Envelope {
@@ -156,13 +185,19 @@ impl Factor {
             }
         };
         for i in (0..n).rev() {
-            let lii_inv = l.at(i, i).solve_lower_triangular(&Matrix6::identity())?;
+            checkpoint.before(STAGE)?;
+            let Some(lii_inv) = l.at(i, i).solve_lower_triangular(&Matrix6::identity()) else {
+                return Ok(None);
+            };
             for &j in below[i].iter().rev() {
                 let mut s = Matrix6::zeros();
                 for &k in &below[i] {
                     s += l.at(k, i).transpose() * get(&sigma, k, j);
                 }
-                let sij = -(l.at(i, i).tr_solve_lower_triangular(&s)?);
+                let Some(solved) = l.at(i, i).tr_solve_lower_triangular(&s) else {
+                    return Ok(None);
+                };
+                let sij = -solved;
                 // Stored as Σ_ji = Σ_ijᵀ, in row j.
                 let idx = sigma.index(j, i).expect("within the envelope");
                 sigma.blocks[idx] = sij.transpose();
@@ -171,11 +206,21 @@ impl Factor {
             for &k in &below[i] {
                 s -= l.at(k, i).transpose() * get(&sigma, k, i);
             }
-            let sii = l.at(i, i).tr_solve_lower_triangular(&s)?;
+            let Some(sii) = l.at(i, i).tr_solve_lower_triangular(&s) else {
+                return Ok(None);
+            };
             let idx = sigma.index(i, i).expect("diagonal");
             sigma.blocks[idx] = (sii + sii.transpose()) * 0.5;
         }
-        Some((0..n).map(|i| *sigma.at(i, i)).collect())
+        Ok(Some((0..n).map(|i| *sigma.at(i, i)).collect()))
+    }
+}
+
+/// The result of work asked of [`Checkpoint::NEVER`], which cannot have stopped.
+pub(crate) fn never_stopped<T>(result: Result<T, Stopped>) -> T {
+    match result {
+        Ok(value) => value,
+        Err(_) => unreachable!("a checkpoint that never stops stopped"),
     }
 }
 

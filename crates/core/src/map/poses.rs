@@ -18,7 +18,8 @@
 
 use nalgebra::{Isometry3, Matrix6, Point3, UnitQuaternion, Vector6};
 
-use super::envelope::{narrow_positions, Envelope};
+use super::envelope::{narrow_positions, never_stopped, Envelope};
+use crate::checkpoint::{Checkpoint, Stopped};
 
 use super::register::{
     register_seen, Measured, PosePrior, RegisterParams, RegistrationStatus, Sector,
@@ -177,6 +178,16 @@ pub fn optimise_from(
     relative: &[RelativePose],
     start: Option<&[Isometry3<f64>]>,
 ) -> Vec<PosePrior> {
+    never_stopped(optimise_until(priors, relative, start, Checkpoint::NEVER))
+}
+
+/// [`optimise_from`], asking `checkpoint` at each step and within each factorisation.
+pub fn optimise_until(
+    priors: &[PosePrior],
+    relative: &[RelativePose],
+    start: Option<&[Isometry3<f64>]>,
+    checkpoint: Checkpoint,
+) -> Result<Vec<PosePrior>, Stopped> {
     let n = priors.len();
     let informations: Vec<Option<Matrix6<f64>>> =
         priors.iter().map(|p| p.covariance.try_inverse()).collect();
@@ -236,7 +247,7 @@ pub fn optimise_from(
             hessian.add(ends[1], ends[1], &block(1, 1));
             hessian.add(ends[1], ends[0], &block(1, 0));
         }
-        factor = hessian.cholesky();
+        factor = hessian.cholesky_until(checkpoint)?;
         let Some(step) = factor.as_ref().and_then(|f| f.solve(&gradient)) else {
             break;
         };
@@ -249,8 +260,11 @@ pub fn optimise_from(
     }
     // The marginal covariances: the inverse of the information at the solution (the last
     // step is too small to change it), its diagonal blocks only.
-    let covariance = factor.and_then(|f| f.inverse_diagonal());
-    poses
+    let covariance = match factor {
+        Some(f) => f.inverse_diagonal_until(checkpoint)?,
+        None => None,
+    };
+    Ok(poses
         .into_iter()
         .enumerate()
         .map(|(i, rig_to_world)| PosePrior {
@@ -260,7 +274,7 @@ pub fn optimise_from(
                 .map(|c| c[position[i]])
                 .unwrap_or(priors[i].covariance),
         })
-        .collect()
+        .collect())
 }
 
 #[cfg(test)]

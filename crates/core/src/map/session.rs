@@ -20,8 +20,10 @@
 
 use nalgebra::{Matrix6, Point3};
 
+use super::envelope::never_stopped;
 use super::poses::{register_pair, RelativePose};
 use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
+use crate::checkpoint::{Checkpoint, Stopped};
 
 /// A capture already in the session.
 #[derive(Debug, Clone, Copy)]
@@ -81,7 +83,27 @@ pub fn add_capture(
     segments: &[Measured],
     params: &SessionParams,
 ) -> Added {
-    let current = solve_poses(placed, edges);
+    never_stopped(add_capture_until(
+        placed,
+        edges,
+        prior,
+        segments,
+        params,
+        Checkpoint::NEVER,
+    ))
+}
+
+/// [`add_capture`], asking `checkpoint` while the session's poses are solved and between
+/// the registrations.
+pub fn add_capture_until(
+    placed: &[Placed],
+    edges: &[RelativePose],
+    prior: &PosePrior,
+    segments: &[Measured],
+    params: &SessionParams,
+    checkpoint: Checkpoint,
+) -> Result<Added, Stopped> {
+    let current = solve_poses_until(placed, edges, checkpoint)?;
     let here = prior.rig_to_world;
     // Nearest in position and in heading: a capture shares what it sees with those that
     // stood close and looked the same way, not with one that stood there facing away.
@@ -125,6 +147,7 @@ pub fn add_capture(
         references.extend(moved);
     }
     let seen_from = seen_from.unwrap_or_default();
+    checkpoint.before("registration")?;
     let registration = register_seen(&references, &seen_from, segments, prior, &params.register);
 
     // The pairs start from where registration put the new capture, with the spread its
@@ -138,6 +161,7 @@ pub fn add_capture(
     let edges = near
         .iter()
         .take(params.pair_captures)
+        .filter(|_| !checkpoint.stopped())
         .filter_map(|&(_, to)| {
             let at = PosePrior {
                 rig_to_world: current[to].rig_to_world,
@@ -154,10 +178,11 @@ pub fn add_capture(
             })
         })
         .collect();
-    Added {
+    checkpoint.before("registration")?;
+    Ok(Added {
         registration,
         edges,
-    }
+    })
 }
 
 /// How far a turn of one radian takes two captures' views apart, for choosing the nearest
@@ -226,6 +251,15 @@ pub fn graph_work(captures: usize, edges: &[RelativePose]) -> u64 {
 /// again (the other edges and the priors outvote it; an edge alone with its captures'
 /// priors is outvoted by them).
 pub fn solve_poses(placed: &[Placed], edges: &[RelativePose]) -> Vec<PosePrior> {
+    never_stopped(solve_poses_until(placed, edges, Checkpoint::NEVER))
+}
+
+/// [`solve_poses`], asking `checkpoint` within each solve.
+pub fn solve_poses_until(
+    placed: &[Placed],
+    edges: &[RelativePose],
+    checkpoint: Checkpoint,
+) -> Result<Vec<PosePrior>, Stopped> {
     let priors = graph_priors(placed);
     let mut edges: Vec<RelativePose> = edges
         .iter()
@@ -234,7 +268,8 @@ pub fn solve_poses(placed: &[Placed], edges: &[RelativePose]) -> Vec<PosePrior> 
         .collect();
     let mut start: Option<Vec<nalgebra::Isometry3<f64>>> = None;
     loop {
-        let mut solved = super::poses::optimise_from(&priors, &edges, start.as_deref());
+        let mut solved =
+            super::poses::optimise_until(&priors, &edges, start.as_deref(), checkpoint)?;
         // The anchor does not move; its tiny variance only keeps the system invertible.
         if let (Some(first), Some(anchor)) = (solved.first_mut(), priors.first()) {
             first.rig_to_world = anchor.rig_to_world;
@@ -249,7 +284,7 @@ pub fn solve_poses(placed: &[Placed], edges: &[RelativePose]) -> Vec<PosePrior> 
                 edges.remove(k);
                 start = Some(solved.iter().map(|p| p.rig_to_world).collect());
             }
-            _ => return solved,
+            _ => return Ok(solved),
         }
     }
 }
@@ -390,18 +425,23 @@ mod tests {
         assert!(graph_work(10_000, &mown(1000)) < MAX_GRAPH_WORK);
     }
 
-    #[test]
-    fn an_edge_the_others_contradict_is_dropped() {
-        let truths: Vec<Isometry3<f64>> = (0..6)
-            .map(|k| pose(0.5 * k as f64, 0.0, 0.1 * k as f64))
-            .collect();
-        let placed: Vec<Placed> = truths
+    /// Captures with no segments at `poses`, each prior with the default covariance.
+    fn placed_at(poses: &[Isometry3<f64>]) -> Vec<Placed<'static>> {
+        poses
             .iter()
             .map(|t| Placed {
                 prior: PosePrior::with_default_covariance(*t),
                 segments: &[],
             })
+            .collect()
+    }
+
+    #[test]
+    fn an_edge_the_others_contradict_is_dropped() {
+        let truths: Vec<Isometry3<f64>> = (0..6)
+            .map(|k| pose(0.5 * k as f64, 0.0, 0.1 * k as f64))
             .collect();
+        let placed = placed_at(&truths);
         let exact = |from: usize, to: usize| RelativePose {
             from,
             to,
@@ -428,5 +468,40 @@ mod tests {
             let (deg, m) = errors(&s.rig_to_world, t);
             assert!(deg < 1e-3 && m < 1e-3, "capture {k}: {deg} deg {m} m");
         }
+    }
+
+    /// A request past its deadline stops solving its session's graph at the next block row,
+    /// not at the end of a solve that may take seconds; a checkpoint that never stops gives
+    /// the poses `solve_poses` gives.
+    #[test]
+    fn a_solve_stops_promptly_once_its_result_is_not_wanted() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let n = 2_000;
+        let truths: Vec<Isometry3<f64>> = (0..n).map(|k| pose(0.3 * k as f64, 0.0, 0.0)).collect();
+        let placed = placed_at(&truths);
+        let edges: Vec<RelativePose> = (1..n)
+            .map(|k| RelativePose {
+                from: k,
+                to: k - 1,
+                pose: truths[k - 1].inverse() * truths[k],
+                information: Matrix6::identity() * 1e4,
+                inliers: 20,
+            })
+            .collect();
+        let asked = AtomicUsize::new(0);
+        const ANSWERED_BEFORE_STOP: usize = 100;
+        let stop = || asked.fetch_add(1, Ordering::Relaxed) >= ANSWERED_BEFORE_STOP;
+        let stopped = solve_poses_until(&placed, &edges, Checkpoint::new(&stop));
+        assert_eq!(
+            stopped.err(),
+            Some(Stopped {
+                stage: "pose graph"
+            })
+        );
+        // One factorisation asks once per block row: it stopped within the first of its
+        // 2,000 rows that asked after the stop, not after the solve.
+        assert_eq!(asked.load(Ordering::Relaxed), ANSWERED_BEFORE_STOP + 1);
+        let whole = solve_poses_until(&placed, &edges, Checkpoint::NEVER).expect("never stops");
+        assert_eq!(whole, solve_poses(&placed, &edges));
     }
 }

@@ -7,6 +7,7 @@ use tonic::Code;
 
 use super::matching::RunError;
 use super::pool::PoolError;
+use trinocular_core::checkpoint::Stopped;
 use trinocular_schema::InputError;
 
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -72,6 +73,12 @@ impl From<PoolError> for ServiceError {
             PoolError::Busy { max_jobs } => ServiceError::Busy { max_jobs },
             PoolError::Panicked { message } => ServiceError::Internal { detail: message },
         }
+    }
+}
+
+impl From<Stopped> for ServiceError {
+    fn from(Stopped { stage }: Stopped) -> ServiceError {
+        ServiceError::Stopped { stage }
     }
 }
 

@@ -16,6 +16,7 @@ use super::clock::Clock;
 use super::store::{SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
 use nalgebra::Matrix6;
+use trinocular_core::checkpoint::Checkpoint;
 use trinocular_core::map::export::RigMarker;
 use trinocular_core::map::poses::RelativePose;
 use trinocular_core::map::session::{Added, Placed, SessionParams};
@@ -312,9 +313,10 @@ impl Service {
                 .await?;
             let captures = self.store.captures(&session_id).await?;
             let segments = everything.segments_3d.clone();
-            let job = self
-                .pool
-                .run(move |_| place_capture(&captures, &segments, &prior));
+            let job = self.pool.run(move |abandoned| {
+                let stop = || abandoned.is_set();
+                place_capture(&captures, &segments, &prior, Checkpoint::new(&stop))
+            });
             let left = self
                 .deadline(timeout)
                 .saturating_sub(self.clock.since(started));
@@ -397,7 +399,7 @@ impl Service {
                 .unwrap_or(1);
             let gate = MapGate::of(&match_params(stored.options.as_ref()));
             let (session_id, clock) = (id.to_string(), Arc::clone(&self.clock));
-            let job = self.pool.run(move |_| {
+            let job = self.pool.run(move |abandoned| {
                 // The rig's cameras, for the top views: its calibration decomposed here, on
                 // the pool, with the rest of the work.
                 let calibration = pb::Calibration::decode(&calibration[..])
@@ -413,7 +415,9 @@ impl Service {
                     gate,
                     rig,
                 };
-                fuse_stored(session_id, &captures, options, clock.as_ref())
+                let stop = || abandoned.is_set();
+                let checkpoint = Checkpoint::new(&stop);
+                fuse_stored(session_id, &captures, options, clock.as_ref(), checkpoint)
             });
             // Fusing is compute like Match: it keeps to the service's longest request time.
             super::within(job, self.deadline(None)).await
@@ -422,12 +426,15 @@ impl Service {
     }
 }
 
-/// Decodes the stored captures and fuses them (on the compute pool), timed on `clock`.
+/// Decodes the stored captures and fuses them (on the compute pool), timed on `clock`; stops
+/// at `checkpoint` (the caller gone, or its deadline past) rather than solve or fuse for
+/// nobody.
 fn fuse_stored(
     session_id: String,
     captures: &[Vec<u8>],
     options: MapBuild,
     clock: &dyn Clock,
+    checkpoint: Checkpoint,
 ) -> Result<SessionMap, ServiceError> {
     let start = clock.monotonic();
     let stored = decode_captures(captures)?;
@@ -438,7 +445,7 @@ fn fuse_stored(
     let poses: Vec<PosePrior> = if options.refine_poses {
         let edges: Vec<RelativePose> = stored.iter().flat_map(|(_, e)| e.clone()).collect();
         check_graph(stored.len(), &edges)?;
-        map::session::solve_poses(&placed(&stored), &edges)
+        map::session::solve_poses_until(&placed(&stored), &edges, checkpoint)?
     } else {
         priors
             .iter()
@@ -483,6 +490,7 @@ fn fuse_stored(
         gate: Some(options.gate),
         ..FuseParams::default()
     };
+    checkpoint.before("fusion")?;
     let segments = map::fuse(&inputs, &params);
     Ok(SessionMap {
         session_id,
@@ -564,18 +572,20 @@ fn place_capture(
     captures: &[Vec<u8>],
     segments: &[pb::Segment3],
     prior: &PosePrior,
+    checkpoint: Checkpoint,
 ) -> Result<Added, ServiceError> {
     let stored = decode_captures(captures)?;
     let edges: Vec<RelativePose> = stored.iter().flat_map(|(_, e)| e.clone()).collect();
     check_graph(stored.len(), &edges)?;
     let capture = StoredSegments::measured_of(segments);
-    Ok(map::session::add_capture(
+    Ok(map::session::add_capture_until(
         &placed(&stored),
         &edges,
         prior,
         &capture,
         &SessionParams::default(),
-    ))
+        checkpoint,
+    )?)
 }
 
 #[cfg(test)]
@@ -603,6 +613,20 @@ mod tests {
         .encode_to_vec()
     }
 
+    /// AddCapture's placing on the pool stops, rather than solve and register for nobody,
+    /// once its caller has gone or its deadline has passed.
+    #[test]
+    fn placing_a_capture_stops_once_nobody_waits_for_it() {
+        let captures: Vec<Vec<u8>> = (0..3).map(|k| stored(k, &[])).collect();
+        let prior = PosePrior::with_default_covariance(Isometry3::identity());
+        let gone = || true;
+        match place_capture(&captures, &[], &prior, Checkpoint::new(&gone)) {
+            Err(ServiceError::Stopped { stage }) => assert_eq!(stage, "pose graph"),
+            other => panic!("expected the job to stop, got {other:?}"),
+        }
+        assert!(place_capture(&captures, &[], &prior, Checkpoint::NEVER).is_ok());
+    }
+
     #[test]
     fn a_session_whose_pose_graph_is_too_wide_is_refused_naming_it() {
         // A square hall mown in rows of 100, each capture tied to the one before it and to
@@ -628,9 +652,9 @@ mod tests {
         };
         let prior = PosePrior::with_default_covariance(Isometry3::identity());
         let small = tied(300);
-        assert!(place_capture(&small, &[], &prior).is_ok());
+        assert!(place_capture(&small, &[], &prior, Checkpoint::NEVER).is_ok());
         let wide = tied(10_000);
-        match place_capture(&wide, &[], &prior) {
+        match place_capture(&wide, &[], &prior, Checkpoint::NEVER) {
             Err(ServiceError::Input(e)) => {
                 assert_eq!(e.field, "session_id");
                 assert!(e.message.contains("too wide"), "{}", e.message);

@@ -45,6 +45,15 @@ impl<'a> Checkpoint<'a> {
     }
 }
 
+/// The result of work asked of [`Checkpoint::NEVER`], which cannot have stopped: how each
+/// `*_until` function's plain form unwraps it.
+pub fn never_stopped<T>(result: Result<T, Stopped>) -> T {
+    match result {
+        Ok(value) => value,
+        Err(_) => unreachable!("a checkpoint that never stops stopped"),
+    }
+}
+
 impl std::fmt::Debug for Checkpoint<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(if self.0.is_some() {

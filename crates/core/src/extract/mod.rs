@@ -30,7 +30,7 @@ use std::time::Instant;
 
 use nalgebra::Point2;
 
-use crate::checkpoint::{Checkpoint, Stopped};
+use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
 use crate::geometry::Camera;
 use crate::params::{check_all, Rule};
 use crate::segment::{CrowdingModel, LineNoise, Segment2, SegmentList};
@@ -612,10 +612,7 @@ fn add_crowding(segments: &mut [Segment2], model: CrowdingModel) {
 /// the lens distortion removed from edge points before the polygon fit. Parameters must
 /// have passed [`Params::check`].
 pub fn extract(image: &GreyImage, camera: Option<&Camera>, params: &Params) -> Extraction {
-    match extract_until(image, camera, params, Checkpoint::NEVER) {
-        Ok(extraction) => extraction,
-        Err(_) => unreachable!("a checkpoint that never stops stopped"),
-    }
+    never_stopped(extract_until(image, camera, params, Checkpoint::NEVER))
 }
 
 /// Chains fitted between two questions to the checkpoint.

@@ -14,6 +14,8 @@
 
 use nalgebra::{Matrix6, Vector6};
 
+#[cfg(test)]
+use crate::checkpoint::never_stopped;
 use crate::checkpoint::{Checkpoint, Stopped};
 
 /// The stage a stopped factorisation or inversion names.
@@ -213,14 +215,6 @@ impl Factor {
             sigma.blocks[idx] = (sii + sii.transpose()) * 0.5;
         }
         Ok(Some((0..n).map(|i| *sigma.at(i, i)).collect()))
-    }
-}
-
-/// The result of work asked of [`Checkpoint::NEVER`], which cannot have stopped.
-pub(crate) fn never_stopped<T>(result: Result<T, Stopped>) -> T {
-    match result {
-        Ok(value) => value,
-        Err(_) => unreachable!("a checkpoint that never stops stopped"),
     }
 }
 

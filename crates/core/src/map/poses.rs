@@ -18,8 +18,8 @@
 
 use nalgebra::{Isometry3, Matrix6, Point3, UnitQuaternion, Vector6};
 
-use super::envelope::{narrow_positions, never_stopped, Envelope};
-use crate::checkpoint::{Checkpoint, Stopped};
+use super::envelope::{narrow_positions, Envelope};
+use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
 
 use super::register::{
     register_seen, Measured, PosePrior, RegisterParams, RegistrationStatus, Sector,

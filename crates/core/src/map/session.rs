@@ -20,10 +20,9 @@
 
 use nalgebra::{Matrix6, Point3};
 
-use super::envelope::never_stopped;
 use super::poses::{register_pair, RelativePose};
 use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
-use crate::checkpoint::{Checkpoint, Stopped};
+use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
 
 /// A capture already in the session.
 #[derive(Debug, Clone, Copy)]
@@ -158,27 +157,25 @@ pub fn add_capture_until(
         covariance: prior.covariance,
     };
     let index = placed.len();
-    let edges = near
-        .iter()
-        .take(params.pair_captures)
-        .filter(|_| !checkpoint.stopped())
-        .filter_map(|&(_, to)| {
-            let at = PosePrior {
-                rig_to_world: current[to].rig_to_world,
-                covariance: placed[to].prior.covariance,
-            };
-            let (pose, information, inliers) =
-                register_pair(segments, placed[to].segments, &from, &at, &params.register)?;
-            Some(RelativePose {
+    let mut edges = Vec::new();
+    for &(_, to) in near.iter().take(params.pair_captures) {
+        checkpoint.before("registration")?;
+        let at = PosePrior {
+            rig_to_world: current[to].rig_to_world,
+            covariance: placed[to].prior.covariance,
+        };
+        if let Some((pose, information, inliers)) =
+            register_pair(segments, placed[to].segments, &from, &at, &params.register)
+        {
+            edges.push(RelativePose {
                 from: index,
                 to,
                 pose,
                 information,
                 inliers,
-            })
-        })
-        .collect();
-    checkpoint.before("registration")?;
+            });
+        }
+    }
     Ok(Added {
         registration,
         edges,

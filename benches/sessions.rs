@@ -5,6 +5,8 @@
 //!   PNGs — matched (the peer), and added to a session that holds 12 captures (replaced by a
 //!   fresh 12-capture session every 4 additions), on the durable embedded store (redb, fsync
 //!   per capture) and in memory. The two alternate, each timed in turn;
+//! - `sessions/add_capture/segments/memory/100`: a capture's segment lists added to a session
+//!   that holds 100 captures (the panorama's twelve, round and round), in memory;
 //! - `sessions/get_map/50`: the map of a 50-capture session (read, decode, fuse).
 //!
 //!     cargo bench --bench sessions
@@ -175,6 +177,32 @@ fn bench(c: &mut Criterion) {
             }
         }
     }
+
+    // A long session: what an AddCapture costs as the captures accumulate (the pose graph,
+    // and reading the stored captures). Refreshed every 8 additions, untimed.
+    let long = service(Arc::new(store::MemoryStore::new(TTL)));
+    group.sample_size(10);
+    group.bench_function("add_capture/segments/memory/100", |b| {
+        b.iter_custom(|iters| {
+            let mut total = Duration::ZERO;
+            let mut id = rt.block_on(session(&long, &f, 100));
+            for i in 0..iters {
+                if i % 8 == 7 {
+                    id = rt.block_on(session(&long, &f, 100));
+                }
+                let capture = pb::AddCaptureRequest {
+                    session_id: id.clone(),
+                    ..f.captures[3].clone()
+                };
+                let t = Instant::now();
+                rt.block_on(long.add_capture(&Caller::default(), capture, None))
+                    .expect("capture");
+                total += t.elapsed();
+            }
+            total
+        })
+    });
+    group.sample_size(100);
 
     let service = service(Arc::new(store::MemoryStore::new(TTL)));
     let id = rt.block_on(session(&service, &f, 50));

@@ -425,12 +425,11 @@ const LEGACY_SEGMENT_SIGMA_M: f64 = 0.01;
 /// What the map and registration take of a stored capture.
 pub fn stored_capture_segments(capture: &pb::StoredCapture) -> Result<StoredSegments, InputError> {
     let pose = pose_from_pb(capture.rig_to_world.as_ref(), "rig_to_world")?;
-    // Captures stored before registration have only the pose they were given.
-    let prior = match capture.prior_rig_to_world.as_ref() {
-        Some(p) => pose_from_pb(Some(p), "prior_rig_to_world")?,
-        None => pose,
-    };
-    let prior = pose_prior(prior, &capture.prior_covariance, "prior_covariance")?;
+    let prior = stored_prior(
+        pose,
+        capture.prior_rig_to_world.as_ref(),
+        &capture.prior_covariance,
+    )?;
     let covariance = pose_prior(pose, &capture.pose_covariance, "pose_covariance")?.covariance;
     let measured = StoredSegments::measured_of(&capture.segments);
     let certain = capture
@@ -455,6 +454,37 @@ pub fn stored_capture_segments(capture: &pb::StoredCapture) -> Result<StoredSegm
     })
 }
 
+/// The pose a stored capture was given and its covariance: what the session's pose graph
+/// starts from. `pose` is the stored pose the map uses, which is also the given one in
+/// captures stored before registration (they have no other).
+fn stored_prior(
+    pose: Isometry3<f64>,
+    prior_rig_to_world: Option<&pb::Pose>,
+    prior_covariance: &[f64],
+) -> Result<PosePrior, InputError> {
+    let prior = match prior_rig_to_world {
+        Some(p) => pose_from_pb(Some(p), "prior_rig_to_world")?,
+        None => pose,
+    };
+    pose_prior(prior, prior_covariance, "prior_covariance")
+}
+
+/// The pose a capture was given with its covariance, and the pose-graph edges it found when
+/// it was added, read from its header (`from`: its index in the session): all that placing
+/// a new capture needs of a capture that is not one of its neighbours.
+pub fn stored_header_of(
+    header: &pb::StoredCaptureHeader,
+    from: usize,
+) -> Result<(PosePrior, Vec<RelativePose>), InputError> {
+    let pose = pose_from_pb(header.rig_to_world.as_ref(), "rig_to_world")?;
+    let prior = stored_prior(
+        pose,
+        header.prior_rig_to_world.as_ref(),
+        &header.prior_covariance,
+    )?;
+    Ok((prior, edges_of(&header.edges, from)?))
+}
+
 /// The pose-graph edges a capture found when it was added, as stored.
 pub fn edges_to_pb(edges: &[RelativePose]) -> Vec<pb::PoseEdge> {
     edges
@@ -470,9 +500,8 @@ pub fn edges_to_pb(edges: &[RelativePose]) -> Vec<pb::PoseEdge> {
 
 /// The edges stored with capture `from`: each to an earlier capture, with a finite, symmetric
 /// information matrix. An edge that is not (a damaged store) is an error naming it.
-pub fn edges_of(capture: &pb::StoredCapture, from: usize) -> Result<Vec<RelativePose>, InputError> {
-    capture
-        .edges
+pub fn edges_of(edges: &[pb::PoseEdge], from: usize) -> Result<Vec<RelativePose>, InputError> {
+    edges
         .iter()
         .enumerate()
         .map(|(k, e)| {

@@ -93,7 +93,7 @@ pub fn add_capture(
 }
 
 /// [`add_capture`], asking `checkpoint` while the session's poses are solved and between
-/// the registrations.
+/// the registrations: [`neighbours_until`], then [`place_until`].
 pub fn add_capture_until(
     placed: &[Placed],
     edges: &[RelativePose],
@@ -102,11 +102,47 @@ pub fn add_capture_until(
     params: &SessionParams,
     checkpoint: Checkpoint,
 ) -> Result<Added, Stopped> {
-    let current = solve_poses_until(placed, edges, checkpoint)?;
+    let neighbours = neighbours_until(placed, edges, prior, params, checkpoint)?;
+    place_until(placed, &neighbours, prior, segments, params, checkpoint)
+}
+
+/// The earlier captures a new one is registered to, chosen from the poses alone — so that a
+/// caller holding a long session's captures encoded reads the segments of these few only.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Neighbours {
+    /// Every earlier capture's pose as the session's graph solves it now.
+    pub poses: Vec<PosePrior>,
+    /// The captures whose segments make the map the new capture is registered to: the
+    /// nearest that the graph places well, nearest first, at most `map_captures`.
+    pub map: Vec<usize>,
+    /// The captures it is registered to pair by pair: the nearest `pair_captures`.
+    pub pairs: Vec<usize>,
+}
+
+impl Neighbours {
+    /// Every capture whose segments [`place_until`] reads, ascending, each once.
+    pub fn needed(&self) -> Vec<usize> {
+        let mut all: Vec<usize> = self.map.iter().chain(&self.pairs).copied().collect();
+        all.sort_unstable();
+        all.dedup();
+        all
+    }
+}
+
+/// Solves the session's poses and chooses the captures a capture at `prior` is registered
+/// to (see [`Neighbours`]). Reads the captures' priors only, never their segments.
+pub fn neighbours_until(
+    placed: &[Placed],
+    edges: &[RelativePose],
+    prior: &PosePrior,
+    params: &SessionParams,
+    checkpoint: Checkpoint,
+) -> Result<Neighbours, Stopped> {
+    let poses = solve_poses_until(placed, edges, checkpoint)?;
     let here = prior.rig_to_world;
     // Nearest in position and in heading: a capture shares what it sees with those that
     // stood close and looked the same way, not with one that stood there facing away.
-    let mut near: Vec<(f64, usize)> = current
+    let mut near: Vec<(f64, usize)> = poses
         .iter()
         .enumerate()
         .filter_map(|(i, p)| {
@@ -116,20 +152,41 @@ pub fn add_capture_until(
         })
         .collect();
     near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    // The map: the captures the graph places well. A capture known only by its odometry is
+    // left out: its pose error is shared by all its segments, and many segments each given
+    // that error's spread as if independent would let wrong pairs in by the dozen.
+    let map = near
+        .iter()
+        .map(|&(_, i)| i)
+        .filter(|&i| well_placed(&poses[i]))
+        .take(params.map_captures)
+        .collect();
+    let pairs = near
+        .iter()
+        .map(|&(_, i)| i)
+        .take(params.pair_captures)
+        .collect();
+    Ok(Neighbours { poses, map, pairs })
+}
 
-    // The map: the captures the graph places well, each segment as uncertain as its
-    // capture's pose. A capture known only by its odometry is left out: its pose error is
-    // shared by all its segments, and many segments each given that error's spread as if
-    // independent would let wrong pairs in by the dozen.
+/// Registers a new capture (`segments`, rig frame; `prior`) to its `neighbours`' segments in
+/// `placed` as a map, then to each of its pair neighbours as an edge of the pose graph.
+/// Reads the segments of [`Neighbours::needed`] only.
+pub fn place_until(
+    placed: &[Placed],
+    neighbours: &Neighbours,
+    prior: &PosePrior,
+    segments: &[Measured],
+    params: &SessionParams,
+    checkpoint: Checkpoint,
+) -> Result<Added, Stopped> {
+    let current = &neighbours.poses;
+    // The map's segments, each as uncertain as its capture's pose.
     let mut references: Vec<Measured> = Vec::new();
     // Where the map's captures looked; one that saw all round sees everything.
     let mut seen_from: Option<Vec<Sector>> = Some(Vec::new());
-    for (i, pose) in near
-        .iter()
-        .map(|&(_, i)| (i, &current[i]))
-        .filter(|(_, pose)| well_placed(pose))
-        .take(params.map_captures)
-    {
+    for &i in &neighbours.map {
+        let pose = &current[i];
         let moved: Vec<Measured> = placed[i]
             .segments
             .iter()
@@ -158,7 +215,7 @@ pub fn add_capture_until(
     };
     let index = placed.len();
     let mut edges = Vec::new();
-    for &(_, to) in near.iter().take(params.pair_captures) {
+    for &to in &neighbours.pairs {
         checkpoint.before("registration")?;
         let at = PosePrior {
             rig_to_world: current[to].rig_to_world,
@@ -383,6 +440,70 @@ mod tests {
         }
         // The anchor is the first capture's pose as given.
         assert_eq!(solved[0].rig_to_world, priors[0].rig_to_world);
+    }
+
+    /// Placing reads the segments of the neighbours it chose and of no other capture: a
+    /// caller that decodes only those gets the very answer of one that decoded them all.
+    #[test]
+    fn placing_reads_only_the_neighbours_it_chose() {
+        let world = room();
+        let truths: Vec<Isometry3<f64>> = (0..8)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 8.0;
+                pose(0.3 * a.cos(), 0.3 * a.sin(), a)
+            })
+            .collect();
+        let seen: Vec<Vec<Measured>> = truths
+            .iter()
+            .map(|t| world.iter().map(|m| m.transformed(&t.inverse())).collect())
+            .collect();
+        let priors: Vec<PosePrior> = truths
+            .iter()
+            .map(|t| PosePrior::with_default_covariance(*t))
+            .collect();
+        let params = SessionParams {
+            map_captures: 3,
+            pair_captures: 2,
+            ..SessionParams::default()
+        };
+        let mut placed: Vec<Placed> = Vec::new();
+        let mut edges = Vec::new();
+        for (prior, segments) in priors.iter().zip(&seen).take(7) {
+            edges.extend(add_capture(&placed, &edges, prior, segments, &params).edges);
+            placed.push(Placed {
+                prior: *prior,
+                segments,
+            });
+        }
+        let (prior, segments) = (&priors[7], &seen[7]);
+        let neighbours =
+            neighbours_until(&placed, &edges, prior, &params, Checkpoint::NEVER).unwrap();
+        let needed = neighbours.needed();
+        assert!(
+            !needed.is_empty() && needed.len() <= 5 && needed.len() < placed.len(),
+            "{needed:?}"
+        );
+        let lazy: Vec<Placed> = placed
+            .iter()
+            .enumerate()
+            .map(|(i, p)| Placed {
+                prior: p.prior,
+                segments: if needed.contains(&i) { p.segments } else { &[] },
+            })
+            .collect();
+        let full = add_capture(&placed, &edges, prior, segments, &params);
+        let read_few = place_until(
+            &lazy,
+            &neighbours,
+            prior,
+            segments,
+            &params,
+            Checkpoint::NEVER,
+        )
+        .unwrap();
+        assert_eq!(read_few, full);
+        assert_eq!(full.registration.status, RegistrationStatus::Registered);
+        assert_eq!(full.edges.len(), 2);
     }
 
     #[test]

@@ -20,12 +20,12 @@ use trinocular_core::checkpoint::Checkpoint;
 use trinocular_core::map::export::RigMarker;
 use trinocular_core::map::poses::RelativePose;
 use trinocular_core::map::session::{Added, Placed, SessionParams};
-use trinocular_core::map::{self, FuseParams, MapGate, PosePrior};
+use trinocular_core::map::{self, FuseParams, MapGate, Measured, PosePrior};
 use trinocular_core::segment::Segment3;
 use trinocular_schema::session::{
     capture_match_request, certain_only, edges_of, edges_to_pb, matrix6_to_vec,
     pose_from_pb_noting, pose_prior, pose_to_pb, registration_to_pb, status_to_pb,
-    stored_capture_segments, StoredSegments,
+    stored_capture_segments, stored_header_of, StoredSegments,
 };
 use trinocular_schema::{match_params, pb, rig_from_calibration, InputError};
 
@@ -528,7 +528,7 @@ fn decode_captures(
                 detail: format!("stored capture {index}: {e}"),
             };
             let segments = stored_capture_segments(&capture).map_err(damaged)?;
-            let edges = edges_of(&capture, index).map_err(damaged)?;
+            let edges = edges_of(&capture.edges, index).map_err(damaged)?;
             Ok((segments, edges))
         })
         .collect()
@@ -567,23 +567,56 @@ fn check_graph(captures: usize, edges: &[RelativePose]) -> Result<(), ServiceErr
 
 /// Places a new capture's segments (rig frame, as the match answered them) in the session
 /// (on the compute pool): registered to the stored captures as a map, and to each one it
-/// overlaps as an edge of the pose graph (`map::session::add_capture`).
+/// overlaps as an edge of the pose graph (`map::session::add_capture`). Every capture's
+/// poses and edges are read, but the segments only of the few neighbours placing uses: a
+/// session of hundreds of captures is not decoded whole for each one added.
 fn place_capture(
     captures: &[Vec<u8>],
     segments: &[pb::Segment3],
     prior: &PosePrior,
     checkpoint: Checkpoint,
 ) -> Result<Added, ServiceError> {
-    let stored = decode_captures(captures)?;
-    let edges: Vec<RelativePose> = stored.iter().flat_map(|(_, e)| e.clone()).collect();
-    check_graph(stored.len(), &edges)?;
+    let headers: Vec<(PosePrior, Vec<RelativePose>)> = captures
+        .iter()
+        .enumerate()
+        .map(|(index, bytes)| {
+            let header =
+                pb::StoredCaptureHeader::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
+            stored_header_of(&header, index).map_err(|e| ServiceError::Internal {
+                detail: format!("stored capture {index}: {e}"),
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let edges: Vec<RelativePose> = headers.iter().flat_map(|(_, e)| e.clone()).collect();
+    check_graph(headers.len(), &edges)?;
+    let params = SessionParams::default();
+    let unread = |prior: &PosePrior| Placed {
+        prior: *prior,
+        segments: &[],
+    };
+    let priors: Vec<Placed> = headers.iter().map(|(p, _)| unread(p)).collect();
+    let neighbours = map::session::neighbours_until(&priors, &edges, prior, &params, checkpoint)?;
+    let mut measured: Vec<Vec<Measured>> = vec![Vec::new(); captures.len()];
+    for index in neighbours.needed() {
+        let capture =
+            pb::StoredCapture::decode(&captures[index][..]).map_err(|e| corrupt("capture", e))?;
+        measured[index] = StoredSegments::measured_of(&capture.segments);
+    }
+    let placed: Vec<Placed> = headers
+        .iter()
+        .zip(&measured)
+        .map(|((prior, _), segments)| Placed {
+            prior: *prior,
+            segments,
+        })
+        .collect();
     let capture = StoredSegments::measured_of(segments);
-    Ok(map::session::add_capture_until(
-        &placed(&stored),
-        &edges,
+    Ok(map::session::place_until(
+        &placed,
+        &neighbours,
         prior,
         &capture,
-        &SessionParams::default(),
+        &params,
         checkpoint,
     )?)
 }

@@ -366,8 +366,9 @@ mod tests {
         )
     }
 
-    #[test]
-    fn a_loop_of_noisy_odometry_is_registered_tied_by_edges_and_closed() {
+    /// Eight captures on a ring of 0.3 m, each turned to face outwards, and the room as each
+    /// sees it in its rig frame.
+    fn ring() -> (Vec<Isometry3<f64>>, Vec<Vec<Measured>>) {
         let world = room();
         let truths: Vec<Isometry3<f64>> = (0..8)
             .map(|k| {
@@ -375,11 +376,16 @@ mod tests {
                 pose(0.3 * a.cos(), 0.3 * a.sin(), a)
             })
             .collect();
-        // Each capture sees the room in its rig frame.
-        let seen: Vec<Vec<Measured>> = truths
+        let seen = truths
             .iter()
             .map(|t| world.iter().map(|m| m.transformed(&t.inverse())).collect())
             .collect();
+        (truths, seen)
+    }
+
+    #[test]
+    fn a_loop_of_noisy_odometry_is_registered_tied_by_edges_and_closed() {
+        let (truths, seen) = ring();
         let offsets = [
             (0.0, 0.0, 0.0),
             (2.0, 0.04, -0.03),
@@ -446,17 +452,7 @@ mod tests {
     /// caller that decodes only those gets the very answer of one that decoded them all.
     #[test]
     fn placing_reads_only_the_neighbours_it_chose() {
-        let world = room();
-        let truths: Vec<Isometry3<f64>> = (0..8)
-            .map(|k| {
-                let a = std::f64::consts::TAU * k as f64 / 8.0;
-                pose(0.3 * a.cos(), 0.3 * a.sin(), a)
-            })
-            .collect();
-        let seen: Vec<Vec<Measured>> = truths
-            .iter()
-            .map(|t| world.iter().map(|m| m.transformed(&t.inverse())).collect())
-            .collect();
+        let (truths, seen) = ring();
         let priors: Vec<PosePrior> = truths
             .iter()
             .map(|t| PosePrior::with_default_covariance(*t))

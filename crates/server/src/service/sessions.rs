@@ -66,6 +66,13 @@ fn corrupt(what: &str, e: prost::DecodeError) -> ServiceError {
     }
 }
 
+/// A stored capture that decodes but does not hold what it should (a damaged store).
+fn damaged(index: usize, e: InputError) -> ServiceError {
+    ServiceError::Internal {
+        detail: format!("stored capture {index}: {e}"),
+    }
+}
+
 /// Session ids are looked up as given; refusing odd ones early keeps them out of store keys
 /// and logs.
 fn check_id(id: &str) -> Result<(), ServiceError> {
@@ -312,48 +319,28 @@ impl Service {
                 .run_match(move || Ok(match_request), |_| (), timeout)
                 .await?;
             let captures = self.store.captures(&session_id).await?;
-            let segments = everything.segments_3d.clone();
+            // Placing, and the stored record's encoding, on the pool: the tokio worker only
+            // hands over and stores.
+            let clock = Arc::clone(&self.clock);
             let job = self.pool.run(move |abandoned| {
                 let stop = || abandoned.is_set();
-                place_capture(&captures, &segments, &prior, Checkpoint::new(&stop))
+                let checkpoint = Checkpoint::new(&stop);
+                let added = place_capture(&captures, &everything.segments_3d, &prior, checkpoint)?;
+                let stored =
+                    stored_capture(&everything, &added, &pose, &prior, clock.now_unix_ms());
+                let response = if asked_uncertain {
+                    everything
+                } else {
+                    certain_only(&everything)
+                };
+                Ok::<_, ServiceError>((added.registration, stored.encode_to_vec(), response))
             });
             let left = self
                 .deadline(timeout)
                 .saturating_sub(self.clock.since(started));
-            let Added {
-                registration,
-                edges,
-            } = super::within(job, left).await?;
-            let capture = pb::StoredCapture {
-                rig_to_world: Some(pose_to_pb(&registration.rig_to_world)),
-                segments: everything
-                    .segments_3d
-                    .iter()
-                    .map(|s| pb::Segment3 {
-                        start: s.start,
-                        end: s.end,
-                        covariance: s.covariance.clone(),
-                        uncertain: s.uncertain,
-                        ..Default::default()
-                    })
-                    .collect(),
-                received_unix_ms: self.clock.now_unix_ms(),
-                prior_rig_to_world: Some(pose_to_pb(&pose)),
-                prior_covariance: matrix6_to_vec(&prior.covariance),
-                pose_covariance: matrix6_to_vec(&registration.covariance),
-                status: status_to_pb(registration.status) as i32,
-                edges: edges_to_pb(&edges),
-            };
-            let index = self
-                .store
-                .append_capture(&session_id, &capture.encode_to_vec())
-                .await?;
+            let (registration, stored, response) = super::within(job, left).await?;
+            let index = self.store.append_capture(&session_id, &stored).await?;
             self.session_changed(&session_id);
-            let response = if asked_uncertain {
-                everything
-            } else {
-                certain_only(&everything)
-            };
             Ok(pb::AddCaptureResponse {
                 r#match: Some(response),
                 capture_index: index,
@@ -524,11 +511,8 @@ fn decode_captures(
         .map(|(index, bytes)| {
             let capture =
                 pb::StoredCapture::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
-            let damaged = |e: InputError| ServiceError::Internal {
-                detail: format!("stored capture {index}: {e}"),
-            };
-            let segments = stored_capture_segments(&capture).map_err(damaged)?;
-            let edges = edges_of(&capture.edges, index).map_err(damaged)?;
+            let segments = stored_capture_segments(&capture).map_err(|e| damaged(index, e))?;
+            let edges = edges_of(&capture.edges, index).map_err(|e| damaged(index, e))?;
             Ok((segments, edges))
         })
         .collect()
@@ -565,6 +549,39 @@ fn check_graph(captures: usize, edges: &[RelativePose]) -> Result<(), ServiceErr
     Ok(())
 }
 
+/// The record a capture is stored as: its refined pose and covariance, the pose it was given
+/// with its covariance, every 3D segment of its match (uncertain ones too, for registration
+/// and later refinement) and the pose-graph edges it found.
+fn stored_capture(
+    matched: &pb::MatchResponse,
+    added: &Added,
+    given: &nalgebra::Isometry3<f64>,
+    prior: &PosePrior,
+    received_unix_ms: u64,
+) -> pb::StoredCapture {
+    let registration = &added.registration;
+    pb::StoredCapture {
+        rig_to_world: Some(pose_to_pb(&registration.rig_to_world)),
+        segments: matched
+            .segments_3d
+            .iter()
+            .map(|s| pb::Segment3 {
+                start: s.start,
+                end: s.end,
+                covariance: s.covariance.clone(),
+                uncertain: s.uncertain,
+                ..Default::default()
+            })
+            .collect(),
+        received_unix_ms,
+        prior_rig_to_world: Some(pose_to_pb(given)),
+        prior_covariance: matrix6_to_vec(&prior.covariance),
+        pose_covariance: matrix6_to_vec(&registration.covariance),
+        status: status_to_pb(registration.status) as i32,
+        edges: edges_to_pb(&added.edges),
+    }
+}
+
 /// Places a new capture's segments (rig frame, as the match answered them) in the session
 /// (on the compute pool): registered to the stored captures as a map, and to each one it
 /// overlaps as an edge of the pose graph (`map::session::add_capture`). Every capture's
@@ -576,39 +593,35 @@ fn place_capture(
     prior: &PosePrior,
     checkpoint: Checkpoint,
 ) -> Result<Added, ServiceError> {
-    let headers: Vec<(PosePrior, Vec<RelativePose>)> = captures
-        .iter()
-        .enumerate()
-        .map(|(index, bytes)| {
-            let header =
-                pb::StoredCaptureHeader::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
-            stored_header_of(&header, index).map_err(|e| ServiceError::Internal {
-                detail: format!("stored capture {index}: {e}"),
-            })
-        })
-        .collect::<Result<_, _>>()?;
-    let edges: Vec<RelativePose> = headers.iter().flat_map(|(_, e)| e.clone()).collect();
-    check_graph(headers.len(), &edges)?;
+    let mut priors: Vec<PosePrior> = Vec::with_capacity(captures.len());
+    let mut edges: Vec<RelativePose> = Vec::new();
+    for (index, bytes) in captures.iter().enumerate() {
+        let header =
+            pb::StoredCaptureHeader::decode(&bytes[..]).map_err(|e| corrupt("capture", e))?;
+        let (given, found) = stored_header_of(&header, index).map_err(|e| damaged(index, e))?;
+        priors.push(given);
+        edges.extend(found);
+    }
+    check_graph(priors.len(), &edges)?;
     let params = SessionParams::default();
-    let unread = |prior: &PosePrior| Placed {
-        prior: *prior,
-        segments: &[],
-    };
-    let priors: Vec<Placed> = headers.iter().map(|(p, _)| unread(p)).collect();
-    let neighbours = map::session::neighbours_until(&priors, &edges, prior, &params, checkpoint)?;
+    let unread: Vec<Placed> = priors
+        .iter()
+        .map(|&prior| Placed {
+            prior,
+            segments: &[],
+        })
+        .collect();
+    let neighbours = map::session::neighbours_until(&unread, &edges, prior, &params, checkpoint)?;
     let mut measured: Vec<Vec<Measured>> = vec![Vec::new(); captures.len()];
     for index in neighbours.needed() {
         let capture =
             pb::StoredCapture::decode(&captures[index][..]).map_err(|e| corrupt("capture", e))?;
         measured[index] = StoredSegments::measured_of(&capture.segments);
     }
-    let placed: Vec<Placed> = headers
+    let placed: Vec<Placed> = priors
         .iter()
         .zip(&measured)
-        .map(|((prior, _), segments)| Placed {
-            prior: *prior,
-            segments,
-        })
+        .map(|(&prior, segments)| Placed { prior, segments })
         .collect();
     let capture = StoredSegments::measured_of(segments);
     Ok(map::session::place_until(

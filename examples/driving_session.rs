@@ -2,7 +2,7 @@
 //! odometry gives: the driving sessions of issue 16, rendered and scored by our own `synth`.
 //!
 //!     cargo run --release --example driving_session -- [--seeds 1,2,3,4] [--captures 16]
-//!         [--noise 0/0,1/0.02,3/0.05] [--out DIR]
+//!         [--noise 0/0,1/0.02,3/0.05] [--out DIR] [--verbose] [--in-3d-only]
 //!
 //! Per seed: the standard room (`synth::Scene::room`) and rig (`RigSpec::non_collinear`);
 //! the rig drives once round an ellipse through the middle of the room, 1.2 m up, looking
@@ -12,7 +12,8 @@
 //! AddCapture keeps them); each noise level `YAW_DEG/XY_M` then gives every capture but the
 //! first a heading error N(0, YAW_DEG) about its rig's origin and a floor error N(0, XY_M) per
 //! axis, seeded, as its prior. The session is built as the service builds it: each capture
-//! placed in order (`map::session::add_capture`), the poses solved from the odometry and the
+//! placed in order with its image segments (`map::session::add_capture_with_views`; with
+//! `--in-3d-only`, `add_capture`), the poses solved from the odometry and the
 //! edges (`map::session::solve_poses`), the map fused with the default match options' gate.
 //! Printed per seed and noise level, and pooled: the map's error and completeness (the shared
 //! scorer's criterion, tolerances from the mean rig centre, eligible edges united over the
@@ -49,6 +50,10 @@ struct Args {
     /// against the truth.
     #[arg(long)]
     verbose: bool,
+    /// Register the captures pair by pair on their 3D segments alone, not refined in the new
+    /// capture's images (the service before image registration).
+    #[arg(long)]
+    in_3d_only: bool,
 }
 
 /// The loop: an ellipse about the room's middle, clear of the furniture along the walls.
@@ -63,6 +68,9 @@ struct Seen {
     certain: Vec<Segment3>,
     certain_covariances: Vec<Matrix6<f64>>,
     centre: Point3<f64>,
+    /// The rig (rig frame) and each view's extracted segments.
+    rig: trinocular::geometry::Rig,
+    views: [Vec<trinocular::segment::Segment2>; 3],
 }
 
 fn main() -> anyhow::Result<()> {
@@ -92,7 +100,7 @@ fn main() -> anyhow::Result<()> {
         );
         for (k, &(yaw_deg, xy_m)) in levels.iter().enumerate() {
             let priors = odometry(&seen, yaw_deg, xy_m, seed * 1000 + k as u64);
-            let (poses, fused) = build_map(&seen, &priors, args.verbose);
+            let (poses, fused) = build_map(&seen, &priors, args.verbose, args.in_3d_only);
             let segments: Vec<Segment3> = fused.iter().map(|m| m.segment()).collect();
             let s = score(&segments, &truth_edges, &eligible, mean_centre);
             let covered_edges = s
@@ -235,6 +243,14 @@ fn drive(seed: u64, captures: usize) -> anyhow::Result<(Scene, Vec<Seen>, Vec<Ve
             certain: certain.iter().map(|r| r.segment).collect(),
             certain_covariances: certain.iter().map(|r| r.covariance).collect(),
             measured,
+            rig: rig.clone(),
+            views: std::array::from_fn(|k| {
+                matched
+                    .extracted
+                    .as_ref()
+                    .map(|e| e[k].segments.segments.clone())
+                    .unwrap_or_default()
+            }),
         });
     }
     Ok((scene, seen, eligible))
@@ -278,12 +294,29 @@ fn build_map(
     seen: &[Seen],
     priors: &[PosePrior],
     verbose: bool,
+    in_3d_only: bool,
 ) -> (Vec<Isometry3<f64>>, Vec<map::MapSegment>) {
     let params = SessionParams::default();
     let mut placed: Vec<Placed> = Vec::new();
     let mut edges = Vec::new();
     for (s, prior) in seen.iter().zip(priors) {
-        let added = map::session::add_capture(&placed, &edges, prior, &s.measured, &params);
+        let added = if !in_3d_only {
+            let views = map::images::Views {
+                cameras: s.rig.cameras(),
+                segments: [&s.views[0], &s.views[1], &s.views[2]],
+                list_noise_px: 0.3,
+            };
+            map::session::add_capture_with_views(
+                &placed,
+                &edges,
+                prior,
+                &s.measured,
+                &views,
+                &params,
+            )
+        } else {
+            map::session::add_capture(&placed, &edges, prior, &s.measured, &params)
+        };
         let r = added.registration;
         if verbose {
             let off = |p: &Isometry3<f64>| {

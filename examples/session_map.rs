@@ -29,9 +29,10 @@ use clap::Parser;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 use serde_json::{json, Value};
 use trinocular::api::{self, pb, RequestLimits, RunMatch};
+use trinocular::map::images::Views;
 use trinocular::map::session::{Placed, SessionParams};
 use trinocular::map::{self, Capture, FuseParams, Measured, PosePrior};
-use trinocular::segment::Segment3;
+use trinocular::segment::{Segment2, Segment3};
 
 #[derive(Parser)]
 struct Args {
@@ -71,6 +72,10 @@ struct Args {
     /// edges between captures, as GetMap does (`map::session::solve_poses`).
     #[arg(long)]
     graph: bool,
+    /// Register the captures pair by pair on their 3D segments alone, not refined in the new
+    /// capture's image segments (how AddCapture placed them before image registration).
+    #[arg(long)]
+    in_3d_only: bool,
     /// Gate the map as a Match answer is gated (the default match options' accuracy), by
     /// each map segment's fused covariance, poses' uncertainty included.
     #[arg(long)]
@@ -243,6 +248,11 @@ fn main() -> Result<(), Error> {
     let mut covariances: Vec<Vec<nalgebra::Matrix6<f64>>> = Vec::new();
     let mut ids = Vec::new();
     let mut rig_marker = map::export::RigMarker::origin();
+    // Each capture's image segments (extracted, or the lists given) and the rig, for
+    // placing as AddCapture does.
+    let mut seen: Vec<[Vec<Segment2>; 3]> = Vec::new();
+    let mut rig = None;
+    let mut list_noise_px = 0.3;
     for dir in &dirs {
         let name = dir.file_name().and_then(|n| n.to_str()).unwrap_or("");
         let id: u32 = name.trim_start_matches("capture_").parse()?;
@@ -263,6 +273,15 @@ fn main() -> Result<(), Error> {
         rig_marker =
             map::export::RigMarker::of(&api::rig_from_calibration(request.calibration.as_ref())?);
         let executed = input.execute()?;
+        seen.push(match (&input.source, &executed.extracted) {
+            (_, Some(extracted)) => std::array::from_fn(|k| extracted[k].segments.segments.clone()),
+            (api::MatchSource::Segments(lists), None) => {
+                std::array::from_fn(|k| lists[k].segments.clone())
+            }
+            _ => Default::default(),
+        });
+        rig = Some(input.rig.clone());
+        list_noise_px = input.params.line_noise_px;
         let out = &executed.output;
         eprintln!(
             "capture {id:02}: {} 3D segments in {:.1} ms",
@@ -320,9 +339,19 @@ fn main() -> Result<(), Error> {
     // Without registration the poses are taken as exact; with it, each carries the
     // covariance registration or the graph gives it.
     let poses: Vec<PosePrior> = if args.register {
+        let rig = rig.ok_or("no capture")?;
+        let views: Vec<Views> = seen
+            .iter()
+            .map(|lists| Views {
+                cameras: rig.cameras(),
+                segments: std::array::from_fn(|k| &lists[k][..]),
+                list_noise_px,
+            })
+            .collect();
         place_in_order(
             &priors,
             &measured,
+            (!args.in_3d_only).then_some(&views[..]),
             &truths,
             args.yaw_noise_deg,
             args.xy_noise_m,
@@ -421,6 +450,7 @@ fn main() -> Result<(), Error> {
 fn place_in_order(
     priors: &[Isometry3<f64>],
     measured: &[Vec<Measured>],
+    views: Option<&[Views]>,
     truths: &[Isometry3<f64>],
     yaw_sigma_deg: f64,
     xy_sigma_m: f64,
@@ -433,7 +463,12 @@ fn place_in_order(
     for (i, segments) in measured.iter().enumerate() {
         let prior = prior_of(priors[i], yaw_sigma_deg, xy_sigma_m);
         let t0 = std::time::Instant::now();
-        let added = map::session::add_capture(&placed, &edges, &prior, segments, &params);
+        let added = match views {
+            Some(views) => map::session::add_capture_with_views(
+                &placed, &edges, &prior, segments, &views[i], &params,
+            ),
+            None => map::session::add_capture(&placed, &edges, &prior, segments, &params),
+        };
         let got = added.registration;
         eprintln!(
             "capture {i:02}: {:?}, {} inliers, moved {:.2} deg {:.1} mm, {} edges, {:.1} ms",

@@ -13,6 +13,7 @@
 mod envelope;
 pub mod export;
 mod fuse;
+pub mod images;
 pub mod poses;
 pub mod register;
 pub mod session;

@@ -105,7 +105,7 @@ pub fn register_pair(
 
 /// The covariance of `i`'s pose in `j`'s frame when both world poses carry their priors'
 /// independent errors (first order; rotation–translation cross terms left out).
-fn relative_covariance(i: &PosePrior, j: &PosePrior) -> Matrix6<f64> {
+pub(crate) fn relative_covariance(i: &PosePrior, j: &PosePrior) -> Matrix6<f64> {
     let rj = j.rig_to_world.rotation.to_rotation_matrix().into_inner();
     let lever = i.rig_to_world.translation.vector - j.rig_to_world.translation.vector;
     let cross = lever.cross_matrix();

@@ -20,7 +20,8 @@
 
 use nalgebra::{Matrix6, Point3};
 
-use super::poses::{register_pair, RelativePose};
+use super::images::{refine_in_images, ImageParams, Views};
+use super::poses::{register_pair, relative_covariance, RelativePose};
 use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
 use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
 
@@ -55,6 +56,8 @@ pub struct SessionParams {
     pub map_captures: usize,
     pub pair_captures: usize,
     pub reach_m: f64,
+    /// How a pair is refined in the new capture's images, when they are given.
+    pub images: ImageParams,
 }
 
 impl Default for SessionParams {
@@ -64,6 +67,7 @@ impl Default for SessionParams {
             map_captures: 8,
             pair_captures: 4,
             reach_m: 10.0,
+            images: ImageParams::default(),
         }
     }
 }
@@ -103,7 +107,40 @@ pub fn add_capture_until(
     checkpoint: Checkpoint,
 ) -> Result<Added, Stopped> {
     let neighbours = neighbours_until(placed, edges, prior, params, checkpoint)?;
-    place_until(placed, &neighbours, prior, segments, params, checkpoint)
+    place_until(
+        placed,
+        &neighbours,
+        prior,
+        segments,
+        None,
+        params,
+        checkpoint,
+    )
+}
+
+/// [`add_capture`] with the capture's image evidence: each registration refined in its
+/// images ([`refine_in_images`]).
+pub fn add_capture_with_views(
+    placed: &[Placed],
+    edges: &[RelativePose],
+    prior: &PosePrior,
+    segments: &[Measured],
+    views: &Views,
+    params: &SessionParams,
+) -> Added {
+    never_stopped(
+        neighbours_until(placed, edges, prior, params, Checkpoint::NEVER).and_then(|n| {
+            place_until(
+                placed,
+                &n,
+                prior,
+                segments,
+                Some(views),
+                params,
+                Checkpoint::NEVER,
+            )
+        }),
+    )
 }
 
 /// The earlier captures a new one is registered to, chosen from the poses alone — so that a
@@ -177,6 +214,7 @@ pub fn place_until(
     neighbours: &Neighbours,
     prior: &PosePrior,
     segments: &[Measured],
+    views: Option<&Views>,
     params: &SessionParams,
     checkpoint: Checkpoint,
 ) -> Result<Added, Stopped> {
@@ -221,9 +259,26 @@ pub fn place_until(
             rig_to_world: current[to].rig_to_world,
             covariance: placed[to].prior.covariance,
         };
-        if let Some((pose, information, inliers)) =
-            register_pair(segments, placed[to].segments, &from, &at, &params.register)
-        {
+        let mut found = register_pair(segments, placed[to].segments, &from, &at, &params.register);
+        if let Some(views) = views {
+            let predicted = at.rig_to_world.inverse() * from.rig_to_world;
+            let relative = PosePrior {
+                rig_to_world: predicted,
+                covariance: relative_covariance(&from, &at),
+            };
+            let mut starts: Vec<_> = found.iter().map(|f| f.0).collect();
+            starts.push(predicted);
+            if let Some(fit) = refine_in_images(
+                placed[to].segments,
+                views,
+                &starts,
+                &relative,
+                &params.images,
+            ) {
+                found = Some((fit.pose, fit.information, fit.references));
+            }
+        }
+        if let Some((pose, information, inliers)) = found {
             edges.push(RelativePose {
                 from: index,
                 to,
@@ -493,6 +548,7 @@ mod tests {
             &neighbours,
             prior,
             segments,
+            None,
             &params,
             Checkpoint::NEVER,
         )

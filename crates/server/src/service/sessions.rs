@@ -18,6 +18,7 @@ use super::{Service, ServiceError};
 use nalgebra::Matrix6;
 use trinocular_core::checkpoint::Checkpoint;
 use trinocular_core::map::export::RigMarker;
+use trinocular_core::map::images::Views;
 use trinocular_core::map::poses::RelativePose;
 use trinocular_core::map::session::{Added, Placed, SessionParams};
 use trinocular_core::map::{self, FuseParams, MapGate, Measured, PosePrior};
@@ -27,7 +28,7 @@ use trinocular_schema::session::{
     pose_from_pb_noting, pose_prior, pose_to_pb, registration_to_pb, status_to_pb,
     stored_capture_segments, stored_header_of, StoredSegments,
 };
-use trinocular_schema::{match_params, pb, rig_from_calibration, InputError};
+use trinocular_schema::{match_params, pb, rig_from_calibration, segment_lists, InputError};
 
 // The fused map and its message are the schema's: the transports answer with it.
 pub use trinocular_schema::session::{map_to_pb, SessionMap};
@@ -314,6 +315,16 @@ impl Service {
             let mut options = stored.options.unwrap_or_default();
             let asked_uncertain = options.include_uncertain == Some(true);
             options.include_uncertain = Some(true);
+            // Placing refines the capture's pose in its own images' segments: the match
+            // hands back what it extracted, or the lists given are kept.
+            let asked_extracted = options.return_extracted == Some(true);
+            options.return_extracted = Some(true);
+            let list_noise_px = match_params(Some(&options)).line_noise_px;
+            let rig = rig_from_calibration(Some(&calibration)).map_err(ServiceError::Input)?;
+            let given_lists = match &input {
+                Some(pb::add_capture_request::Input::Segments(triplet)) => Some(triplet.clone()),
+                _ => None,
+            };
             let match_request = capture_match_request(calibration, Some(options), input);
             let (everything, ()) = self
                 .run_match(move || Ok(match_request), |_| (), timeout)
@@ -325,7 +336,26 @@ impl Service {
             let job = self.pool.run(move |abandoned| {
                 let stop = || abandoned.is_set();
                 let checkpoint = Checkpoint::new(&stop);
-                let added = place_capture(&captures, &everything.segments_3d, &prior, checkpoint)?;
+                let mut everything = everything;
+                let seen = given_lists.unwrap_or_else(|| pb::SegmentTriplet {
+                    lists: std::mem::take(&mut everything.extracted),
+                });
+                let lists = segment_lists(&seen, usize::MAX).ok();
+                let views = lists.as_ref().map(|lists| Views {
+                    cameras: rig.cameras(),
+                    segments: std::array::from_fn(|k| &lists[k].segments[..]),
+                    list_noise_px,
+                });
+                let added = place_capture(
+                    &captures,
+                    &everything.segments_3d,
+                    views.as_ref(),
+                    &prior,
+                    checkpoint,
+                )?;
+                if asked_extracted {
+                    everything.extracted = seen.lists;
+                }
                 let stored =
                     stored_capture(&everything, &added, &pose, &prior, clock.now_unix_ms());
                 let response = if asked_uncertain {
@@ -590,6 +620,7 @@ fn stored_capture(
 fn place_capture(
     captures: &[Vec<u8>],
     segments: &[pb::Segment3],
+    views: Option<&Views>,
     prior: &PosePrior,
     checkpoint: Checkpoint,
 ) -> Result<Added, ServiceError> {
@@ -629,6 +660,7 @@ fn place_capture(
         &neighbours,
         prior,
         &capture,
+        views,
         &params,
         checkpoint,
     )?)
@@ -666,11 +698,11 @@ mod tests {
         let captures: Vec<Vec<u8>> = (0..3).map(|k| stored(k, &[])).collect();
         let prior = PosePrior::with_default_covariance(Isometry3::identity());
         let gone = || true;
-        match place_capture(&captures, &[], &prior, Checkpoint::new(&gone)) {
+        match place_capture(&captures, &[], None, &prior, Checkpoint::new(&gone)) {
             Err(ServiceError::Stopped { stage }) => assert_eq!(stage, "pose graph"),
             other => panic!("expected the job to stop, got {other:?}"),
         }
-        assert!(place_capture(&captures, &[], &prior, Checkpoint::NEVER).is_ok());
+        assert!(place_capture(&captures, &[], None, &prior, Checkpoint::NEVER).is_ok());
     }
 
     #[test]
@@ -698,9 +730,9 @@ mod tests {
         };
         let prior = PosePrior::with_default_covariance(Isometry3::identity());
         let small = tied(300);
-        assert!(place_capture(&small, &[], &prior, Checkpoint::NEVER).is_ok());
+        assert!(place_capture(&small, &[], None, &prior, Checkpoint::NEVER).is_ok());
         let wide = tied(10_000);
-        match place_capture(&wide, &[], &prior, Checkpoint::NEVER) {
+        match place_capture(&wide, &[], None, &prior, Checkpoint::NEVER) {
             Err(ServiceError::Input(e)) => {
                 assert_eq!(e.field, "session_id");
                 assert!(e.message.contains("too wide"), "{}", e.message);

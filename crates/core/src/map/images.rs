@@ -29,6 +29,7 @@
 
 use nalgebra::{Isometry3, Matrix2x3, Matrix6, SMatrix, Vector2, Vector3, Vector6};
 
+use super::poses::{difference, perturbed};
 use super::register::{Measured, PosePrior};
 use crate::geometry::camera::Camera;
 use crate::segment::{LineNoise, Segment2};
@@ -329,7 +330,6 @@ fn project_all(
     cameras: &[Camera; 3],
     pose: &Isometry3<f64>,
     params: &ImageParams,
-    with_variance: bool,
 ) -> Vec<[Option<Projected>; 3]> {
     let inverse = pose.inverse();
     let to_rig = inverse.rotation.to_rotation_matrix().into_inner();
@@ -353,18 +353,14 @@ fn project_all(
                     return None;
                 }
                 let normal = Vector2::new(-d.y, d.x) / length;
-                let (start_var, end_var) = if with_variance {
-                    let floor = params.reference_floor_m.powi(2);
-                    let across = |j: &Matrix2x3<f64>, block: usize| {
-                        let c = m.covariance.fixed_view::<3, 3>(3 * block, 3 * block);
-                        let c = to_rig * c * to_rig.transpose();
-                        let g = j.transpose() * normal;
-                        g.dot(&(c * g)) + floor * g.norm_squared()
-                    };
-                    (across(&ja, 0), across(&jb, 1))
-                } else {
-                    (0.0, 0.0)
+                let floor = params.reference_floor_m.powi(2);
+                let across = |j: &Matrix2x3<f64>, block: usize| {
+                    let c = m.covariance.fixed_view::<3, 3>(3 * block, 3 * block);
+                    let c = to_rig * c * to_rig.transpose();
+                    let g = j.transpose() * normal;
+                    g.dot(&(c * g)) + floor * g.norm_squared()
                 };
+                let (start_var, end_var) = (across(&ja, 0), across(&jb, 1));
                 Some(Projected {
                     start: pa,
                     end: pb,
@@ -450,20 +446,6 @@ fn associate(
         }
     }
     pairings
-}
-
-fn perturbed(pose: &Isometry3<f64>, xi: &Vector6<f64>) -> Isometry3<f64> {
-    let rotation = nalgebra::UnitQuaternion::from_scaled_axis(xi.fixed_rows::<3>(0).into_owned());
-    Isometry3::from_parts(
-        (pose.translation.vector + xi.fixed_rows::<3>(3)).into(),
-        rotation * pose.rotation,
-    )
-}
-
-fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> Vector6<f64> {
-    let r = (a.rotation * b.rotation.inverse()).scaled_axis();
-    let t = a.translation.vector - b.translation.vector;
-    Vector6::new(r.x, r.y, r.z, t.x, t.y, t.z)
 }
 
 /// The residuals of `pairings` at `pose`, normalised; a pairing whose projection vanished
@@ -589,7 +571,7 @@ fn cost(
     prior_information: &Matrix6<f64>,
     params: &ImageParams,
 ) -> Scored {
-    let projected = project_all(references, cameras, pose, params, true);
+    let projected = project_all(references, cameras, pose, params);
     let pairings = associate(&projected, lines, None);
     let visible: usize = projected.iter().flatten().filter(|p| p.is_some()).count();
     let mut total = PAIR_GATE * (visible - pairings.len()) as f64;
@@ -626,6 +608,17 @@ pub fn refine_in_images(
     let prior_information = prior.covariance.try_inverse()?;
     let lines = image_lines(views, params);
     let cameras = views.cameras;
+    let score = |pose: &Isometry3<f64>| {
+        cost(
+            references,
+            cameras,
+            &lines,
+            pose,
+            prior,
+            &prior_information,
+            params,
+        )
+    };
     let refine = |start: &Isometry3<f64>| -> Option<(ImageFit, f64)> {
         let mut pose = *start;
         let mut information = Matrix6::zeros();
@@ -635,7 +628,7 @@ pub fn refine_in_images(
             .map(|&g| Some(g))
             .chain(std::iter::repeat_n(None, CHI2_ROUNDS));
         for gate in rounds {
-            let projected = project_all(references, cameras, &pose, params, true);
+            let projected = project_all(references, cameras, &pose, params);
             let pairings = associate(&projected, &lines, gate);
             if pairings.len() < params.min_references as usize {
                 break;
@@ -659,15 +652,7 @@ pub fn refine_in_images(
                 params.min_variance_factor,
             );
         }
-        let scored = cost(
-            references,
-            cameras,
-            &lines,
-            &pose,
-            prior,
-            &prior_information,
-            params,
-        );
+        let scored = score(&pose);
         let mut paired: Vec<usize> = scored.pairings.iter().map(|p| p.reference).collect();
         paired.sort_unstable();
         paired.dedup();
@@ -701,7 +686,8 @@ pub fn refine_in_images(
     }
     // Too few of the projections in view found their image segment: a local search about
     // each start, since the basin of the right pose is a few pixels wide and a 3D
-    // registration or odometry may leave the rig a few centimetres outside it.
+    // registration or odometry may leave the rig a few centimetres outside it. (About the
+    // best refined pose alone it cost one of the driving loop's seeds at 3°: 2.9% → 9.3%.)
     let mut cells: Vec<(f64, Isometry3<f64>)> = Vec::new();
     let (step_m, step_rad) = (params.grid_step_m, params.grid_step_rad);
     for start in starts {
@@ -717,16 +703,7 @@ pub fn refine_in_images(
                         0.0,
                     );
                     let pose = perturbed(start, &xi);
-                    let scored = cost(
-                        references,
-                        cameras,
-                        &lines,
-                        &pose,
-                        prior,
-                        &prior_information,
-                        params,
-                    );
-                    cells.push((scored.total, pose));
+                    cells.push((score(&pose).total, pose));
                 }
             }
         }

@@ -130,7 +130,7 @@ fn positive_part(m: &Matrix6<f64>) -> Matrix6<f64> {
 
 /// The difference `a ⊖ b` in the perturbation's terms: the rotation vector taking `b`'s
 /// rotation to `a`'s, then the translation from `b`'s origin to `a`'s.
-fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> Vector6<f64> {
+pub(crate) fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> Vector6<f64> {
     let rotation = (a.rotation * b.rotation.inverse()).scaled_axis();
     let translation = a.translation.vector - b.translation.vector;
     Vector6::new(
@@ -143,7 +143,9 @@ fn difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> Vector6<f64> {
     )
 }
 
-fn perturbed(pose: &Isometry3<f64>, xi: &Vector6<f64>) -> Isometry3<f64> {
+/// `pose` moved by the perturbation `xi` (rotation vector about the rig's origin, world
+/// axes, then translation), as [`PosePrior::covariance`] describes it.
+pub(crate) fn perturbed(pose: &Isometry3<f64>, xi: &Vector6<f64>) -> Isometry3<f64> {
     let rotation = UnitQuaternion::from_scaled_axis(xi.fixed_rows::<3>(0).into_owned());
     Isometry3::from_parts(
         (pose.translation.vector + xi.fixed_rows::<3>(3)).into(),

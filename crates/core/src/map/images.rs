@@ -169,12 +169,17 @@ struct Pairing {
 struct ViewIndex {
     lines: Vec<ImageLine>,
     cells: Vec<Vec<u32>>,
+    /// Side of a cell, pixels.
+    cell: f64,
     columns: usize,
     rows: usize,
 }
 
-/// Side of a [`ViewIndex`] cell, pixels: wider than the widest pixel gate.
+/// Side of a [`ViewIndex`] cell, pixels: wider than the widest pixel gate …
 const CELL_PX: f64 = 16.0;
+/// … but cells per side at most this: a calibration may declare images of 65,536 pixels a
+/// side, and a grid of 16-pixel cells over three of those would take gigabytes.
+const MAX_CELLS_PER_SIDE: f64 = 256.0;
 
 impl std::ops::Index<usize> for ViewIndex {
     type Output = ImageLine;
@@ -185,12 +190,13 @@ impl std::ops::Index<usize> for ViewIndex {
 
 impl ViewIndex {
     fn new(lines: Vec<ImageLine>, width: u32, height: u32) -> ViewIndex {
-        let columns = (width as f64 / CELL_PX).ceil() as usize + 1;
-        let rows = (height as f64 / CELL_PX).ceil() as usize + 1;
+        let cell = CELL_PX.max(width.max(height) as f64 / MAX_CELLS_PER_SIDE);
+        let columns = (width as f64 / cell).ceil() as usize + 1;
+        let rows = (height as f64 / cell).ceil() as usize + 1;
         let mut cells = vec![Vec::new(); columns * rows];
         for (i, line) in lines.iter().enumerate() {
             let mut last = usize::MAX;
-            Self::walk(line.start, line.end, columns, rows, |cell| {
+            Self::walk(line.start, line.end, cell, columns, rows, |cell| {
                 if cell != last {
                     cells[cell].push(i as u32);
                     last = cell;
@@ -203,6 +209,7 @@ impl ViewIndex {
         ViewIndex {
             lines,
             cells,
+            cell,
             columns,
             rows,
         }
@@ -213,14 +220,15 @@ impl ViewIndex {
     fn walk(
         a: Vector2<f64>,
         b: Vector2<f64>,
+        cell: f64,
         columns: usize,
         rows: usize,
         mut visit: impl FnMut(usize),
     ) {
-        let steps = ((b - a).norm() / CELL_PX).ceil().clamp(1.0, 4096.0) as usize;
+        let steps = ((b - a).norm() / cell).ceil().clamp(1.0, 4096.0) as usize;
         for k in 0..=steps {
             let p = a + (b - a) * (k as f64 / steps as f64);
-            let (c, r) = ((p.x / CELL_PX).floor(), (p.y / CELL_PX).floor());
+            let (c, r) = ((p.x / cell).floor(), (p.y / cell).floor());
             if c >= 0.0 && r >= 0.0 && (c as usize) < columns && (r as usize) < rows {
                 visit(r as usize * columns + c as usize);
             }
@@ -233,7 +241,7 @@ impl ViewIndex {
         let (columns, rows) = (self.columns, self.rows);
         seen.stamp += 1;
         let stamp = seen.stamp;
-        Self::walk(p.start, p.end, columns, rows, |cell| {
+        Self::walk(p.start, p.end, self.cell, columns, rows, |cell| {
             let (c, r) = ((cell % columns) as isize, (cell / columns) as isize);
             for dr in -1..=1 {
                 for dc in -1..=1 {
@@ -306,16 +314,28 @@ fn image_lines(views: &Views, params: &ImageParams) -> [ViewIndex; 3] {
     })
 }
 
-/// A rig-frame point in a camera's undistorted pixels, with the derivative of the pixel by
-/// the point; `None` behind the camera.
-fn project(camera: &Camera, x: &Vector3<f64>) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
+/// A rig-frame point in a camera's undistorted pixels; `None` behind the camera.
+fn pixel_of(camera: &Camera, x: &Vector3<f64>) -> Option<(Vector2<f64>, Vector3<f64>)> {
     let c = camera.rotation() * x + camera.translation();
     if c.z <= 0.05 {
         return None;
     }
+    let h = camera.intrinsics() * c;
+    Some((Vector2::new(h.x / h.z, h.y / h.z), h))
+}
+
+/// The unit normal (direction turned +90°) and offset of the line through `a` and `b`:
+/// n·x + c = 0 on it.
+fn line_through(a: &Vector2<f64>, b: &Vector2<f64>) -> (Vector2<f64>, f64) {
+    let d = b - a;
+    let normal = Vector2::new(-d.y, d.x) / d.norm();
+    (normal, -normal.dot(a))
+}
+
+/// [`pixel_of`], with the derivative of the pixel by the point.
+fn project(camera: &Camera, x: &Vector3<f64>) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
+    let (pixel, h) = pixel_of(camera, x)?;
     let k = camera.intrinsics();
-    let h = k * c;
-    let pixel = Vector2::new(h.x / h.z, h.y / h.z);
     // d(h.xy / h.z)/dc = (K_xy − pixel · K_z) / h.z, then dc/dx = R.
     let kr = k * camera.rotation();
     let row = |i: usize| (kr.row(i) - kr.row(2) * pixel[i]) / h.z;
@@ -352,7 +372,7 @@ fn project_all(
                 if !inside(&pa) && !inside(&pb) && !inside(&((pa + pb) * 0.5)) {
                     return None;
                 }
-                let normal = Vector2::new(-d.y, d.x) / length;
+                let (normal, offset) = line_through(&pa, &pb);
                 let floor = params.reference_floor_m.powi(2);
                 let across = |j: &Matrix2x3<f64>, block: usize| {
                     let c = m.covariance.fixed_view::<3, 3>(3 * block, 3 * block);
@@ -365,7 +385,7 @@ fn project_all(
                     start: pa,
                     end: pb,
                     normal,
-                    offset: -normal.dot(&pa),
+                    offset,
                     length,
                     start_var,
                     end_var,
@@ -468,13 +488,11 @@ fn normalised(
             let a = (inverse * m.start).coords;
             let b = (inverse * m.end).coords;
             let line = &lines[pair.view][pair.line];
-            let (Some((pa, _)), Some((pb, _))) = (project(camera, &a), project(camera, &b)) else {
+            let (Some((pa, _)), Some((pb, _))) = (pixel_of(camera, &a), pixel_of(camera, &b))
+            else {
                 return Vector2::zeros();
             };
-            let d = pb - pa;
-            let length = d.norm();
-            let normal = Vector2::new(-d.y, d.x) / length;
-            let offset = -normal.dot(&pa);
+            let (normal, offset) = line_through(&pa, &pb);
             let ra = normal.dot(&line.start) + offset;
             let rb = normal.dot(&line.end) + offset;
             Vector2::new(
@@ -830,6 +848,23 @@ mod tests {
         let e = difference(&fit.pose, &truth());
         let chi2 = e.dot(&(fit.covariance.try_inverse().expect("invertible") * e));
         assert!(chi2 < 22.5, "χ² {chi2}");
+    }
+
+    #[test]
+    fn a_huge_declared_image_gets_a_bounded_grid() {
+        let line = ImageLine {
+            start: Vector2::new(10.0, 10.0),
+            end: Vector2::new(60_000.0, 50_000.0),
+            direction: Vector2::new(1.0, 0.0),
+            length: 1.0,
+            offset_var: 0.01,
+            angle_var: 0.0001,
+        };
+        let index = ViewIndex::new(vec![line], 65_536, 65_536);
+        assert!(index.columns <= 258 && index.rows <= 258);
+        assert!(index.cells.iter().filter(|c| !c.is_empty()).count() > 100);
+        let small = ViewIndex::new(vec![line], 512, 512);
+        assert_eq!((small.columns, small.cell), (33, CELL_PX));
     }
 
     #[test]

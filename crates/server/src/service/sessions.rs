@@ -320,7 +320,7 @@ impl Service {
             let asked_extracted = options.return_extracted == Some(true);
             options.return_extracted = Some(true);
             let list_noise_px = match_params(Some(&options)).line_noise_px;
-            let rig = rig_from_calibration(Some(&calibration)).map_err(ServiceError::Input)?;
+            let rig_calibration = calibration.clone();
             let given_lists = match &input {
                 Some(pb::add_capture_request::Input::Segments(triplet)) => Some(triplet.clone()),
                 _ => None,
@@ -336,6 +336,8 @@ impl Service {
             let job = self.pool.run(move |abandoned| {
                 let stop = || abandoned.is_set();
                 let checkpoint = Checkpoint::new(&stop);
+                let rig =
+                    rig_from_calibration(Some(&rig_calibration)).map_err(ServiceError::Input)?;
                 let mut everything = everything;
                 let seen = given_lists.unwrap_or_else(|| pb::SegmentTriplet {
                     lists: std::mem::take(&mut everything.extracted),

@@ -31,6 +31,7 @@ use nalgebra::{Isometry3, Matrix2x3, Matrix6, SMatrix, Vector2, Vector3, Vector6
 
 use super::poses::{difference, perturbed};
 use super::register::{Measured, PosePrior};
+use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
 use crate::geometry::camera::Camera;
 use crate::segment::{LineNoise, Segment2};
 
@@ -618,12 +619,34 @@ pub fn refine_in_images(
     prior: &PosePrior,
     params: &ImageParams,
 ) -> Option<ImageFit> {
+    never_stopped(refine_in_images_until(
+        references,
+        views,
+        starts,
+        prior,
+        params,
+        Checkpoint::NEVER,
+    ))
+}
+
+/// [`refine_in_images`], asking `checkpoint` before each refinement and each cell of the
+/// local search: a capture of many segments makes each a few milliseconds.
+pub fn refine_in_images_until(
+    references: &[Measured],
+    views: &Views,
+    starts: &[Isometry3<f64>],
+    prior: &PosePrior,
+    params: &ImageParams,
+    checkpoint: Checkpoint,
+) -> Result<Option<ImageFit>, Stopped> {
     // Every reference, uncertain ones too: what makes a segment uncertain is its direction's or
     // depth's spread, which its covariance carries into the image; a wrong correspondence
     // among them rarely projects onto an image segment in all its views. On the driving loop
     // (eight seeds, two noise draws) certain references alone gave 7.4% / 9.5% map error at
     // 1° and 15% completeness at 3°, all of them 7.6% / 5.6% and 22%.
-    let prior_information = prior.covariance.try_inverse()?;
+    let Some(prior_information) = prior.covariance.try_inverse() else {
+        return Ok(None);
+    };
     let lines = image_lines(views, params);
     let cameras = views.cameras;
     let score = |pose: &Isometry3<f64>| {
@@ -695,12 +718,16 @@ pub fn refine_in_images(
         (Some(a), Some(b)) => Some(if b.0.cost < a.0.cost { b } else { a }),
         (a, b) => a.or(b),
     };
-    let mut best = starts.iter().map(refine).fold(None, better);
+    let mut best = None;
+    for start in starts {
+        checkpoint.before("registration")?;
+        best = better(best, refine(start));
+    }
     if best
         .as_ref()
         .is_some_and(|(_, paired)| *paired >= params.settled_fraction)
     {
-        return best.map(|(fit, _)| fit);
+        return Ok(best.map(|(fit, _)| fit));
     }
     // Too few of the projections in view found their image segment: a local search about
     // each start, since the basin of the right pose is a few pixels wide and a 3D
@@ -721,6 +748,7 @@ pub fn refine_in_images(
                         0.0,
                     );
                     let pose = perturbed(start, &xi);
+                    checkpoint.before("registration")?;
                     cells.push((score(&pose).total, pose));
                 }
             }
@@ -728,9 +756,10 @@ pub fn refine_in_images(
     }
     cells.sort_by(|a, b| a.0.total_cmp(&b.0));
     for (_, start) in cells.iter().take(params.refined_starts) {
+        checkpoint.before("registration")?;
         best = better(best, refine(start));
     }
-    best.map(|(fit, _)| fit)
+    Ok(best.map(|(fit, _)| fit))
 }
 
 #[cfg(test)]
@@ -848,6 +877,30 @@ mod tests {
         let e = difference(&fit.pose, &truth());
         let chi2 = e.dot(&(fit.covariance.try_inverse().expect("invertible") * e));
         assert!(chi2 < 22.5, "χ² {chi2}");
+    }
+
+    #[test]
+    fn a_caller_who_stopped_waiting_stops_the_fit() {
+        let rig = preset_rig();
+        let ends = scene(&rig);
+        let references = measured(&ends, &truth());
+        let lists = images(&rig, &ends);
+        let views = Views {
+            cameras: rig.cameras(),
+            segments: std::array::from_fn(|k| &lists[k][..]),
+            list_noise_px: 0.3,
+        };
+        let prior = PosePrior::odometry(truth(), 1.0, 0.3, 0.05, 0.01);
+        let gone = || true;
+        let got = refine_in_images_until(
+            &references,
+            &views,
+            &[truth()],
+            &prior,
+            &ImageParams::default(),
+            Checkpoint::new(&gone),
+        );
+        assert!(got.is_err(), "{got:?}");
     }
 
     #[test]

@@ -20,7 +20,7 @@
 
 use nalgebra::{Matrix6, Point3};
 
-use super::images::{refine_in_images, ImageParams, Views};
+use super::images::{refine_in_images_until, ImageParams, Views};
 use super::poses::{register_pair, relative_covariance, RelativePose};
 use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
 use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
@@ -268,13 +268,14 @@ pub fn place_until(
             };
             let mut starts: Vec<_> = found.iter().map(|f| f.0).collect();
             starts.push(predicted);
-            if let Some(fit) = refine_in_images(
+            if let Some(fit) = refine_in_images_until(
                 placed[to].segments,
                 views,
                 &starts,
                 &relative,
                 &params.images,
-            ) {
+                checkpoint,
+            )? {
                 found = Some((fit.pose, fit.information, fit.references));
             }
         }

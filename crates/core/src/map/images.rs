@@ -27,7 +27,7 @@
 //! measured it, which a camera a few centimetres from it barely sees across — and unscaled,
 //! the edges claimed ten times the spread they had (docs/SESSIONS.md).
 
-use nalgebra::{Isometry3, Matrix2x3, Matrix6, SMatrix, Vector2, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix2x3, Matrix6, Point3, SMatrix, Vector2, Vector3, Vector6};
 
 use super::poses::{difference, perturbed};
 use super::register::{Measured, PosePrior};
@@ -126,8 +126,6 @@ const HUBER: f64 = 2.0;
 /// Gauss–Newton steps per round of association, and rounds after the pixel gates.
 const STEPS: usize = 3;
 const CHI2_ROUNDS: usize = 3;
-/// Step of the numerical derivatives: radians and metres.
-const DELTA: f64 = 1e-6;
 /// Widest angle between a projection and its image segment, radians (beyond the noise).
 const ANGLE_GATE_RAD: f64 = 0.06;
 
@@ -238,14 +236,19 @@ impl ViewIndex {
 
     /// Every segment passing through a cell under the projection or next to one, each once
     /// (`seen` holds, per segment and per cell, the stamp of the last query that read it).
-    fn near(&self, p: &Projected, seen: &mut Seen, mut visit: impl FnMut(usize)) {
+    fn near(&self, p: &Projected, seen: &mut Seen, visit: impl FnMut(usize)) {
+        self.within(p, 1, seen, visit);
+    }
+
+    /// … or within `radius` cells of one.
+    fn within(&self, p: &Projected, radius: isize, seen: &mut Seen, mut visit: impl FnMut(usize)) {
         let (columns, rows) = (self.columns, self.rows);
         seen.stamp += 1;
         let stamp = seen.stamp;
         Self::walk(p.start, p.end, self.cell, columns, rows, |cell| {
             let (c, r) = ((cell % columns) as isize, (cell / columns) as isize);
-            for dr in -1..=1 {
-                for dc in -1..=1 {
+            for dr in -radius..=radius {
+                for dc in -radius..=radius {
                     let (cc, rr) = (c + dc, r + dr);
                     if cc < 0 || rr < 0 || cc as usize >= columns || rr as usize >= rows {
                         continue;
@@ -425,20 +428,33 @@ fn residuals(p: &Projected, line: &ImageLine) -> Option<(Vector2<f64>, Vector2<f
     ))
 }
 
+/// Where [`associate`] looks for a projection's image segment: the view's index about it,
+/// or lists gathered beforehand per reference and view ([`gathered`]).
+enum Candidates<'c> {
+    Near([Seen; 3]),
+    Listed(&'c [[Vec<u32>; 3]]),
+}
+
+impl Candidates<'_> {
+    fn near(lines: &[ViewIndex; 3]) -> Self {
+        Candidates::Near(std::array::from_fn(|k| Seen::of(&lines[k])))
+    }
+}
+
 /// The best image segment for each projection under `gate` (pixels, or χ² when `None`).
 fn associate(
     projected: &[[Option<Projected>; 3]],
     lines: &[ViewIndex; 3],
     pixel_gate: Option<f64>,
+    candidates: &mut Candidates,
 ) -> Vec<Pairing> {
     let mut pairings = Vec::new();
-    let mut seen: [Seen; 3] = std::array::from_fn(|k| Seen::of(&lines[k]));
     for (reference, views) in projected.iter().enumerate() {
         for (view, p) in views.iter().enumerate() {
             let Some(p) = p else { continue };
             let along = (p.end - p.start) / p.length;
             let mut best: Option<(f64, usize)> = None;
-            lines[view].near(p, &mut seen[view], |i| {
+            let mut consider = |i: usize| {
                 let line = &lines[view][i];
                 // Same orientation (contrast), within the angle gate.
                 let cos = along.dot(&line.direction);
@@ -456,7 +472,13 @@ fn associate(
                 if within && best.is_none_or(|(b, _)| chi2 < b) {
                     best = Some((chi2, i));
                 }
-            });
+            };
+            match candidates {
+                Candidates::Near(seen) => lines[view].near(p, &mut seen[view], &mut consider),
+                Candidates::Listed(lists) => lists[reference][view]
+                    .iter()
+                    .for_each(|&i| consider(i as usize)),
+            }
             if let Some((_, line)) = best {
                 pairings.push(Pairing {
                     reference,
@@ -469,17 +491,75 @@ fn associate(
     pairings
 }
 
-/// The residuals of `pairings` at `pose`, normalised; a pairing whose projection vanished
-/// gives zeros.
-fn normalised(
+/// For a local search over `cells` (each the projections at one pose): per reference and
+/// view, every image segment [`associate`] may pair it with at any of them — those about
+/// its projection in the first cell that shows it, within as many more index cells as any
+/// cell moves its ends, and turned from it by no more than the angle gate plus the most any
+/// cell turns it. Each cell then reads a few segments, not the index: walking the index
+/// was nine tenths of scoring a cell.
+fn gathered(cells: &[Vec<[Option<Projected>; 3]>], lines: &[ViewIndex; 3]) -> Vec<[Vec<u32>; 3]> {
+    let references = cells.first().map_or(0, Vec::len);
+    let mut seen: [Seen; 3] = std::array::from_fn(|k| Seen::of(&lines[k]));
+    let direction = |p: &Projected| (p.end - p.start) / p.length;
+    (0..references)
+        .map(|reference| {
+            std::array::from_fn(|view| {
+                let mut shown = cells.iter().filter_map(|c| c[reference][view].as_ref());
+                let Some(anchor) = shown.next() else {
+                    return Vec::new();
+                };
+                let along = direction(anchor);
+                let (mut moved, mut turned) = (0.0f64, 0.0f64);
+                for p in shown {
+                    moved = moved
+                        .max((p.start - anchor.start).norm())
+                        .max((p.end - anchor.end).norm());
+                    turned = turned.max(direction(p).dot(&along).clamp(-1.0, 1.0).acos());
+                }
+                // A point of a cell's projection lies within `moved` of the anchor's point
+                // at the same place along it, which lies within half a cell of a point the
+                // walk samples: two cells beyond `moved` cover the cells next to it.
+                let index = &lines[view];
+                let radius = 2 + (moved / index.cell).ceil().min(64.0) as isize;
+                let gate = (ANGLE_GATE_RAD + turned).min(std::f64::consts::PI).cos();
+                let mut listed = Vec::new();
+                index.within(anchor, radius, &mut seen[view], |i| {
+                    if along.dot(&index[i].direction) >= gate {
+                        listed.push(i as u32);
+                    }
+                });
+                listed
+            })
+        })
+        .collect()
+}
+
+/// The residuals of `pairings` at `pose`, normalised, each with its derivative by the pose's
+/// perturbation ([`perturbed`]); a pairing whose projection vanished gives zeros.
+///
+/// The derivative is analytic: an image point's distance from the line through the
+/// projected ends `a`, `b` moves by −n·((1 − t)·da + t·db) when the ends move by `da`, `db`
+/// (`t` the point's place along a → b, `n` the line's normal), and a reference point `X`
+/// moves in the rig by Rᵀ[X − t]ₓ·ω − Rᵀ·δ.
+fn linearised(
     references: &[Measured],
     cameras: &[Camera; 3],
     lines: &[ViewIndex; 3],
     pairings: &[Pairing],
     pose: &Isometry3<f64>,
     variances: &[Vector2<f64>],
-) -> Vec<Vector2<f64>> {
+) -> Vec<(Vector2<f64>, SMatrix<f64, 2, 6>)> {
     let inverse = pose.inverse();
+    let to_rig = inverse.rotation.to_rotation_matrix().into_inner();
+    // d(rig point)/dξ for a reference point.
+    let moved_by = |world: &Point3<f64>| {
+        let v = world.coords - pose.translation.vector;
+        let mut d = SMatrix::<f64, 3, 6>::zeros();
+        d.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(to_rig * v.cross_matrix()));
+        d.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-to_rig));
+        d
+    };
     pairings
         .iter()
         .zip(variances)
@@ -489,17 +569,24 @@ fn normalised(
             let a = (inverse * m.start).coords;
             let b = (inverse * m.end).coords;
             let line = &lines[pair.view][pair.line];
-            let (Some((pa, _)), Some((pb, _))) = (pixel_of(camera, &a), pixel_of(camera, &b))
+            let (Some((pa, ja)), Some((pb, jb))) = (project(camera, &a), project(camera, &b))
             else {
-                return Vector2::zeros();
+                return (Vector2::zeros(), SMatrix::zeros());
             };
             let (normal, offset) = line_through(&pa, &pb);
-            let ra = normal.dot(&line.start) + offset;
-            let rb = normal.dot(&line.end) + offset;
-            Vector2::new(
-                0.5 * (ra + rb) / var.x.sqrt(),
-                (rb - ra) / line.length / var.y.sqrt(),
-            )
+            let (da, db) = (ja * moved_by(&m.start), jb * moved_by(&m.end));
+            let d = pb - pa;
+            let at = |x: &Vector2<f64>| {
+                let t = d.dot(&(x - pa)) / d.norm_squared();
+                let r = normal.dot(x) + offset;
+                (r, -(normal.transpose() * ((1.0 - t) * da + t * db)))
+            };
+            let ((ra, ga), (rb, gb)) = (at(&line.start), at(&line.end));
+            let (sx, sy) = (var.x.sqrt(), var.y.sqrt() * line.length);
+            let mut jacobian = SMatrix::<f64, 2, 6>::zeros();
+            jacobian.set_row(0, &((ga + gb) * (0.5 / sx)));
+            jacobian.set_row(1, &((gb - ga) / sy));
+            (Vector2::new(0.5 * (ra + rb) / sx, (rb - ra) / sy), jacobian)
         })
         .collect()
 }
@@ -526,37 +613,21 @@ fn solve(
         views_of[p.reference] += 1;
     }
     for _ in 0..STEPS {
-        let r0 = normalised(references, cameras, lines, pairings, &pose, variances);
-        let columns: Vec<Vec<Vector2<f64>>> = (0..6)
-            .map(|j| {
-                let mut xi = Vector6::zeros();
-                xi[j] = DELTA;
-                let moved = perturbed(&pose, &xi);
-                normalised(references, cameras, lines, pairings, &moved, variances)
-                    .iter()
-                    .zip(&r0)
-                    .map(|(r1, r)| (r1 - r) / DELTA)
-                    .collect()
-            })
-            .collect();
+        let linear = linearised(references, cameras, lines, pairings, &pose, variances);
         let mut h = Matrix6::zeros();
         let mut g = Vector6::zeros();
-        for (i, r) in r0.iter().enumerate() {
-            let share = 1.0 / views_of[pairings[i].reference].max(1) as f64;
+        for ((r, jac), pair) in linear.iter().zip(pairings) {
+            let share = 1.0 / views_of[pair.reference].max(1) as f64;
             let norm = r.norm();
             let huber = if norm <= HUBER { 1.0 } else { HUBER / norm };
             let w = share * huber;
-            let mut jac = SMatrix::<f64, 2, 6>::zeros();
-            for (j, column) in columns.iter().enumerate() {
-                jac.set_column(j, &column[i]);
-            }
             h += w * jac.transpose() * jac;
             g += w * jac.transpose() * r;
         }
         // The a-posteriori variance factor: how far the residuals are from what their
         // variances say, over the pairings' degrees of freedom less the pose's.
-        let dof = (2 * r0.len()).saturating_sub(6).max(1) as f64;
-        let spread: f64 = r0.iter().map(|r| r.norm_squared()).sum::<f64>() / dof;
+        let dof = (2 * linear.len()).saturating_sub(6).max(1) as f64;
+        let spread: f64 = linear.iter().map(|(r, _)| r.norm_squared()).sum::<f64>() / dof;
         information = h / spread.max(min_variance_factor);
         let e = difference(&pose, &prior.rig_to_world);
         let lhs = h + prior_information;
@@ -581,17 +652,16 @@ struct Scored {
     visible: usize,
 }
 
+/// [`Scored`] of `pose`, whose projections are `projected`.
 fn cost(
-    references: &[Measured],
-    cameras: &[Camera; 3],
+    projected: &[[Option<Projected>; 3]],
     lines: &[ViewIndex; 3],
+    candidates: &mut Candidates,
     pose: &Isometry3<f64>,
     prior: &PosePrior,
     prior_information: &Matrix6<f64>,
-    params: &ImageParams,
 ) -> Scored {
-    let projected = project_all(references, cameras, pose, params);
-    let pairings = associate(&projected, lines, None);
+    let pairings = associate(projected, lines, None, candidates);
     let visible: usize = projected.iter().flatten().filter(|p| p.is_some()).count();
     let mut total = PAIR_GATE * (visible - pairings.len()) as f64;
     for p in &pairings {
@@ -610,8 +680,9 @@ fn cost(
 
 /// Refines the capture's pose (its rig in the frame of `references`) from each of `starts`
 /// so that the references project onto its image segments, searching about the starts when
-/// that leaves many projections unpaired; the refined pose of lowest truncated cost wins. `None` when fewer than
-/// [`ImageParams::min_references`] references are paired, or the prior has no inverse.
+/// that leaves many projections unpaired; the refined pose of lowest truncated cost wins.
+/// `None` when fewer than [`ImageParams::min_references`] references are in view at every
+/// start or paired at the end, or the prior has no inverse.
 pub fn refine_in_images(
     references: &[Measured],
     views: &Views,
@@ -647,17 +718,32 @@ pub fn refine_in_images_until(
     let Some(prior_information) = prior.covariance.try_inverse() else {
         return Ok(None);
     };
-    let lines = image_lines(views, params);
     let cameras = views.cameras;
+    // A capture that looked elsewhere: no start puts enough of the references in view for a
+    // fit, and a search a few centimetres and half a degree about them would bring in a few
+    // at the images' borders at most. (In a panorama, most of a capture's pair neighbours are
+    // such: searching each cost three quarters of an AddCapture.)
+    let in_view = |start: &Isometry3<f64>| {
+        project_all(references, cameras, start, params)
+            .iter()
+            .filter(|views| views.iter().any(Option::is_some))
+            .count()
+    };
+    if starts
+        .iter()
+        .all(|start| in_view(start) < params.min_references as usize)
+    {
+        return Ok(None);
+    }
+    let lines = image_lines(views, params);
     let score = |pose: &Isometry3<f64>| {
         cost(
-            references,
-            cameras,
+            &project_all(references, cameras, pose, params),
             &lines,
+            &mut Candidates::near(&lines),
             pose,
             prior,
             &prior_information,
-            params,
         )
     };
     let refine = |start: &Isometry3<f64>| -> Option<(ImageFit, f64)> {
@@ -670,7 +756,7 @@ pub fn refine_in_images_until(
             .chain(std::iter::repeat_n(None, CHI2_ROUNDS));
         for gate in rounds {
             let projected = project_all(references, cameras, &pose, params);
-            let pairings = associate(&projected, &lines, gate);
+            let pairings = associate(&projected, &lines, gate, &mut Candidates::near(&lines));
             if pairings.len() < params.min_references as usize {
                 break;
             }
@@ -736,6 +822,7 @@ pub fn refine_in_images_until(
     let mut cells: Vec<(f64, Isometry3<f64>)> = Vec::new();
     let (step_m, step_rad) = (params.grid_step_m, params.grid_step_rad);
     for start in starts {
+        let mut poses = Vec::new();
         for i in -GRID_STEPS_XY..=GRID_STEPS_XY {
             for j in -GRID_STEPS_XY..=GRID_STEPS_XY {
                 for k in -GRID_STEPS_YAW..=GRID_STEPS_YAW {
@@ -747,11 +834,28 @@ pub fn refine_in_images_until(
                         j as f64 * step_m,
                         0.0,
                     );
-                    let pose = perturbed(start, &xi);
-                    checkpoint.before("registration")?;
-                    cells.push((score(&pose).total, pose));
+                    poses.push(perturbed(start, &xi));
                 }
             }
+        }
+        checkpoint.before("registration")?;
+        let projected: Vec<_> = poses
+            .iter()
+            .map(|pose| project_all(references, cameras, pose, params))
+            .collect();
+        let lists = gathered(&projected, &lines);
+        let mut candidates = Candidates::Listed(&lists);
+        for (pose, projected) in poses.iter().zip(&projected) {
+            checkpoint.before("registration")?;
+            let scored = cost(
+                projected,
+                &lines,
+                &mut candidates,
+                pose,
+                prior,
+                &prior_information,
+            );
+            cells.push((scored.total, *pose));
         }
     }
     cells.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -877,6 +981,104 @@ mod tests {
         let e = difference(&fit.pose, &truth());
         let chi2 = e.dot(&(fit.covariance.try_inverse().expect("invertible") * e));
         assert!(chi2 < 22.5, "χ² {chi2}");
+    }
+
+    /// The scene seen from the true pose: the rig, the references and each view's index.
+    fn indexed_scene() -> (crate::geometry::Rig, Vec<Measured>, [ViewIndex; 3]) {
+        let rig = preset_rig();
+        let ends = scene(&rig);
+        let lists = images(&rig, &ends);
+        let views = Views {
+            cameras: rig.cameras(),
+            segments: std::array::from_fn(|k| &lists[k][..]),
+            list_noise_px: 0.3,
+        };
+        let lines = image_lines(&views, &ImageParams::default());
+        (rig, measured(&ends, &truth()), lines)
+    }
+
+    #[test]
+    fn the_analytic_derivative_is_the_numerical_one() {
+        let (rig, references, lines) = indexed_scene();
+        let params = ImageParams::default();
+        // Off the true pose, so that the residuals are not zero.
+        let xi = Vector6::new(0.002, -0.001, 0.004, 0.01, -0.008, 0.005);
+        let pose = perturbed(&truth(), &xi);
+        let projected = project_all(&references, rig.cameras(), &pose, &params);
+        let pairings = associate(&projected, &lines, Some(6.0), &mut Candidates::near(&lines));
+        assert!(pairings.len() >= 40, "{} pairings", pairings.len());
+        let variances = vec![Vector2::new(0.09, 1e-5); pairings.len()];
+        let at = |pose: &Isometry3<f64>| {
+            linearised(
+                &references,
+                rig.cameras(),
+                &lines,
+                &pairings,
+                pose,
+                &variances,
+            )
+        };
+        let here = at(&pose);
+        let delta = 1e-6;
+        for j in 0..6 {
+            let mut step = Vector6::zeros();
+            step[j] = delta;
+            let (plus, minus) = (at(&perturbed(&pose, &step)), at(&perturbed(&pose, &-step)));
+            for (i, (_, jacobian)) in here.iter().enumerate() {
+                let numerical = (plus[i].0 - minus[i].0) / (2.0 * delta);
+                let analytic = jacobian.column(j);
+                let scale = numerical.norm().max(1.0);
+                assert!(
+                    (numerical - analytic).norm() < 1e-4 * scale,
+                    "pairing {i}, ξ{j}: numerical {numerical:?}, analytic {analytic:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_search_scores_its_cells_from_gathered_candidates_as_from_the_index() {
+        let (rig, references, lines) = indexed_scene();
+        let params = ImageParams::default();
+        let start = perturbed(&truth(), &Vector6::new(0.0, 0.0, 0.004, 0.02, -0.03, 0.0));
+        let prior = PosePrior::odometry(start, 1.0, 0.3, 0.05, 0.01);
+        let information = prior.covariance.try_inverse().expect("invertible");
+        // Wider steps than the search's, so that projections move by many pixels and turn.
+        let poses: Vec<Isometry3<f64>> = (-2..=2)
+            .flat_map(|i| (-1..=1).map(move |k| (i, k)))
+            .map(|(i, k)| {
+                let xi = Vector6::new(0.0, 0.0, 0.01 * k as f64, 0.03 * i as f64, 0.0, 0.0);
+                perturbed(&start, &xi)
+            })
+            .collect();
+        let projected: Vec<_> = poses
+            .iter()
+            .map(|pose| project_all(&references, rig.cameras(), pose, &params))
+            .collect();
+        let gathered = gathered(&projected, &lines);
+        let mut paired = 0;
+        for (pose, projected) in poses.iter().zip(&projected) {
+            let listed = cost(
+                projected,
+                &lines,
+                &mut Candidates::Listed(&gathered),
+                pose,
+                &prior,
+                &information,
+            );
+            let walked = cost(
+                projected,
+                &lines,
+                &mut Candidates::near(&lines),
+                pose,
+                &prior,
+                &information,
+            );
+            assert_eq!(listed.total, walked.total);
+            assert_eq!(listed.pairings.len(), walked.pairings.len());
+            paired += walked.pairings.len();
+        }
+        assert!(paired >= 100, "{paired} pairings over the cells");
     }
 
     #[test]

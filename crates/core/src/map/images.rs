@@ -224,49 +224,78 @@ impl ViewIndex {
         rows: usize,
         mut visit: impl FnMut(usize),
     ) {
-        let steps = ((b - a).norm() / cell).ceil().clamp(1.0, 4096.0) as usize;
-        for k in 0..=steps {
-            let p = a + (b - a) * (k as f64 / steps as f64);
-            let (c, r) = ((p.x / cell).floor(), (p.y / cell).floor());
+        Self::walk_points(a, b, cell, |c, r| {
             if c >= 0.0 && r >= 0.0 && (c as usize) < columns && (r as usize) < rows {
                 visit(r as usize * columns + c as usize);
             }
+        });
+    }
+
+    /// The cells (column, row, as floats, perhaps outside the grid) under points every
+    /// cell's width from `a` to `b`.
+    fn walk_points(a: Vector2<f64>, b: Vector2<f64>, cell: f64, mut visit: impl FnMut(f64, f64)) {
+        let steps = ((b - a).norm() / cell).ceil().clamp(1.0, 4096.0) as usize;
+        for k in 0..=steps {
+            let p = a + (b - a) * (k as f64 / steps as f64);
+            visit((p.x / cell).floor(), (p.y / cell).floor());
         }
     }
 
     /// Every segment passing through a cell under the projection or next to one, each once
     /// (`seen` holds, per segment and per cell, the stamp of the last query that read it).
-    fn near(&self, p: &Projected, seen: &mut Seen, visit: impl FnMut(usize)) {
-        self.within(p, 1, seen, visit);
+    fn near(&self, p: &Projected, seen: &mut Seen, mut visit: impl FnMut(usize)) {
+        let columns = self.columns;
+        seen.stamp += 1;
+        Self::walk(p.start, p.end, self.cell, columns, self.rows, |cell| {
+            let (c, r) = ((cell % columns) as isize, (cell / columns) as isize);
+            self.read_about(c, r, 1, seen, &mut visit);
+        });
     }
 
-    /// … or within `radius` cells of one.
+    /// Every segment passing through a cell within `radius` cells of one under the
+    /// projection, each once; a point of the projection outside the grid counts as the
+    /// grid's cell nearest it (so that what lies within `radius` of the projection's points
+    /// inside the grid is read wherever the projection runs).
     fn within(&self, p: &Projected, radius: isize, seen: &mut Seen, mut visit: impl FnMut(usize)) {
-        let (columns, rows) = (self.columns, self.rows);
+        let (last_column, last_row) = (self.columns as f64 - 1.0, self.rows as f64 - 1.0);
         seen.stamp += 1;
+        Self::walk_points(p.start, p.end, self.cell, |c, r| {
+            let (c, r) = (c.clamp(0.0, last_column), r.clamp(0.0, last_row));
+            self.read_about(c as isize, r as isize, radius, seen, &mut visit);
+        });
+    }
+
+    /// The segments of the cells within `radius` of cell (`c`, `r`) not read yet by this
+    /// query (stamp `seen.stamp`).
+    fn read_about(
+        &self,
+        c: isize,
+        r: isize,
+        radius: isize,
+        seen: &mut Seen,
+        visit: &mut impl FnMut(usize),
+    ) {
+        let (columns, rows) = (self.columns, self.rows);
         let stamp = seen.stamp;
-        Self::walk(p.start, p.end, self.cell, columns, rows, |cell| {
-            let (c, r) = ((cell % columns) as isize, (cell / columns) as isize);
-            for dr in -radius..=radius {
-                for dc in -radius..=radius {
-                    let (cc, rr) = (c + dc, r + dr);
-                    if cc < 0 || rr < 0 || cc as usize >= columns || rr as usize >= rows {
-                        continue;
-                    }
-                    let at = rr as usize * columns + cc as usize;
-                    if seen.cells[at] == stamp {
-                        continue;
-                    }
-                    seen.cells[at] = stamp;
-                    for &i in &self.cells[at] {
-                        if seen.lines[i as usize] != stamp {
-                            seen.lines[i as usize] = stamp;
-                            visit(i as usize);
-                        }
+        for dr in -radius..=radius {
+            for dc in -radius..=radius {
+                let (cc, rr) = (c + dc, r + dr);
+                if cc < 0 || rr < 0 || cc as usize >= columns || rr as usize >= rows {
+                    continue;
+                }
+                let at = rr as usize * columns + cc as usize;
+                if seen.cells[at] == stamp {
+                    continue;
+                }
+                seen.cells[at] = stamp;
+                for &i in &self.cells[at] {
+                    if seen.lines[i as usize] != stamp {
+                        seen.lines[i as usize] = stamp;
+                        visit(i as usize);
                     }
                 }
             }
-        });
+        }
     }
 }
 
@@ -429,15 +458,26 @@ fn residuals(p: &Projected, line: &ImageLine) -> Option<(Vector2<f64>, Vector2<f
 }
 
 /// Where [`associate`] looks for a projection's image segment: the view's index about it,
-/// or lists gathered beforehand per reference and view ([`gathered`]).
-enum Candidates<'c> {
-    Near([Seen; 3]),
-    Listed(&'c [[Vec<u32>; 3]]),
+/// or lists gathered beforehand per reference and view ([`gathered`]) — the index still,
+/// for a projection that has none.
+struct Candidates<'c> {
+    seen: [Seen; 3],
+    lists: Option<&'c [[Option<Vec<u32>>; 3]]>,
 }
 
-impl Candidates<'_> {
+impl<'c> Candidates<'c> {
     fn near(lines: &[ViewIndex; 3]) -> Self {
-        Candidates::Near(std::array::from_fn(|k| Seen::of(&lines[k])))
+        Candidates {
+            seen: std::array::from_fn(|k| Seen::of(&lines[k])),
+            lists: None,
+        }
+    }
+
+    fn listed(lines: &[ViewIndex; 3], lists: &'c [[Option<Vec<u32>>; 3]]) -> Self {
+        Candidates {
+            lists: Some(lists),
+            ..Candidates::near(lines)
+        }
     }
 }
 
@@ -473,11 +513,9 @@ fn associate(
                     best = Some((chi2, i));
                 }
             };
-            match candidates {
-                Candidates::Near(seen) => lines[view].near(p, &mut seen[view], &mut consider),
-                Candidates::Listed(lists) => lists[reference][view]
-                    .iter()
-                    .for_each(|&i| consider(i as usize)),
+            match candidates.lists.and_then(|l| l[reference][view].as_ref()) {
+                Some(listed) => listed.iter().for_each(|&i| consider(i as usize)),
+                None => lines[view].near(p, &mut candidates.seen[view], &mut consider),
             }
             if let Some((_, line)) = best {
                 pairings.push(Pairing {
@@ -491,13 +529,21 @@ fn associate(
     pairings
 }
 
+/// Farthest, in index cells, that [`gathered`] reads about a projection: a reference so
+/// near the cameras that the search moves its projection further is left to the index walk
+/// of each cell (reading about it would cost more than the walks it saves).
+const GATHER_RADIUS_CELLS: isize = 6;
+
 /// For a local search over `cells` (each the projections at one pose): per reference and
 /// view, every image segment [`associate`] may pair it with at any of them — those about
 /// its projection in the first cell that shows it, within as many more index cells as any
 /// cell moves its ends, and turned from it by no more than the angle gate plus the most any
-/// cell turns it. Each cell then reads a few segments, not the index: walking the index
-/// was nine tenths of scoring a cell.
-fn gathered(cells: &[Vec<[Option<Projected>; 3]>], lines: &[ViewIndex; 3]) -> Vec<[Vec<u32>; 3]> {
+/// cell turns it; `None` where that is farther than [`GATHER_RADIUS_CELLS`]. Each cell then
+/// reads a few segments, not the index: walking the index was nine tenths of scoring a cell.
+fn gathered(
+    cells: &[Vec<[Option<Projected>; 3]>],
+    lines: &[ViewIndex; 3],
+) -> Vec<[Option<Vec<u32>>; 3]> {
     let references = cells.first().map_or(0, Vec::len);
     let mut seen: [Seen; 3] = std::array::from_fn(|k| Seen::of(&lines[k]));
     let direction = |p: &Projected| (p.end - p.start) / p.length;
@@ -506,7 +552,7 @@ fn gathered(cells: &[Vec<[Option<Projected>; 3]>], lines: &[ViewIndex; 3]) -> Ve
             std::array::from_fn(|view| {
                 let mut shown = cells.iter().filter_map(|c| c[reference][view].as_ref());
                 let Some(anchor) = shown.next() else {
-                    return Vec::new();
+                    return Some(Vec::new());
                 };
                 let along = direction(anchor);
                 let (mut moved, mut turned) = (0.0f64, 0.0f64);
@@ -518,17 +564,22 @@ fn gathered(cells: &[Vec<[Option<Projected>; 3]>], lines: &[ViewIndex; 3]) -> Ve
                 }
                 // A point of a cell's projection lies within `moved` of the anchor's point
                 // at the same place along it, which lies within half a cell of a point the
-                // walk samples: two cells beyond `moved` cover the cells next to it.
+                // walk samples (or, off the grid, beyond the grid cell nearest it): two
+                // cells beyond `moved` cover the cells next to it.
                 let index = &lines[view];
-                let radius = 2 + (moved / index.cell).ceil().min(64.0) as isize;
+                let moved_cells = (moved / index.cell).ceil();
+                // (A NaN, from a degenerate projection, is as far.)
+                if moved_cells.is_nan() || moved_cells > (GATHER_RADIUS_CELLS - 2) as f64 {
+                    return None;
+                }
                 let gate = (ANGLE_GATE_RAD + turned).min(std::f64::consts::PI).cos();
                 let mut listed = Vec::new();
-                index.within(anchor, radius, &mut seen[view], |i| {
+                index.within(anchor, 2 + moved_cells as isize, &mut seen[view], |i| {
                     if along.dot(&index[i].direction) >= gate {
                         listed.push(i as u32);
                     }
                 });
-                listed
+                Some(listed)
             })
         })
         .collect()
@@ -844,7 +895,7 @@ pub fn refine_in_images_until(
             .map(|pose| project_all(references, cameras, pose, params))
             .collect();
         let lists = gathered(&projected, &lines);
-        let mut candidates = Candidates::Listed(&lists);
+        let mut candidates = Candidates::listed(&lines, &lists);
         for (pose, projected) in poses.iter().zip(&projected) {
             checkpoint.before("registration")?;
             let scored = cost(
@@ -1043,42 +1094,48 @@ mod tests {
         let start = perturbed(&truth(), &Vector6::new(0.0, 0.0, 0.004, 0.02, -0.03, 0.0));
         let prior = PosePrior::odometry(start, 1.0, 0.3, 0.05, 0.01);
         let information = prior.covariance.try_inverse().expect("invertible");
-        // Wider steps than the search's, so that projections move by many pixels and turn.
-        let poses: Vec<Isometry3<f64>> = (-2..=2)
-            .flat_map(|i| (-1..=1).map(move |k| (i, k)))
-            .map(|(i, k)| {
-                let xi = Vector6::new(0.0, 0.0, 0.01 * k as f64, 0.03 * i as f64, 0.0, 0.0);
-                perturbed(&start, &xi)
-            })
-            .collect();
-        let projected: Vec<_> = poses
-            .iter()
-            .map(|pose| project_all(&references, rig.cameras(), pose, &params))
-            .collect();
-        let gathered = gathered(&projected, &lines);
-        let mut paired = 0;
-        for (pose, projected) in poses.iter().zip(&projected) {
-            let listed = cost(
-                projected,
-                &lines,
-                &mut Candidates::Listed(&gathered),
-                pose,
-                &prior,
-                &information,
+        // Wider steps than the search's, so that projections move by many pixels and turn;
+        // then so wide that some are left to the index walk.
+        // (Far cells pair little: the comparison must still see pairings.)
+        for (step_m, step_rad, walked_some, min_paired) in
+            [(0.03, 0.01, false, 100), (0.4, 0.01, true, 40)]
+        {
+            let poses: Vec<Isometry3<f64>> = (-2..=2)
+                .flat_map(|i| (-1..=1).map(move |k| (i as f64, k as f64)))
+                .map(|(i, k)| {
+                    perturbed(
+                        &start,
+                        &Vector6::new(0.0, 0.0, step_rad * k, step_m * i, 0.0, 0.0),
+                    )
+                })
+                .collect();
+            let projected: Vec<_> = poses
+                .iter()
+                .map(|pose| project_all(&references, rig.cameras(), pose, &params))
+                .collect();
+            let gathered = gathered(&projected, &lines);
+            let unlisted = gathered.iter().flatten().filter(|l| l.is_none()).count();
+            assert_eq!(
+                unlisted > 0,
+                walked_some,
+                "{unlisted} left to the walk at {step_m} m"
             );
-            let walked = cost(
-                projected,
-                &lines,
-                &mut Candidates::near(&lines),
-                pose,
-                &prior,
-                &information,
+            let mut paired = 0;
+            for (pose, projected) in poses.iter().zip(&projected) {
+                let score = |candidates: &mut Candidates| {
+                    cost(projected, &lines, candidates, pose, &prior, &information)
+                };
+                let listed = score(&mut Candidates::listed(&lines, &gathered));
+                let walked = score(&mut Candidates::near(&lines));
+                assert_eq!(listed.total, walked.total);
+                assert_eq!(listed.pairings.len(), walked.pairings.len());
+                paired += walked.pairings.len();
+            }
+            assert!(
+                paired >= min_paired,
+                "{paired} pairings over the cells at {step_m} m"
             );
-            assert_eq!(listed.total, walked.total);
-            assert_eq!(listed.pairings.len(), walked.pairings.len());
-            paired += walked.pairings.len();
         }
-        assert!(paired >= 100, "{paired} pairings over the cells");
     }
 
     #[test]

@@ -15,10 +15,12 @@
 //! image segments' distances from the projected lines, each under the image line's noise
 //! and the reference's own covariance projected into the image, with the prior as a
 //! measurement; association and solution alternate as the gate narrows from a few pixels
-//! to its χ². Each start is searched locally first (a grid across the floor and in heading,
-//! scored by one truncated cost over every visible projection), so a start a few centimetres
-//! outside the right basin, where a 3D registration of few segments may leave it, is not
-//! refined into the wrong one; the refined pose of lowest cost wins.
+//! to its χ². Where the refinements leave many projections in view unpaired, each start is
+//! searched locally (a grid across the floor and in heading, scored by one truncated cost
+//! over every visible projection) and the grid's cheapest cells refined, so a start a few
+//! centimetres outside the right basin, where a 3D registration of few segments may leave
+//! it, is not refined into the wrong one; the refined pose of lowest cost wins. A start
+//! that sees too few references for a fit is not refined at all.
 //!
 //! The fit's information is scaled by the residuals' spread about their model (the
 //! a-posteriori variance factor, never below [`ImageParams::min_variance_factor`]): on the

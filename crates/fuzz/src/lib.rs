@@ -1,5 +1,16 @@
-//! What the fuzz targets share: small limits (one execution must stay short), a valid rig,
-//! and an in-process HTTP service.
+//! The fuzz targets' code: what each does with one input, and what they share (small limits
+//! so that one execution stays short, a valid rig, an in-process HTTP service).
+//!
+//! A plain crate of the workspace, so that `cargo test` replays the checked-in corpus
+//! (`fuzz/corpus/`, tests/corpus.rs) through the very functions libFuzzer calls: `fuzz/`
+//! holds only the libFuzzer entry points, built with coverage flags by `.ci/fuzz`
+//! (docs/FUZZING.md).
+
+pub mod image_decode;
+pub mod json_body;
+pub mod match_whole;
+pub mod multipart_body;
+pub mod protobuf_body;
 
 use std::sync::{Arc, Mutex, OnceLock};
 
@@ -28,7 +39,6 @@ pub fn request_limits() -> RequestLimits {
     RequestLimits {
         decode: decode_limits(),
         max_segments_per_list: MAX_SEGMENTS_PER_LIST,
-        ..RequestLimits::default()
     }
 }
 

@@ -13,6 +13,9 @@ if [ -z "${TRINOCULAR_BIN:-}" ]; then
 fi
 export TRINOCULAR_BIN
 [ -x "$TRINOCULAR_BIN" ] || { echo "no server binary at $TRINOCULAR_BIN (cargo build --release)" >&2; exit 1; }
+# The tests run from clients/python: a path relative to the caller's directory must not
+# change meaning there.
+TRINOCULAR_BIN="$(cd "$(dirname "$TRINOCULAR_BIN")" && pwd)/$(basename "$TRINOCULAR_BIN")"
 python3 -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip build
 # The client is built as a wheel (and an sdist, then a wheel from it) outside the source tree,

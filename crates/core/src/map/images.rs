@@ -460,11 +460,22 @@ fn residuals(p: &Projected, line: &ImageLine) -> Option<(Vector2<f64>, Vector2<f
 }
 
 /// Where [`associate`] looks for a projection's image segment: the view's index about it,
-/// or lists gathered beforehand per reference and view ([`gathered`]) — the index still,
-/// for a projection that has none.
+/// or lists gathered beforehand per reference and view ([`gathered`], [`gathered_about`]) —
+/// the index still, for a projection that has none, or that has moved or turned from the
+/// one its list was gathered about by more than the list allows.
 struct Candidates<'c> {
     seen: [Seen; 3],
     lists: Option<&'c [[Option<Vec<u32>>; 3]]>,
+    anchored: Option<Anchors<'c>>,
+}
+
+/// The projections lists were gathered about, and how far a projection may lie from its
+/// own and still read its list: moved by at most `moved_px` at either end, turned by at
+/// most the angle whose cosine is `turned_cos`.
+struct Anchors<'c> {
+    projected: &'c [[Option<Projected>; 3]],
+    moved_px: [f64; 3],
+    turned_cos: f64,
 }
 
 impl<'c> Candidates<'c> {
@@ -472,6 +483,7 @@ impl<'c> Candidates<'c> {
         Candidates {
             seen: std::array::from_fn(|k| Seen::of(&lines[k])),
             lists: None,
+            anchored: None,
         }
     }
 
@@ -480,6 +492,40 @@ impl<'c> Candidates<'c> {
             lists: Some(lists),
             ..Candidates::near(lines)
         }
+    }
+
+    /// Lists gathered about `anchors` by [`gathered_about`].
+    fn anchored(
+        lines: &[ViewIndex; 3],
+        lists: &'c [[Option<Vec<u32>>; 3]],
+        anchors: &'c [[Option<Projected>; 3]],
+    ) -> Self {
+        Candidates {
+            anchored: Some(Anchors {
+                projected: anchors,
+                moved_px: std::array::from_fn(|k| REFINE_MOVED_CELLS as f64 * lines[k].cell),
+                turned_cos: REFINE_TURNED_RAD.cos(),
+            }),
+            ..Candidates::listed(lines, lists)
+        }
+    }
+
+    /// The list of (`reference`, `view`) where `p` may read it.
+    fn list(&self, reference: usize, view: usize, p: &Projected) -> Option<&'c [u32]> {
+        let listed = self.lists?[reference][view].as_deref()?;
+        if let Some(anchors) = &self.anchored {
+            let anchor = anchors.projected[reference][view].as_ref()?;
+            let moved = (p.start - anchor.start)
+                .norm()
+                .max((p.end - anchor.end).norm());
+            let turned =
+                ((p.end - p.start) / p.length).dot(&((anchor.end - anchor.start) / anchor.length));
+            // (A NaN fails both: the index then.)
+            if !(moved <= anchors.moved_px[view] && turned >= anchors.turned_cos) {
+                return None;
+            }
+        }
+        Some(listed)
     }
 }
 
@@ -515,7 +561,7 @@ fn associate(
                     best = Some((chi2, i));
                 }
             };
-            match candidates.lists.and_then(|l| l[reference][view].as_ref()) {
+            match candidates.list(reference, view, p) {
                 Some(listed) => listed.iter().for_each(|&i| consider(i as usize)),
                 None => lines[view].near(p, &mut candidates.seen[view], &mut consider),
             }
@@ -564,24 +610,78 @@ fn gathered(
                         .max((p.end - anchor.end).norm());
                     turned = turned.max(direction(p).dot(&along).clamp(-1.0, 1.0).acos());
                 }
-                // A point of a cell's projection lies within `moved` of the anchor's point
-                // at the same place along it, which lies within half a cell of a point the
-                // walk samples (or, off the grid, beyond the grid cell nearest it): two
-                // cells beyond `moved` cover the cells next to it.
-                let index = &lines[view];
-                let moved_cells = (moved / index.cell).ceil();
+                let moved_cells = (moved / lines[view].cell).ceil();
                 // (A NaN, from a degenerate projection, is as far.)
                 if moved_cells.is_nan() || moved_cells > (GATHER_RADIUS_CELLS - 2) as f64 {
                     return None;
                 }
-                let gate = (ANGLE_GATE_RAD + turned).min(std::f64::consts::PI).cos();
-                let mut listed = Vec::new();
-                index.within(anchor, 2 + moved_cells as isize, &mut seen[view], |i| {
-                    if along.dot(&index[i].direction) >= gate {
-                        listed.push(i as u32);
-                    }
-                });
-                Some(listed)
+                Some(read_about(
+                    &lines[view],
+                    anchor,
+                    moved_cells as isize,
+                    turned,
+                    &mut seen[view],
+                ))
+            })
+        })
+        .collect()
+}
+
+/// Every image segment [`associate`] may pair a projection with once it has moved by at most
+/// `moved_cells` index cells from `anchor` and turned by at most `turned` radians: those
+/// about the anchor within two more cells (a point of the moved projection lies within
+/// `moved_cells` of the anchor's point at the same place along it, which lies within half a
+/// cell of a point the walk samples — or, off the grid, beyond the grid cell nearest it —
+/// and the index walk reads the cells next to its own), turned from it by at most the angle
+/// gate plus `turned`.
+fn read_about(
+    index: &ViewIndex,
+    anchor: &Projected,
+    moved_cells: isize,
+    turned: f64,
+    seen: &mut Seen,
+) -> Vec<u32> {
+    let along = (anchor.end - anchor.start) / anchor.length;
+    let gate = (ANGLE_GATE_RAD + turned).min(std::f64::consts::PI).cos();
+    let mut listed = Vec::new();
+    index.within(anchor, 2 + moved_cells, seen, |i| {
+        if along.dot(&index[i].direction) >= gate {
+            listed.push(i as u32);
+        }
+    });
+    listed
+}
+
+/// How far a refinement's later rounds may move a projection from where its first round
+/// found it, in index cells, and turn it, in radians, and still read the image segments
+/// gathered about it then ([`gathered_about`]); beyond, the index. A refinement from a start
+/// in the right basin moves most projections by a few pixels: a cell's sixteen covers them.
+const REFINE_MOVED_CELLS: isize = 1;
+const REFINE_TURNED_RAD: f64 = 0.02;
+
+/// For a refinement starting at `projected` (its first round's projections): per reference
+/// and view, every image segment [`associate`] may pair it with in any later round that
+/// leaves it within [`REFINE_MOVED_CELLS`] and [`REFINE_TURNED_RAD`] of where it is now
+/// ([`Candidates::list`] checks that); `None` where it is not in view. Its rounds then read a
+/// few segments each, not the index: walking the index was a quarter of an AddCapture of
+/// segment lists.
+fn gathered_about(
+    projected: &[[Option<Projected>; 3]],
+    lines: &[ViewIndex; 3],
+) -> Vec<[Option<Vec<u32>>; 3]> {
+    let mut seen: [Seen; 3] = std::array::from_fn(|k| Seen::of(&lines[k]));
+    projected
+        .iter()
+        .map(|views| {
+            std::array::from_fn(|view| {
+                let anchor = views[view].as_ref()?;
+                Some(read_about(
+                    &lines[view],
+                    anchor,
+                    REFINE_MOVED_CELLS,
+                    REFINE_TURNED_RAD,
+                    &mut seen[view],
+                ))
             })
         })
         .collect()
@@ -789,16 +889,6 @@ pub fn refine_in_images_until(
         return Ok(None);
     }
     let lines = image_lines(views, params);
-    let score = |pose: &Isometry3<f64>| {
-        cost(
-            &project_all(references, cameras, pose, params),
-            &lines,
-            &mut Candidates::near(&lines),
-            pose,
-            prior,
-            &prior_information,
-        )
-    };
     let refine = |start: &Isometry3<f64>| -> Option<(ImageFit, f64)> {
         let mut pose = *start;
         let mut information = Matrix6::zeros();
@@ -807,9 +897,12 @@ pub fn refine_in_images_until(
             .iter()
             .map(|&g| Some(g))
             .chain(std::iter::repeat_n(None, CHI2_ROUNDS));
+        let anchors = project_all(references, cameras, &pose, params);
+        let lists = gathered_about(&anchors, &lines);
+        let mut candidates = Candidates::anchored(&lines, &lists, &anchors);
         for gate in rounds {
             let projected = project_all(references, cameras, &pose, params);
-            let pairings = associate(&projected, &lines, gate, &mut Candidates::near(&lines));
+            let pairings = associate(&projected, &lines, gate, &mut candidates);
             if pairings.len() < params.min_references as usize {
                 break;
             }
@@ -832,7 +925,14 @@ pub fn refine_in_images_until(
                 params.min_variance_factor,
             );
         }
-        let scored = score(&pose);
+        let scored = cost(
+            &project_all(references, cameras, &pose, params),
+            &lines,
+            &mut candidates,
+            &pose,
+            prior,
+            &prior_information,
+        );
         let mut paired: Vec<usize> = scored.pairings.iter().map(|p| p.reference).collect();
         paired.sort_unstable();
         paired.dedup();
@@ -1137,6 +1237,58 @@ mod tests {
                 paired >= min_paired,
                 "{paired} pairings over the cells at {step_m} m"
             );
+        }
+    }
+
+    #[test]
+    fn a_refinement_pairs_from_its_gathered_candidates_as_from_the_index() {
+        let (rig, references, lines) = indexed_scene();
+        let params = ImageParams::default();
+        let start = perturbed(&truth(), &Vector6::new(0.0, 0.0, 0.004, 0.02, -0.03, 0.0));
+        let anchors = project_all(&references, rig.cameras(), &start, &params);
+        let lists = gathered_about(&anchors, &lines);
+        // Poses a refinement's rounds might reach (a few millimetres and tenths of a degree
+        // away: every projection reads its list), then poses so far that some move more
+        // than a cell from where the lists were gathered (those read the index).
+        for (metres, radians, near) in [(0.002, 0.0005, true), (0.2, 0.1, false)] {
+            for k in 0..6 {
+                let mut xi = Vector6::zeros();
+                xi[k] = if k < 3 { radians } else { metres };
+                let pose = perturbed(&start, &xi);
+                let projected = project_all(&references, rig.cameras(), &pose, &params);
+                let mut anchored = Candidates::anchored(&lines, &lists, &anchors);
+                let (mut in_view, mut listed) = (0, 0);
+                for (reference, views) in projected.iter().enumerate() {
+                    for (view, p) in views.iter().enumerate() {
+                        if let Some(p) = p {
+                            in_view += 1;
+                            listed += usize::from(anchored.list(reference, view, p).is_some());
+                        }
+                    }
+                }
+                assert!(in_view >= 20, "{in_view} projections in view, ξ {xi:?}");
+                assert_eq!(
+                    listed == in_view,
+                    near,
+                    "{listed} of {in_view} listed, ξ {xi:?}"
+                );
+                for gate in [Some(6.0), Some(2.0), None] {
+                    let from_lists = associate(&projected, &lines, gate, &mut anchored);
+                    let walked = associate(&projected, &lines, gate, &mut Candidates::near(&lines));
+                    assert!(!near || !walked.is_empty(), "ξ {xi:?}, gate {gate:?}");
+                    assert_eq!(
+                        from_lists
+                            .iter()
+                            .map(|p| (p.reference, p.view, p.line))
+                            .collect::<Vec<_>>(),
+                        walked
+                            .iter()
+                            .map(|p| (p.reference, p.view, p.line))
+                            .collect::<Vec<_>>(),
+                        "ξ {xi:?}, gate {gate:?}"
+                    );
+                }
+            }
         }
     }
 

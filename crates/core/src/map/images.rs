@@ -615,7 +615,7 @@ fn gathered(
                 if moved_cells.is_nan() || moved_cells > (GATHER_RADIUS_CELLS - 2) as f64 {
                     return None;
                 }
-                Some(read_about(
+                Some(candidates_about(
                     &lines[view],
                     anchor,
                     moved_cells as isize,
@@ -634,7 +634,7 @@ fn gathered(
 /// cell of a point the walk samples — or, off the grid, beyond the grid cell nearest it —
 /// and the index walk reads the cells next to its own), turned from it by at most the angle
 /// gate plus `turned`.
-fn read_about(
+fn candidates_about(
     index: &ViewIndex,
     anchor: &Projected,
     moved_cells: isize,
@@ -675,7 +675,7 @@ fn gathered_about(
         .map(|views| {
             std::array::from_fn(|view| {
                 let anchor = views[view].as_ref()?;
-                Some(read_about(
+                Some(candidates_about(
                     &lines[view],
                     anchor,
                     REFINE_MOVED_CELLS,

@@ -1,7 +1,8 @@
 //! Every input of the checked-in fuzz corpus (`fuzz/corpus/<target>/`), run once through the
 //! target's own function: the crashes and hangs fuzzing found, and the seeds, stay fixed in
-//! every `cargo test`, with no libFuzzer build. (`.ci/fuzz replay` does the same under
-//! libFuzzer with overflow checks and debug assertions on; `.ci/fuzz` fuzzes.)
+//! every `cargo test` (whose profile checks overflow and debug assertions, as the fuzz
+//! build does), with no libFuzzer build. (`.ci/fuzz replay` does the same under libFuzzer;
+//! `.ci/fuzz` fuzzes.)
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};

@@ -900,9 +900,16 @@ pub fn refine_in_images_until(
         let anchors = project_all(references, cameras, &pose, params);
         let lists = gathered_about(&anchors, &lines);
         let mut candidates = Candidates::anchored(&lines, &lists, &anchors);
-        for gate in rounds {
-            let projected = project_all(references, cameras, &pose, params);
-            let pairings = associate(&projected, &lines, gate, &mut candidates);
+        for (round, gate) in rounds.enumerate() {
+            // The first round is at the start, where the lists were gathered.
+            let moved;
+            let projected = if round == 0 {
+                &anchors
+            } else {
+                moved = project_all(references, cameras, &pose, params);
+                &moved
+            };
+            let pairings = associate(projected, &lines, gate, &mut candidates);
             if pairings.len() < params.min_references as usize {
                 break;
             }

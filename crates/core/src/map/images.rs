@@ -29,7 +29,9 @@
 //! measured it, which a camera a few centimetres from it barely sees across — and unscaled,
 //! the edges claimed ten times the spread they had (docs/SESSIONS.md).
 
-use nalgebra::{Isometry3, Matrix2x3, Matrix6, Point3, SMatrix, Vector2, Vector3, Vector6};
+use nalgebra::{
+    Isometry3, Matrix2x3, Matrix3, Matrix6, Point3, SMatrix, Vector2, Vector3, Vector6,
+};
 
 use super::poses::{difference, perturbed};
 use super::register::{Measured, PosePrior};
@@ -45,6 +47,75 @@ pub struct Views<'a> {
     pub segments: [&'a [Segment2]; 3],
     /// Line noise of a segment that carries none ([`LineNoise::for_list`]).
     pub list_noise_px: f64,
+}
+
+/// A capture's image evidence made ready for [`refine_in_images_until`]: each camera's
+/// projection with its `K·R` factored once, and each view's segments undistorted and
+/// indexed by where they run — when a refinement first needs them, once for all the
+/// earlier captures an AddCapture refines against (most of which a panorama's capture does
+/// not see at all).
+pub struct IndexedViews<'a> {
+    views: Views<'a>,
+    offset_floor_px: f64,
+    lenses: [Lens; 3],
+    lines: std::cell::OnceCell<[ViewIndex; 3]>,
+}
+
+impl<'a> IndexedViews<'a> {
+    /// `params` as the refinements will be given them (the image lines' offset floor).
+    pub fn new(views: &Views<'a>, params: &ImageParams) -> IndexedViews<'a> {
+        IndexedViews {
+            views: *views,
+            offset_floor_px: params.offset_floor_px,
+            lenses: std::array::from_fn(|k| Lens::of(&views.cameras[k])),
+            lines: std::cell::OnceCell::new(),
+        }
+    }
+
+    fn lines(&self) -> &[ViewIndex; 3] {
+        self.lines
+            .get_or_init(|| image_lines(&self.views, self.offset_floor_px))
+    }
+}
+
+/// A camera as the projections need it: the derivative's `K·R` computed once, not per point.
+#[derive(Debug, Clone, Copy)]
+struct Lens {
+    rotation: Matrix3<f64>,
+    translation: Vector3<f64>,
+    intrinsics: Matrix3<f64>,
+    intrinsics_rotation: Matrix3<f64>,
+    width: f64,
+    height: f64,
+}
+
+impl Lens {
+    /// How far a rig-frame point's pixel moves along `normal` per metre it moves (the
+    /// transposed derivative of [`project`] times `normal`), from its `pixel` and its
+    /// homogeneous `h` as [`pixel_of`] gives them: the derivative's rows
+    /// (K·R)ᵢ − pixelᵢ·(K·R)₂ over h.z, summed along the normal without forming them.
+    fn across_gradient(
+        &self,
+        pixel: &Vector2<f64>,
+        h: &Vector3<f64>,
+        normal: &Vector2<f64>,
+    ) -> Vector3<f64> {
+        let kr = &self.intrinsics_rotation;
+        (kr.row(0).transpose() * normal.x + kr.row(1).transpose() * normal.y
+            - kr.row(2).transpose() * normal.dot(pixel))
+            / h.z
+    }
+
+    fn of(camera: &Camera) -> Lens {
+        Lens {
+            rotation: *camera.rotation(),
+            translation: *camera.translation(),
+            intrinsics: *camera.intrinsics(),
+            intrinsics_rotation: camera.intrinsics() * camera.rotation(),
+            width: camera.width() as f64,
+            height: camera.height() as f64,
+        }
+    }
 }
 
 /// What [`refine_in_images`] found.
@@ -158,7 +229,7 @@ struct Projected {
 }
 
 /// One pairing: reference `reference` in view `view` lies along image segment `line`.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 struct Pairing {
     reference: usize,
     view: usize,
@@ -320,7 +391,7 @@ impl Seen {
 }
 
 /// Each view's segments as [`ImageLine`]s, indexed by where they run.
-fn image_lines(views: &Views, params: &ImageParams) -> [ViewIndex; 3] {
+fn image_lines(views: &Views, offset_floor_px: f64) -> [ViewIndex; 3] {
     std::array::from_fn(|k| {
         let camera = &views.cameras[k];
         let lines: Vec<ImageLine> = views.segments[k]
@@ -340,7 +411,7 @@ fn image_lines(views: &Views, params: &ImageParams) -> [ViewIndex; 3] {
                     end: b,
                     direction: (b - a) / length,
                     length,
-                    offset_var: noise.offset_px.powi(2) + params.offset_floor_px.powi(2),
+                    offset_var: noise.offset_px.powi(2) + offset_floor_px.powi(2),
                     angle_var: noise.angle_rad.powi(2),
                 })
             })
@@ -350,12 +421,12 @@ fn image_lines(views: &Views, params: &ImageParams) -> [ViewIndex; 3] {
 }
 
 /// A rig-frame point in a camera's undistorted pixels; `None` behind the camera.
-fn pixel_of(camera: &Camera, x: &Vector3<f64>) -> Option<(Vector2<f64>, Vector3<f64>)> {
-    let c = camera.rotation() * x + camera.translation();
+fn pixel_of(lens: &Lens, x: &Vector3<f64>) -> Option<(Vector2<f64>, Vector3<f64>)> {
+    let c = lens.rotation * x + lens.translation;
     if c.z <= 0.05 {
         return None;
     }
-    let h = camera.intrinsics() * c;
+    let h = lens.intrinsics * c;
     Some((Vector2::new(h.x / h.z, h.y / h.z), h))
 }
 
@@ -368,11 +439,10 @@ fn line_through(a: &Vector2<f64>, b: &Vector2<f64>) -> (Vector2<f64>, f64) {
 }
 
 /// [`pixel_of`], with the derivative of the pixel by the point.
-fn project(camera: &Camera, x: &Vector3<f64>) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
-    let (pixel, h) = pixel_of(camera, x)?;
-    let k = camera.intrinsics();
+fn project(lens: &Lens, x: &Vector3<f64>) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
+    let (pixel, h) = pixel_of(lens, x)?;
     // d(h.xy / h.z)/dc = (K_xy − pixel · K_z) / h.z, then dc/dx = R.
-    let kr = k * camera.rotation();
+    let kr = &lens.intrinsics_rotation;
     let row = |i: usize| (kr.row(i) - kr.row(2) * pixel[i]) / h.z;
     let jacobian = Matrix2x3::from_rows(&[row(0), row(1)]);
     Some((pixel, jacobian))
@@ -382,40 +452,44 @@ fn project(camera: &Camera, x: &Vector3<f64>) -> Option<(Vector2<f64>, Matrix2x3
 /// `None` where it is behind a camera, outside the image or too short there.
 fn project_all(
     references: &[Measured],
-    cameras: &[Camera; 3],
+    lenses: &[Lens; 3],
     pose: &Isometry3<f64>,
     params: &ImageParams,
 ) -> Vec<[Option<Projected>; 3]> {
     let inverse = pose.inverse();
     let to_rig = inverse.rotation.to_rotation_matrix().into_inner();
+    let floor = params.reference_floor_m.powi(2);
     references
         .iter()
         .map(|m| {
             let a = (inverse * m.start).coords;
             let b = (inverse * m.end).coords;
+            // Each end's covariance in the rig frame, once for the three views.
+            let in_rig = |block: usize| {
+                let c = m.covariance.fixed_view::<3, 3>(3 * block, 3 * block);
+                to_rig * c * to_rig.transpose()
+            };
+            let (ca, cb) = (in_rig(0), in_rig(1));
             std::array::from_fn(|k| {
-                let camera = &cameras[k];
-                let (pa, ja) = project(camera, &a)?;
-                let (pb, jb) = project(camera, &b)?;
+                let lens = &lenses[k];
+                let (pa, ha) = pixel_of(lens, &a)?;
+                let (pb, hb) = pixel_of(lens, &b)?;
                 let d = pb - pa;
                 let length = d.norm();
                 if length < params.min_projected_px {
                     return None;
                 }
-                let (w, h) = (camera.width() as f64, camera.height() as f64);
+                let (w, h) = (lens.width, lens.height);
                 let inside = |p: &Vector2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= w && p.y <= h;
                 if !inside(&pa) && !inside(&pb) && !inside(&((pa + pb) * 0.5)) {
                     return None;
                 }
                 let (normal, offset) = line_through(&pa, &pb);
-                let floor = params.reference_floor_m.powi(2);
-                let across = |j: &Matrix2x3<f64>, block: usize| {
-                    let c = m.covariance.fixed_view::<3, 3>(3 * block, 3 * block);
-                    let c = to_rig * c * to_rig.transpose();
-                    let g = j.transpose() * normal;
+                let across = |pixel: &Vector2<f64>, h: &Vector3<f64>, c: &Matrix3<f64>| {
+                    let g = lens.across_gradient(pixel, h, &normal);
                     g.dot(&(c * g)) + floor * g.norm_squared()
                 };
-                let (start_var, end_var) = (across(&ja, 0), across(&jb, 1));
+                let (start_var, end_var) = (across(&pa, &ha, &ca), across(&pb, &hb, &cb));
                 Some(Projected {
                     start: pa,
                     end: pb,
@@ -603,13 +677,15 @@ fn gathered(
                     return Some(Vec::new());
                 };
                 let along = direction(anchor);
-                let (mut moved, mut turned) = (0.0f64, 0.0f64);
+                // The largest turn is the arc cosine of the smallest cosine: one `acos`.
+                let (mut moved, mut least_cos) = (0.0f64, 1.0f64);
                 for p in shown {
                     moved = moved
                         .max((p.start - anchor.start).norm())
                         .max((p.end - anchor.end).norm());
-                    turned = turned.max(direction(p).dot(&along).clamp(-1.0, 1.0).acos());
+                    least_cos = least_cos.min(direction(p).dot(&along).clamp(-1.0, 1.0));
                 }
+                let turned = least_cos.acos();
                 let moved_cells = (moved / lines[view].cell).ceil();
                 // (A NaN, from a degenerate projection, is as far.)
                 if moved_cells.is_nan() || moved_cells > (GATHER_RADIUS_CELLS - 2) as f64 {
@@ -696,7 +772,7 @@ fn gathered_about(
 /// moves in the rig by Rᵀ[X − t]ₓ·ω − Rᵀ·δ.
 fn linearised(
     references: &[Measured],
-    cameras: &[Camera; 3],
+    lenses: &[Lens; 3],
     lines: &[ViewIndex; 3],
     pairings: &[Pairing],
     pose: &Isometry3<f64>,
@@ -718,12 +794,11 @@ fn linearised(
         .zip(variances)
         .map(|(pair, var)| {
             let m = &references[pair.reference];
-            let camera = &cameras[pair.view];
+            let lens = &lenses[pair.view];
             let a = (inverse * m.start).coords;
             let b = (inverse * m.end).coords;
             let line = &lines[pair.view][pair.line];
-            let (Some((pa, ja)), Some((pb, jb))) = (project(camera, &a), project(camera, &b))
-            else {
+            let (Some((pa, ja)), Some((pb, jb))) = (project(lens, &a), project(lens, &b)) else {
                 return (Vector2::zeros(), SMatrix::zeros());
             };
             let (normal, offset) = line_through(&pa, &pb);
@@ -749,7 +824,7 @@ fn linearised(
 #[allow(clippy::too_many_arguments)]
 fn solve(
     references: &[Measured],
-    cameras: &[Camera; 3],
+    lenses: &[Lens; 3],
     lines: &[ViewIndex; 3],
     pairings: &[Pairing],
     variances: &[Vector2<f64>],
@@ -766,7 +841,7 @@ fn solve(
         views_of[p.reference] += 1;
     }
     for _ in 0..STEPS {
-        let linear = linearised(references, cameras, lines, pairings, &pose, variances);
+        let linear = linearised(references, lenses, lines, pairings, &pose, variances);
         let mut h = Matrix6::zeros();
         let mut g = Vector6::zeros();
         for ((r, jac), pair) in linear.iter().zip(pairings) {
@@ -845,7 +920,7 @@ pub fn refine_in_images(
 ) -> Option<ImageFit> {
     never_stopped(refine_in_images_until(
         references,
-        views,
+        &IndexedViews::new(views, params),
         starts,
         prior,
         params,
@@ -857,7 +932,7 @@ pub fn refine_in_images(
 /// local search: a capture of many segments makes each a few milliseconds.
 pub fn refine_in_images_until(
     references: &[Measured],
-    views: &Views,
+    views: &IndexedViews,
     starts: &[Isometry3<f64>],
     prior: &PosePrior,
     params: &ImageParams,
@@ -871,13 +946,13 @@ pub fn refine_in_images_until(
     let Some(prior_information) = prior.covariance.try_inverse() else {
         return Ok(None);
     };
-    let cameras = views.cameras;
+    let lenses = &views.lenses;
     // A capture that looked elsewhere: no start puts enough of the references in view for a
     // fit, and a search a few centimetres and half a degree about them would bring in a few
     // at the images' borders at most. (In a panorama, most of a capture's pair neighbours are
     // such: searching each cost three quarters of an AddCapture.)
     let in_view = |start: &Isometry3<f64>| {
-        project_all(references, cameras, start, params)
+        project_all(references, lenses, start, params)
             .iter()
             .filter(|views| views.iter().any(Option::is_some))
             .count()
@@ -888,7 +963,7 @@ pub fn refine_in_images_until(
     {
         return Ok(None);
     }
-    let lines = image_lines(views, params);
+    let lines = views.lines();
     let refine = |start: &Isometry3<f64>| -> Option<(ImageFit, f64)> {
         let mut pose = *start;
         let mut information = Matrix6::zeros();
@@ -897,20 +972,28 @@ pub fn refine_in_images_until(
             .iter()
             .map(|&g| Some(g))
             .chain(std::iter::repeat_n(None, CHI2_ROUNDS));
-        let anchors = project_all(references, cameras, &pose, params);
-        let lists = gathered_about(&anchors, &lines);
-        let mut candidates = Candidates::anchored(&lines, &lists, &anchors);
+        let anchors = project_all(references, lenses, &pose, params);
+        let lists = gathered_about(&anchors, lines);
+        let mut candidates = Candidates::anchored(lines, &lists, &anchors);
+        // The last round's gate and pairings: a χ² round that pairs as the one before it
+        // solves the same problem from where that one converged, and so would every round
+        // after it.
+        let mut last: Option<(Option<f64>, Vec<Pairing>)> = None;
         for (round, gate) in rounds.enumerate() {
             // The first round is at the start, where the lists were gathered.
             let moved;
             let projected = if round == 0 {
                 &anchors
             } else {
-                moved = project_all(references, cameras, &pose, params);
+                moved = project_all(references, lenses, &pose, params);
                 &moved
             };
-            let pairings = associate(projected, &lines, gate, &mut candidates);
-            if pairings.len() < params.min_references as usize {
+            let pairings = associate(projected, lines, gate, &mut candidates);
+            if pairings.len() < params.min_references as usize
+                || last
+                    .as_ref()
+                    .is_some_and(|(g, p)| *g == gate && *p == pairings)
+            {
                 break;
             }
             let variances: Vec<Vector2<f64>> = pairings
@@ -922,8 +1005,8 @@ pub fn refine_in_images_until(
                 .collect();
             (pose, information) = solve(
                 references,
-                cameras,
-                &lines,
+                lenses,
+                lines,
                 &pairings,
                 &variances,
                 prior,
@@ -931,10 +1014,11 @@ pub fn refine_in_images_until(
                 pose,
                 params.min_variance_factor,
             );
+            last = Some((gate, pairings));
         }
         let scored = cost(
-            &project_all(references, cameras, &pose, params),
-            &lines,
+            &project_all(references, lenses, &pose, params),
+            lines,
             &mut candidates,
             &pose,
             prior,
@@ -1001,15 +1085,15 @@ pub fn refine_in_images_until(
         checkpoint.before("registration")?;
         let projected: Vec<_> = poses
             .iter()
-            .map(|pose| project_all(references, cameras, pose, params))
+            .map(|pose| project_all(references, lenses, pose, params))
             .collect();
-        let lists = gathered(&projected, &lines);
-        let mut candidates = Candidates::listed(&lines, &lists);
+        let lists = gathered(&projected, lines);
+        let mut candidates = Candidates::listed(lines, &lists);
         for (pose, projected) in poses.iter().zip(&projected) {
             checkpoint.before("registration")?;
             let scored = cost(
                 projected,
-                &lines,
+                lines,
                 &mut candidates,
                 pose,
                 prior,
@@ -1143,8 +1227,8 @@ mod tests {
         assert!(chi2 < 22.5, "χ² {chi2}");
     }
 
-    /// The scene seen from the true pose: the rig, the references and each view's index.
-    fn indexed_scene() -> (crate::geometry::Rig, Vec<Measured>, [ViewIndex; 3]) {
+    /// The scene seen from the true pose: the rig's lenses, the references and each view's index.
+    fn indexed_scene() -> ([Lens; 3], Vec<Measured>, [ViewIndex; 3]) {
         let rig = preset_rig();
         let ends = scene(&rig);
         let lists = images(&rig, &ends);
@@ -1153,30 +1237,24 @@ mod tests {
             segments: std::array::from_fn(|k| &lists[k][..]),
             list_noise_px: 0.3,
         };
-        let lines = image_lines(&views, &ImageParams::default());
-        (rig, measured(&ends, &truth()), lines)
+        let lines = image_lines(&views, ImageParams::default().offset_floor_px);
+        let lenses = std::array::from_fn(|k| Lens::of(rig.camera(k)));
+        (lenses, measured(&ends, &truth()), lines)
     }
 
     #[test]
     fn the_analytic_derivative_is_the_numerical_one() {
-        let (rig, references, lines) = indexed_scene();
+        let (lenses, references, lines) = indexed_scene();
         let params = ImageParams::default();
         // Off the true pose, so that the residuals are not zero.
         let xi = Vector6::new(0.002, -0.001, 0.004, 0.01, -0.008, 0.005);
         let pose = perturbed(&truth(), &xi);
-        let projected = project_all(&references, rig.cameras(), &pose, &params);
+        let projected = project_all(&references, &lenses, &pose, &params);
         let pairings = associate(&projected, &lines, Some(6.0), &mut Candidates::near(&lines));
         assert!(pairings.len() >= 40, "{} pairings", pairings.len());
         let variances = vec![Vector2::new(0.09, 1e-5); pairings.len()];
         let at = |pose: &Isometry3<f64>| {
-            linearised(
-                &references,
-                rig.cameras(),
-                &lines,
-                &pairings,
-                pose,
-                &variances,
-            )
+            linearised(&references, &lenses, &lines, &pairings, pose, &variances)
         };
         let here = at(&pose);
         let delta = 1e-6;
@@ -1197,8 +1275,31 @@ mod tests {
     }
 
     #[test]
+    fn the_across_gradient_is_the_derivative_along_the_normal() {
+        let rig = preset_rig();
+        let normal = Vector2::new(0.6, -0.8);
+        for camera in rig.cameras() {
+            let lens = Lens::of(camera);
+            let lens = &lens;
+            let (axis, centre) = (camera.axis().normalize(), camera.centre());
+            for (depth, side) in [(2.8, 0.4), (3.5, -0.2), (2.0, 0.7)] {
+                let aside = axis.cross(&Vector3::z()).normalize();
+                let x = (centre + axis * depth + aside * side + Vector3::z() * 0.3).coords;
+                let (pixel, jacobian) = project(lens, &x).expect("in front");
+                let (_, h) = pixel_of(lens, &x).expect("in front");
+                let formed = jacobian.transpose() * normal;
+                let summed = lens.across_gradient(&pixel, &h, &normal);
+                assert!(
+                    (formed - summed).norm() <= 1e-12 * formed.norm().max(1.0),
+                    "{formed:?} against {summed:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn the_search_scores_its_cells_from_gathered_candidates_as_from_the_index() {
-        let (rig, references, lines) = indexed_scene();
+        let (lenses, references, lines) = indexed_scene();
         let params = ImageParams::default();
         let start = perturbed(&truth(), &Vector6::new(0.0, 0.0, 0.004, 0.02, -0.03, 0.0));
         let prior = PosePrior::odometry(start, 1.0, 0.3, 0.05, 0.01);
@@ -1220,7 +1321,7 @@ mod tests {
                 .collect();
             let projected: Vec<_> = poses
                 .iter()
-                .map(|pose| project_all(&references, rig.cameras(), pose, &params))
+                .map(|pose| project_all(&references, &lenses, pose, &params))
                 .collect();
             let gathered = gathered(&projected, &lines);
             let unlisted = gathered.iter().flatten().filter(|l| l.is_none()).count();
@@ -1249,10 +1350,10 @@ mod tests {
 
     #[test]
     fn a_refinement_pairs_from_its_gathered_candidates_as_from_the_index() {
-        let (rig, references, lines) = indexed_scene();
+        let (lenses, references, lines) = indexed_scene();
         let params = ImageParams::default();
         let start = perturbed(&truth(), &Vector6::new(0.0, 0.0, 0.004, 0.02, -0.03, 0.0));
-        let anchors = project_all(&references, rig.cameras(), &start, &params);
+        let anchors = project_all(&references, &lenses, &start, &params);
         let lists = gathered_about(&anchors, &lines);
         // Poses a refinement's rounds might reach (a few millimetres and tenths of a degree
         // away: every projection reads its list), then poses so far that some move more
@@ -1262,7 +1363,7 @@ mod tests {
                 let mut xi = Vector6::zeros();
                 xi[k] = if k < 3 { radians } else { metres };
                 let pose = perturbed(&start, &xi);
-                let projected = project_all(&references, rig.cameras(), &pose, &params);
+                let projected = project_all(&references, &lenses, &pose, &params);
                 let mut anchored = Candidates::anchored(&lines, &lists, &anchors);
                 let (mut in_view, mut listed) = (0, 0);
                 for (reference, views) in projected.iter().enumerate() {
@@ -1314,7 +1415,7 @@ mod tests {
         let gone = || true;
         let got = refine_in_images_until(
             &references,
-            &views,
+            &IndexedViews::new(&views, &ImageParams::default()),
             &[truth()],
             &prior,
             &ImageParams::default(),

@@ -20,7 +20,7 @@
 
 use nalgebra::{Matrix6, Point3};
 
-use super::images::{refine_in_images_until, ImageParams, Views};
+use super::images::{refine_in_images_until, ImageParams, IndexedViews, Views};
 use super::poses::{register_pair, relative_covariance, RelativePose};
 use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
 use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
@@ -253,6 +253,7 @@ pub fn place_until(
     };
     let index = placed.len();
     let mut edges = Vec::new();
+    let views = views.map(|views| IndexedViews::new(views, &params.images));
     for &to in &neighbours.pairs {
         checkpoint.before("registration")?;
         let at = PosePrior {
@@ -260,7 +261,7 @@ pub fn place_until(
             covariance: placed[to].prior.covariance,
         };
         let mut found = register_pair(segments, placed[to].segments, &from, &at, &params.register);
-        if let Some(views) = views {
+        if let Some(views) = &views {
             let predicted = at.rig_to_world.inverse() * from.rig_to_world;
             let relative = PosePrior {
                 rig_to_world: predicted,

@@ -655,9 +655,17 @@ fn match_lists(
     let frames = RigFrames::new(rig)?;
     // Validation and the extraction graph work in the first frame, where views 1 and 2 are.
     let rect = &frames.pair_frames[0];
-    let (prepared, mut observed): (Vec<Prepared>, Vec<Vec<LineObservation>>) = (0..3)
-        .map(|v| prepare(rig, &frames, v, &lists[v], zero[v], params))
-        .unzip();
+    // A checkpoint per view: a list of the most segments a request may send takes a good
+    // part of a second to rectify and sort at this stage (tests/hostile, a crowd at its
+    // deadline).
+    let mut prepared: Vec<Prepared> = Vec::with_capacity(3);
+    let mut observed: Vec<Vec<LineObservation>> = Vec::with_capacity(3);
+    for v in 0..3 {
+        checkpoint.before("rectify")?;
+        let (view, observations) = prepare(rig, &frames, v, &lists[v], zero[v], params);
+        prepared.push(view);
+        observed.push(observations);
+    }
     let mut stats = MatchStats {
         noise_scale: 1.0,
         segments_in: std::array::from_fn(|v| lists[v].segments.len() as u32),

@@ -11,6 +11,7 @@ use std::f64::consts::PI;
 use nalgebra::{Point2, Vector2};
 
 use super::RectSegment;
+use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
 
 /// Target number of segments per window: small enough that a window's orientation range holds
 /// a handful of candidates, large enough that a search touches few windows.
@@ -72,6 +73,9 @@ impl EntryLine {
     }
 }
 
+/// Segments (or cells) [`Buckets::build_until`] handles between two checkpoints.
+const CHECK_EVERY: usize = 4096;
+
 impl Buckets {
     /// Turned-frame coordinates of a rectified point.
     #[inline]
@@ -82,6 +86,32 @@ impl Buckets {
     /// Builds the buckets of `segments`, each registered in every window its path, widened by
     /// `slack_px`, crosses.
     pub fn build(segments: &[RectSegment], axis: Vector2<f64>, slack_px: f64, period: f64) -> Self {
+        never_stopped(Self::build_until(
+            segments,
+            axis,
+            slack_px,
+            period,
+            Checkpoint::NEVER,
+        ))
+    }
+
+    /// [`Buckets::build`], asking `checkpoint` every [`CHECK_EVERY`] segments and cells: a
+    /// list of the most segments a request may send, long ones at that, takes a good part of a
+    /// second to bucket in a test build (tests/hostile, a crowd at its deadline).
+    pub fn build_until(
+        segments: &[RectSegment],
+        axis: Vector2<f64>,
+        slack_px: f64,
+        period: f64,
+        checkpoint: Checkpoint,
+    ) -> Result<Self, Stopped> {
+        let check = |i: usize| {
+            if i.is_multiple_of(CHECK_EVERY) {
+                checkpoint.before("predict")
+            } else {
+                Ok(())
+            }
+        };
         let axis = axis.normalize();
         let (mut xmin, mut ymin, mut xmax, mut ymax) = (
             f64::INFINITY,
@@ -132,7 +162,8 @@ impl Buckets {
             grid.for_each_cell_on_path(s.a, s.b, slack_px, |cx, cy| visit(cy * nx + cx));
         };
         let mut counts = vec![0u32; nx * ny];
-        for s in segments {
+        for (i, s) in segments.iter().enumerate() {
+            check(i)?;
             cells_of(s, &mut |c| counts[c] += 1);
         }
         let mut offsets = vec![0u32; nx * ny + 1];
@@ -148,6 +179,7 @@ impl Buckets {
             offsets[nx * ny] as usize
         ];
         for (i, s) in segments.iter().enumerate() {
+            check(i)?;
             let angle = angle_key(s.dir, period);
             cells_of(s, &mut |c| {
                 entries[cursor[c] as usize] = Entry {
@@ -158,6 +190,7 @@ impl Buckets {
             });
         }
         for c in 0..nx * ny {
+            check(c)?;
             entries[offsets[c] as usize..offsets[c + 1] as usize].sort_unstable_by(|a, b| {
                 a.angle.total_cmp(&b.angle).then(a.segment.cmp(&b.segment))
             });
@@ -168,7 +201,7 @@ impl Buckets {
             .collect();
         grid.offsets = offsets;
         grid.entries = entries;
-        grid
+        Ok(grid)
     }
 
     /// Calls `visit(cx, cy)` for every window that the segment `a`–`b`, widened by `slack`,
@@ -376,6 +409,32 @@ mod tests {
 
     fn seg(ax: f64, ay: f64, bx: f64, by: f64) -> RectSegment {
         RectSegment::new(Point2::new(ax, ay), Point2::new(bx, by), f64::NAN, 0)
+    }
+
+    #[test]
+    fn a_build_stops_when_its_result_is_no_longer_wanted() {
+        let segments: Vec<RectSegment> = (0..3 * CHECK_EVERY)
+            .map(|i| {
+                let x = (i % 500) as f64;
+                seg(x, (i / 500) as f64, x + 40.0, (i / 500) as f64 + 3.0)
+            })
+            .collect();
+        let axis = Vector2::new(1.0, 0.0);
+        let gone = || true;
+        let stopped = Buckets::build_until(&segments, axis, 1.0, PI, Checkpoint::new(&gone));
+        assert!(stopped.is_err());
+        // Asked and wanted: the buckets `build` gives.
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let wanted = || {
+            calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            false
+        };
+        let built = Buckets::build_until(&segments, axis, 1.0, PI, Checkpoint::new(&wanted))
+            .expect("wanted");
+        let plain = Buckets::build(&segments, axis, 1.0, PI);
+        assert_eq!(built.entries.len(), plain.entries.len());
+        assert_eq!(built.offsets, plain.offsets);
+        assert!(calls.into_inner() >= 6, "asked once per {CHECK_EVERY} segments, each pass");
     }
 
     #[test]

@@ -610,7 +610,22 @@ fn associate(
     pixel_gate: Option<f64>,
     candidates: &mut Candidates,
 ) -> Vec<Pairing> {
+    associate_below(projected, lines, pixel_gate, candidates, 0.0, f64::INFINITY).expect("no bound")
+}
+
+/// [`associate`], giving up (`None`) as soon as `spent` plus what the projections paired so
+/// far cost — each its best χ², at most [`PAIR_GATE`], an unpaired one [`PAIR_GATE`] — exceeds
+/// `limit`: a lower bound of [`cost`]'s total, every term of which is non-negative.
+fn associate_below(
+    projected: &[[Option<Projected>; 3]],
+    lines: &[ViewIndex; 3],
+    pixel_gate: Option<f64>,
+    candidates: &mut Candidates,
+    spent: f64,
+    limit: f64,
+) -> Option<Vec<Pairing>> {
     let mut pairings = Vec::new();
+    let mut lower = spent;
     for (reference, views) in projected.iter().enumerate() {
         for (view, p) in views.iter().enumerate() {
             let Some(p) = p else { continue };
@@ -639,6 +654,10 @@ fn associate(
                 Some(listed) => listed.iter().for_each(|&i| consider(i as usize)),
                 None => lines[view].near(p, &mut candidates.seen[view], &mut consider),
             }
+            lower += best.map_or(PAIR_GATE, |(chi2, _)| chi2.min(PAIR_GATE));
+            if lower > limit {
+                return None;
+            }
             if let Some((_, line)) = best {
                 pairings.push(Pairing {
                     reference,
@@ -648,7 +667,7 @@ fn associate(
             }
         }
     }
-    pairings
+    Some(pairings)
 }
 
 /// Farthest, in index cells, that [`gathered`] reads about a projection: a reference so
@@ -889,7 +908,39 @@ fn cost(
     prior: &PosePrior,
     prior_information: &Matrix6<f64>,
 ) -> Scored {
-    let pairings = associate(projected, lines, None, candidates);
+    cost_below(
+        projected,
+        lines,
+        candidates,
+        pose,
+        prior,
+        prior_information,
+        f64::INFINITY,
+    )
+    .expect("no bound")
+}
+
+/// [`cost`], or `None` once it is sure to exceed `bound` (the total is then never
+/// computed); the total, when given, is [`cost`]'s to the bit.
+fn cost_below(
+    projected: &[[Option<Projected>; 3]],
+    lines: &[ViewIndex; 3],
+    candidates: &mut Candidates,
+    pose: &Isometry3<f64>,
+    prior: &PosePrior,
+    prior_information: &Matrix6<f64>,
+    bound: f64,
+) -> Option<Scored> {
+    let e = difference(pose, &prior.rig_to_world);
+    let prior_cost = e.dot(&(prior_information * e));
+    // The bound is summed in another order than the total: a margin far above rounding, so
+    // that no cell whose total is within the bound is given up.
+    let limit = if bound.is_finite() {
+        bound + 1e-9 * bound.abs().max(1.0)
+    } else {
+        bound
+    };
+    let pairings = associate_below(projected, lines, None, candidates, prior_cost, limit)?;
     let visible: usize = projected.iter().flatten().filter(|p| p.is_some()).count();
     let mut total = PAIR_GATE * (visible - pairings.len()) as f64;
     for p in &pairings {
@@ -897,13 +948,12 @@ fn cost(
         let (r, var) = residuals(proj, &lines[p.view][p.line]).expect("paired");
         total += (r.x * r.x / var.x + r.y * r.y / var.y).min(PAIR_GATE);
     }
-    let e = difference(pose, &prior.rig_to_world);
-    total += e.dot(&(prior_information * e));
-    Scored {
+    total += prior_cost;
+    Some(Scored {
         total,
         pairings,
         visible,
-    }
+    })
 }
 
 /// Refines the capture's pose (its rig in the frame of `references`) from each of `starts`
@@ -1063,25 +1113,39 @@ pub fn refine_in_images_until(
     // each start, since the basin of the right pose is a few pixels wide and a 3D
     // registration or odometry may leave the rig a few centimetres outside it. (About the
     // best refined pose alone it cost one of the driving loop's seeds at 3°: 2.9% → 9.3%.)
-    let mut cells: Vec<(f64, Isometry3<f64>)> = Vec::new();
+    let kept = params.refined_starts;
+    if kept == 0 {
+        return Ok(best.map(|(fit, _)| fit));
+    }
+    // Each scored cell with its place in the grids' order (which breaks ties as it did when
+    // every cell was scored), and the `kept` cheapest totals so far: a cell sure to cost more
+    // than the last of those cannot be refined, and its scoring stops there. The cells nearest
+    // each start are scored first, since the right basin is usually there.
+    let mut cells: Vec<(f64, usize, Isometry3<f64>)> = Vec::new();
+    let mut cheapest: Vec<f64> = Vec::with_capacity(kept + 1);
+    let order: Vec<(i32, i32, i32)> = (-GRID_STEPS_XY..=GRID_STEPS_XY)
+        .flat_map(|i| {
+            (-GRID_STEPS_XY..=GRID_STEPS_XY)
+                .flat_map(move |j| (-GRID_STEPS_YAW..=GRID_STEPS_YAW).map(move |k| (i, j, k)))
+        })
+        .collect();
+    let grid_cells = order.len();
     let (step_m, step_rad) = (params.grid_step_m, params.grid_step_rad);
-    for start in starts {
-        let mut poses = Vec::new();
-        for i in -GRID_STEPS_XY..=GRID_STEPS_XY {
-            for j in -GRID_STEPS_XY..=GRID_STEPS_XY {
-                for k in -GRID_STEPS_YAW..=GRID_STEPS_YAW {
-                    let xi = Vector6::new(
-                        0.0,
-                        0.0,
-                        k as f64 * step_rad,
-                        i as f64 * step_m,
-                        j as f64 * step_m,
-                        0.0,
-                    );
-                    poses.push(perturbed(start, &xi));
-                }
-            }
-        }
+    for (s, start) in starts.iter().enumerate() {
+        let poses: Vec<Isometry3<f64>> = order
+            .iter()
+            .map(|&(i, j, k)| {
+                let xi = Vector6::new(
+                    0.0,
+                    0.0,
+                    k as f64 * step_rad,
+                    i as f64 * step_m,
+                    j as f64 * step_m,
+                    0.0,
+                );
+                perturbed(start, &xi)
+            })
+            .collect();
         checkpoint.before("registration")?;
         let projected: Vec<_> = poses
             .iter()
@@ -1089,21 +1153,37 @@ pub fn refine_in_images_until(
             .collect();
         let lists = gathered(&projected, lines);
         let mut candidates = Candidates::listed(lines, &lists);
-        for (pose, projected) in poses.iter().zip(&projected) {
+        let mut nearest_first: Vec<usize> = (0..grid_cells).collect();
+        nearest_first.sort_by_key(|&c| {
+            let (i, j, k) = order[c];
+            (i * i + j * j, k * k, c)
+        });
+        for c in nearest_first {
             checkpoint.before("registration")?;
-            let scored = cost(
-                projected,
+            let bound = if cheapest.len() == kept {
+                cheapest[kept - 1]
+            } else {
+                f64::INFINITY
+            };
+            let Some(scored) = cost_below(
+                &projected[c],
                 lines,
                 &mut candidates,
-                pose,
+                &poses[c],
                 prior,
                 &prior_information,
-            );
-            cells.push((scored.total, *pose));
+                bound,
+            ) else {
+                continue;
+            };
+            let at = cheapest.partition_point(|&t| t <= scored.total);
+            cheapest.insert(at, scored.total);
+            cheapest.truncate(kept);
+            cells.push((scored.total, s * grid_cells + c, poses[c]));
         }
     }
-    cells.sort_by(|a, b| a.0.total_cmp(&b.0));
-    for (_, start) in cells.iter().take(params.refined_starts) {
+    cells.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    for (_, _, start) in cells.iter().take(kept) {
         checkpoint.before("registration")?;
         best = better(best, refine(start));
     }
@@ -1346,6 +1426,52 @@ mod tests {
                 "{paired} pairings over the cells at {step_m} m"
             );
         }
+    }
+
+    #[test]
+    fn a_bounded_cost_is_the_cost_or_sure_to_exceed_its_bound() {
+        let (lenses, references, lines) = indexed_scene();
+        let params = ImageParams::default();
+        let prior = PosePrior::odometry(truth(), 1.0, 0.3, 0.05, 0.01);
+        let information = prior.covariance.try_inverse().expect("invertible");
+        let (mut given, mut given_up) = (0, 0);
+        for (m, rad) in [(0.0, 0.0), (0.01, 0.002), (0.03, -0.004), (0.08, 0.01)] {
+            let pose = perturbed(&truth(), &Vector6::new(0.0, 0.0, rad, m, -m, 0.0));
+            let projected = project_all(&references, &lenses, &pose, &params);
+            let whole = cost(
+                &projected,
+                &lines,
+                &mut Candidates::near(&lines),
+                &pose,
+                &prior,
+                &information,
+            );
+            for bound in [0.0, 0.5 * whole.total, whole.total, 2.0 * whole.total] {
+                match cost_below(
+                    &projected,
+                    &lines,
+                    &mut Candidates::near(&lines),
+                    &pose,
+                    &prior,
+                    &information,
+                    bound,
+                ) {
+                    Some(scored) => {
+                        assert_eq!(scored.total.to_bits(), whole.total.to_bits());
+                        assert_eq!(scored.pairings, whole.pairings);
+                        given += 1;
+                    }
+                    None => {
+                        assert!(whole.total > bound, "{} within {bound}", whole.total);
+                        given_up += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            given >= 8 && given_up >= 4,
+            "{given} given, {given_up} given up"
+        );
     }
 
     #[test]

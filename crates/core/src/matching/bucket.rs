@@ -434,7 +434,10 @@ mod tests {
         let plain = Buckets::build(&segments, axis, 1.0, PI);
         assert_eq!(built.entries.len(), plain.entries.len());
         assert_eq!(built.offsets, plain.offsets);
-        assert!(calls.into_inner() >= 6, "asked once per {CHECK_EVERY} segments, each pass");
+        assert!(
+            calls.into_inner() >= 6,
+            "asked once per {CHECK_EVERY} segments, each pass"
+        );
     }
 
     #[test]

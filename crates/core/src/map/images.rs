@@ -1267,6 +1267,13 @@ mod tests {
         )
     }
 
+    /// An odometry prior at `pose` (1°, 0.3° of tilt, 5 cm, 1 cm) and its information.
+    fn odometry_at(pose: Isometry3<f64>) -> (PosePrior, Matrix6<f64>) {
+        let prior = PosePrior::odometry(pose, 1.0, 0.3, 0.05, 0.01);
+        let information = prior.covariance.try_inverse().expect("invertible");
+        (prior, information)
+    }
+
     fn off(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
         (
             (a.rotation * b.rotation.inverse()).angle().to_degrees(),
@@ -1382,8 +1389,7 @@ mod tests {
         let (lenses, references, lines) = indexed_scene();
         let params = ImageParams::default();
         let start = perturbed(&truth(), &Vector6::new(0.0, 0.0, 0.004, 0.02, -0.03, 0.0));
-        let prior = PosePrior::odometry(start, 1.0, 0.3, 0.05, 0.01);
-        let information = prior.covariance.try_inverse().expect("invertible");
+        let (prior, information) = odometry_at(start);
         // Wider steps than the search's, so that projections move by many pixels and turn;
         // then so wide that some are left to the index walk.
         // (Far cells pair little: the comparison must still see pairings.)
@@ -1432,8 +1438,7 @@ mod tests {
     fn a_bounded_cost_is_the_cost_or_sure_to_exceed_its_bound() {
         let (lenses, references, lines) = indexed_scene();
         let params = ImageParams::default();
-        let prior = PosePrior::odometry(truth(), 1.0, 0.3, 0.05, 0.01);
-        let information = prior.covariance.try_inverse().expect("invertible");
+        let (prior, information) = odometry_at(truth());
         let (mut given, mut given_up) = (0, 0);
         for (m, rad) in [(0.0, 0.0), (0.01, 0.002), (0.03, -0.004), (0.08, 0.01)] {
             let pose = perturbed(&truth(), &Vector6::new(0.0, 0.0, rad, m, -m, 0.0));

@@ -191,20 +191,18 @@ pub fn predict_in_frames_until(
     let period = period(views.oriented);
     let tol = params.tolerance_px;
     let [frame_a, frame_b] = &frames.pair_frames;
-    let grid2 = Buckets::build_until(
-        views.segments[1],
-        frame_a.epipolar(0, 1),
-        tol,
-        period,
-        checkpoint,
-    )?;
-    let grid3 = Buckets::build_until(
-        views.segments[2],
-        frame_b.epipolar(0, 2),
-        tol,
-        period,
-        checkpoint,
-    )?;
+    // View j's buckets along its epipolar lines with view 1 in `frame`.
+    let buckets = |j: usize, frame: &Rectification| {
+        Buckets::build_until(
+            views.segments[j],
+            frame.epipolar(0, j),
+            tol,
+            period,
+            checkpoint,
+        )
+    };
+    let grid2 = buckets(1, frame_a)?;
+    let grid3 = buckets(2, frame_b)?;
     let pair = |j: usize| {
         let (k, frame, grid_j, grid_k) = if j == 1 {
             (2, 0, &grid2, &grid3)

@@ -54,6 +54,10 @@ struct Args {
     /// capture's images (the service before image registration).
     #[arg(long)]
     in_3d_only: bool,
+    /// Place the captures without the room's directions (`map::compass`): by their segments
+    /// in common and their odometry only.
+    #[arg(long)]
+    no_compass: bool,
 }
 
 /// The loop: an ellipse about the room's middle, clear of the furniture along the walls.
@@ -100,7 +104,13 @@ fn main() -> anyhow::Result<()> {
         );
         for (k, &(yaw_deg, xy_m)) in levels.iter().enumerate() {
             let priors = odometry(&seen, yaw_deg, xy_m, seed * 1000 + k as u64);
-            let (poses, fused) = build_map(&seen, &priors, args.verbose, args.in_3d_only);
+            let (poses, fused) = build_map(
+                &seen,
+                &priors,
+                args.verbose,
+                args.in_3d_only,
+                !args.no_compass,
+            );
             let segments: Vec<Segment3> = fused.iter().map(|m| m.segment()).collect();
             let s = score(&segments, &truth_edges, &eligible, mean_centre);
             let covered_edges = s
@@ -295,8 +305,12 @@ fn build_map(
     priors: &[PosePrior],
     verbose: bool,
     in_3d_only: bool,
+    compass: bool,
 ) -> (Vec<Isometry3<f64>>, Vec<map::MapSegment>) {
-    let params = SessionParams::default();
+    let params = SessionParams {
+        compass,
+        ..SessionParams::default()
+    };
     let mut placed: Vec<Placed> = Vec::new();
     let mut edges = Vec::new();
     for (s, prior) in seen.iter().zip(priors) {

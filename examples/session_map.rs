@@ -84,6 +84,10 @@ struct Args {
     /// gate decide.
     #[arg(long)]
     fuse_uncertain: bool,
+    /// Place the captures without the room's directions (`map::compass`): by their segments
+    /// in common and their odometry only.
+    #[arg(long)]
+    no_compass: bool,
 }
 
 /// Standard normal draws from a seed (splitmix64, Box–Muller): the same noise for the same
@@ -349,13 +353,18 @@ fn main() -> Result<(), Error> {
             })
             .collect();
         place_in_order(
-            &priors,
+            &priors
+                .iter()
+                .map(|p| prior_of(*p, args.yaw_noise_deg, args.xy_noise_m))
+                .collect::<Vec<_>>(),
             &measured,
             (!args.in_3d_only).then_some(&views[..]),
             &truths,
-            args.yaw_noise_deg,
-            args.xy_noise_m,
             args.graph,
+            &SessionParams {
+                compass: !args.no_compass,
+                ..SessionParams::default()
+            },
         )
     } else {
         priors
@@ -448,26 +457,24 @@ fn main() -> Result<(), Error> {
 /// Each edge's error against the true relative pose is printed with its χ² under the edge's
 /// information (6 degrees of freedom: 12.6 at 95%).
 fn place_in_order(
-    priors: &[Isometry3<f64>],
+    priors: &[PosePrior],
     measured: &[Vec<Measured>],
     views: Option<&[Views]>,
     truths: &[Isometry3<f64>],
-    yaw_sigma_deg: f64,
-    xy_sigma_m: f64,
     graph: bool,
+    params: &SessionParams,
 ) -> Vec<PosePrior> {
-    let params = SessionParams::default();
     let mut placed: Vec<Placed> = Vec::new();
     let mut registered = Vec::new();
     let mut edges = Vec::new();
     for (i, segments) in measured.iter().enumerate() {
-        let prior = prior_of(priors[i], yaw_sigma_deg, xy_sigma_m);
+        let prior = priors[i];
         let t0 = std::time::Instant::now();
         let added = match views {
             Some(views) => map::session::add_capture_with_views(
-                &placed, &edges, &prior, segments, &views[i], &params,
+                &placed, &edges, &prior, segments, &views[i], params,
             ),
-            None => map::session::add_capture(&placed, &edges, &prior, segments, &params),
+            None => map::session::add_capture(&placed, &edges, &prior, segments, params),
         };
         let got = added.registration;
         eprintln!(

@@ -10,6 +10,7 @@
 //! recompute it from stored captures whenever it is asked. [`export`] writes PLY, OBJ and
 //! top views.
 
+pub mod compass;
 mod envelope;
 pub mod export;
 mod fuse;

@@ -153,6 +153,15 @@ pub(crate) fn perturbed(pose: &Isometry3<f64>, xi: &Vector6<f64>) -> Isometry3<f
     )
 }
 
+/// Largest variance (radians², metres²) of a prior that pins its capture in place.
+const PINNED_VARIANCE: f64 = 1e-10;
+
+/// True when `prior` pins its capture: known so well (a session's anchor) that no edge
+/// moves it.
+pub(crate) fn pins(prior: &PosePrior) -> bool {
+    (0..6).all(|k| prior.covariance[(k, k)] <= PINNED_VARIANCE)
+}
+
 /// How far (χ² under its information) the solved poses may be from what an edge says.
 pub fn edge_chi2(poses: &[PosePrior], edge: &RelativePose) -> f64 {
     let predicted = poses[edge.to].rig_to_world.inverse() * poses[edge.from].rig_to_world;
@@ -202,9 +211,17 @@ pub fn optimise_until(
         .iter()
         .filter(|r| r.from < n && r.to < n && r.from != r.to)
         .collect();
+    // A capture its prior pins (a session's anchor) does not move: an edge to it is a factor
+    // on its other end alone, and does not widen the envelope — every capture may be tied to
+    // the anchor and the band stays as narrow as the session's other edges make it.
+    let pinned: Vec<bool> = priors.iter().map(pins).collect();
     // The captures in an order that keeps each near those it is tied to: the information
     // matrix is then a narrow envelope of blocks (`super::envelope`).
-    let links: Vec<(usize, usize)> = relative.iter().map(|r| (r.from, r.to)).collect();
+    let links: Vec<(usize, usize)> = relative
+        .iter()
+        .filter(|r| !pinned[r.from] && !pinned[r.to])
+        .map(|r| (r.from, r.to))
+        .collect();
     let position = narrow_positions(n, &links);
     let zero = Envelope::new(n, links.iter().map(|&(a, b)| (position[a], position[b])));
     // What the edge says against what the poses of its two ends say.
@@ -223,6 +240,9 @@ pub fn optimise_until(
             gradient[position[i]] -= info * e;
         }
         for r in &relative {
+            if pinned[r.from] && pinned[r.to] {
+                continue;
+            }
             let (from, to) = (poses[r.from], poses[r.to]);
             let e0 = residual(&from, &to, r);
             let mut jacobian = nalgebra::SMatrix::<f64, 6, 12>::zeros();
@@ -238,16 +258,20 @@ pub fn optimise_until(
             let h = jt_i * jacobian;
             let g = jt_i * e0;
             let ends = [position[r.from], position[r.to]];
-            for (a, &pa) in ends.iter().enumerate() {
-                gradient[pa] -= g.fixed_rows::<6>(6 * a);
-            }
+            let moves = [!pinned[r.from], !pinned[r.to]];
             // The lower triangle only: the envelope is symmetric.
             let block = |a: usize, b: usize| -> Matrix6<f64> {
                 h.fixed_view::<6, 6>(6 * a, 6 * b).into_owned()
             };
-            hessian.add(ends[0], ends[0], &block(0, 0));
-            hessian.add(ends[1], ends[1], &block(1, 1));
-            hessian.add(ends[1], ends[0], &block(1, 0));
+            for a in 0..2 {
+                if moves[a] {
+                    gradient[ends[a]] -= g.fixed_rows::<6>(6 * a);
+                    hessian.add(ends[a], ends[a], &block(a, a));
+                }
+            }
+            if moves[0] && moves[1] {
+                hessian.add(ends[1], ends[0], &block(1, 0));
+            }
         }
         factor = hessian.cholesky_until(checkpoint)?;
         let Some(step) = factor.as_ref().and_then(|f| f.solve(&gradient)) else {
@@ -328,10 +352,56 @@ mod tests {
             })
             .collect();
         let got = optimise(&priors, &relative);
+        assert_eq!(got[0].rig_to_world, priors[0].rig_to_world);
         for (g, t) in got.iter().zip(&truth) {
             let angle = (g.rig_to_world.rotation * t.rotation.inverse()).angle();
             let shift = (g.rig_to_world.translation.vector - t.translation.vector).norm();
             assert!(angle < 1e-4 && shift < 1e-4, "{angle} {shift}");
+        }
+    }
+
+    /// Edges to a pinned capture place the others as an edge between two free captures
+    /// would, each on its own: a star of exact edges to the anchor puts every capture where
+    /// the edges say, and the anchor stays exactly where its prior has it.
+    #[test]
+    fn edges_to_a_pinned_capture_place_the_others() {
+        let truth: Vec<Isometry3<f64>> = (0..5)
+            .map(|k| pose(0.4 * k as f64, -0.1 * k as f64, 0.3 * k as f64))
+            .collect();
+        let priors: Vec<PosePrior> = truth
+            .iter()
+            .enumerate()
+            .map(|(k, t)| {
+                if k == 0 {
+                    PosePrior {
+                        rig_to_world: *t,
+                        covariance: Matrix6::identity() * 1e-12,
+                    }
+                } else {
+                    let off = Isometry3::new(
+                        Vector3::new(0.03, -0.02, 0.0),
+                        Vector3::z() * 0.02 * k as f64,
+                    );
+                    PosePrior::odometry(off * *t, 3.0, 0.3, 0.05, 0.01)
+                }
+            })
+            .collect();
+        assert!(pins(&priors[0]) && !pins(&priors[1]));
+        let star: Vec<RelativePose> = (1..5)
+            .map(|k| RelativePose {
+                from: k,
+                to: 0,
+                pose: truth[0].inverse() * truth[k],
+                information: Matrix6::identity() * 1e10,
+                inliers: 10,
+            })
+            .collect();
+        let got = optimise(&priors, &star);
+        assert_eq!(got[0].rig_to_world, priors[0].rig_to_world);
+        for (g, t) in got.iter().zip(&truth) {
+            let angle = (g.rig_to_world.rotation * t.rotation.inverse()).angle();
+            let shift = (g.rig_to_world.translation.vector - t.translation.vector).norm();
+            assert!(angle < 1e-6 && shift < 1e-6, "{angle} {shift}");
         }
     }
 }

@@ -206,11 +206,13 @@ pub enum RegistrationStatus {
     Registered,
     /// The map was empty (the session's first capture): the prior is kept.
     EmptyMap,
-    /// Too few of the capture's segments were found in the map: the prior is kept.
+    /// Too few of the capture's segments were found in the map: the prior is kept (in a
+    /// session, its heading turned to agree with the room's directions where the capture and
+    /// the map both read them: [`super::compass`]).
     TooFewInCommon,
     /// The segments found in common place the rig where its prior says it cannot have been
     /// (beyond [`PRIOR_GATE`]): a repetitive scene matched one shift over, say. The prior
-    /// is kept.
+    /// is kept (in a session, turned as for `TooFewInCommon`).
     DisagreesWithPrior,
 }
 

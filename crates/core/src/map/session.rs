@@ -20,6 +20,7 @@
 
 use nalgebra::{Matrix6, Point3};
 
+use super::compass::{self, Reading};
 use super::images::{refine_in_images_until, ImageParams, IndexedViews, Views};
 use super::poses::{register_pair, relative_covariance, RelativePose};
 use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
@@ -58,6 +59,10 @@ pub struct SessionParams {
     pub reach_m: f64,
     /// How a pair is refined in the new capture's images, when they are given.
     pub images: ImageParams,
+    /// Whether the room's directions turn a capture's heading ([`super::compass`]): the
+    /// registration's prior, and an edge of the heading alone to the anchor. Off, a session
+    /// is placed by its segments in common and its odometry only.
+    pub compass: bool,
 }
 
 impl Default for SessionParams {
@@ -68,6 +73,7 @@ impl Default for SessionParams {
             pair_captures: 4,
             reach_m: 10.0,
             images: ImageParams::default(),
+            compass: true,
         }
     }
 }
@@ -157,9 +163,18 @@ pub struct Neighbours {
 }
 
 impl Neighbours {
-    /// Every capture whose segments [`place_until`] reads, ascending, each once.
+    /// Every capture whose segments [`place_until`] reads, ascending, each once: the map's,
+    /// the pairs' and the anchor's (the first capture), whose reading of the room's
+    /// directions every later capture's heading is tied to ([`super::compass`]).
     pub fn needed(&self) -> Vec<usize> {
-        let mut all: Vec<usize> = self.map.iter().chain(&self.pairs).copied().collect();
+        let anchor = (!self.poses.is_empty()).then_some(0);
+        let mut all: Vec<usize> = self
+            .map
+            .iter()
+            .chain(&self.pairs)
+            .chain(&anchor)
+            .copied()
+            .collect();
         all.sort_unstable();
         all.dedup();
         all
@@ -241,8 +256,47 @@ pub fn place_until(
         references.extend(moved);
     }
     let seen_from = seen_from.unwrap_or_default();
+    // The heading the room's directions give the capture against the map's captures: the
+    // registration then starts from it and holds it as firmly as the two readings allow.
+    let readings: Vec<Option<Reading>> = placed
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let needed = params.compass
+                && (i == 0 || neighbours.map.contains(&i) || neighbours.pairs.contains(&i));
+            needed
+                .then(|| compass::reading(p.segments, &current[i].rig_to_world.rotation))
+                .flatten()
+        })
+        .collect();
+    let map_reading = pooled_reading(
+        neighbours
+            .map
+            .iter()
+            .filter_map(|&i| readings[i].map(|r| (r, current[i].covariance[(2, 2)]))),
+    );
+    let own = params
+        .compass
+        .then(|| compass::reading(segments, &prior.rig_to_world.rotation))
+        .flatten();
+    let guided = match (own, map_reading) {
+        (Some(own), Some(map)) => {
+            let (turn, variance) = compass::relative_heading(&own, &map);
+            compass::with_heading(prior, turn, variance)
+        }
+        _ => *prior,
+    };
     checkpoint.before("registration")?;
-    let registration = register_seen(&references, &seen_from, segments, prior, &params.register);
+    let mut registration =
+        register_seen(&references, &seen_from, segments, &guided, &params.register);
+    // How far it moved is told from the robot's pose, not from the compass's turn of it.
+    registration.rotation_change_deg = (registration.rig_to_world.rotation
+        * prior.rig_to_world.rotation.inverse())
+    .angle()
+    .to_degrees();
+    registration.translation_change_m = (registration.rig_to_world.translation.vector
+        - prior.rig_to_world.translation.vector)
+        .norm();
 
     // The pairs start from where registration put the new capture, with the spread its
     // odometry gives it, against each earlier capture where the graph puts it, with the
@@ -290,9 +344,72 @@ pub fn place_until(
             });
         }
     }
+    // One edge of the heading alone, to the anchor when it reads the room's directions (else
+    // to the nearest capture that does, one the graph places well first): it ties a capture
+    // that shares no segment with its neighbours to the session all the same, and, tied to
+    // the anchor rather than along a chain of neighbours, its error does not add up along the
+    // robot's path. An edge to the anchor costs the pose graph nothing: the anchor does not
+    // move ([`super::poses::optimise`]).
+    let target = [0]
+        .iter()
+        .chain(&neighbours.map)
+        .chain(&neighbours.pairs)
+        .find(|&&j| j < placed.len() && readings[j].is_some());
+    if let Some(&to) = target {
+        let other = (readings[to].expect("chosen for its reading"), current[to]);
+        edges.extend(heading_edge(index, segments, &registration, to, &other));
+    }
     Ok(Added {
         registration,
         edges,
+    })
+}
+
+/// The edge of the heading alone from capture `from` (its `segments`, placed by
+/// `registration`) to capture `to` (its reading and its pose in the session), or `None` when
+/// `from` reads no direction or one its pose cannot have: a reading taken from a desk set
+/// askew that fills the view would be dropped by the graph, but only after it had pulled.
+fn heading_edge(
+    from: usize,
+    segments: &[Measured],
+    registration: &Registration,
+    to: usize,
+    (other, at): &(Reading, PosePrior),
+) -> Option<RelativePose> {
+    let own = compass::reading(segments, &registration.rig_to_world.rotation)?;
+    let (turn, variance) = compass::relative_heading(&own, other);
+    let spread = variance + registration.covariance[(2, 2)] + at.covariance[(2, 2)];
+    if turn * turn > compass::READING_GATE * spread {
+        return None;
+    }
+    let (pose, information) =
+        compass::heading_edge(&registration.rig_to_world, &at.rig_to_world, turn, variance);
+    Some(RelativePose {
+        from,
+        to,
+        pose,
+        information,
+        inliers: own.segments as u32,
+    })
+}
+
+/// The readings of several captures (each with the variance of its capture's heading) as
+/// one: their information-weighted mean, modulo a quarter turn about the first.
+fn pooled_reading(readings: impl Iterator<Item = (Reading, f64)>) -> Option<Reading> {
+    let mut first: Option<f64> = None;
+    let (mut weights, mut sum, mut segments) = (0.0, 0.0, 0);
+    for (r, heading_variance) in readings {
+        let reference = *first.get_or_insert(r.angle);
+        let w = 1.0 / (r.sigma * r.sigma + heading_variance);
+        weights += w;
+        sum += w * compass::quarter_wrap(r.angle - reference);
+        segments += r.segments;
+    }
+    let reference = first?;
+    Some(Reading {
+        angle: compass::quarter_wrap(reference + sum / weights),
+        sigma: weights.recip().sqrt(),
+        segments,
     })
 }
 
@@ -349,7 +466,12 @@ pub const MAX_GRAPH_WORK: u64 = 1 << 23;
 /// The work of solving the pose graph of `captures` tied by `edges`, in products of 6×6
 /// blocks a step, from the edges alone (see [`MAX_GRAPH_WORK`]).
 pub fn graph_work(captures: usize, edges: &[RelativePose]) -> u64 {
-    let links: Vec<(usize, usize)> = edges.iter().map(|e| (e.from, e.to)).collect();
+    // Edges to the anchor do not widen the band: it does not move.
+    let links: Vec<(usize, usize)> = edges
+        .iter()
+        .filter(|e| e.from != 0 && e.to != 0)
+        .map(|e| (e.from, e.to))
+        .collect();
     super::envelope::ordered_work(captures, &links)
 }
 
@@ -480,20 +602,24 @@ mod tests {
             };
             assert_eq!(added.registration.status, expected, "capture {k}");
             assert!(added.edges.iter().all(|e| e.from == k && e.to < k));
-            // It overlaps every earlier one, and pairs with the nearest few.
-            assert_eq!(
-                added.edges.len(),
-                k.min(params.pair_captures),
-                "capture {k}"
-            );
+            // It overlaps every earlier one, and pairs with the nearest few; and from the
+            // second capture on, one edge ties its heading to the anchor's by the room's
+            // directions.
+            let (heading, segment): (Vec<&RelativePose>, Vec<&RelativePose>) =
+                added.edges.iter().partition(|e| heading_only(e));
+            assert_eq!(segment.len(), k.min(params.pair_captures), "capture {k}");
+            assert_eq!(heading.len(), usize::from(k > 0), "capture {k}");
+            assert!(heading.iter().all(|e| e.to == 0));
             placed.push(Placed {
                 prior: *prior,
                 segments,
             });
             edges.extend(added.edges);
         }
-        // The last capture ties back to the first: the loop closes.
-        assert!(edges.iter().any(|e| e.from == 7 && e.to == 0));
+        // The last capture ties back to the first by their segments: the loop closes.
+        assert!(edges
+            .iter()
+            .any(|e| e.from == 7 && e.to == 0 && !heading_only(e)));
         let solved = solve_poses(&placed, &edges);
         for (k, (s, t)) in solved.iter().zip(&truths).enumerate() {
             let (deg, m) = errors(&s.rig_to_world, t);
@@ -533,7 +659,7 @@ mod tests {
             neighbours_until(&placed, &edges, prior, &params, Checkpoint::NEVER).unwrap();
         let needed = neighbours.needed();
         assert!(
-            !needed.is_empty() && needed.len() <= 5 && needed.len() < placed.len(),
+            !needed.is_empty() && needed.len() <= 6 && needed.len() < placed.len(),
             "{needed:?}"
         );
         let lazy: Vec<Placed> = placed
@@ -557,7 +683,85 @@ mod tests {
         .unwrap();
         assert_eq!(read_few, full);
         assert_eq!(full.registration.status, RegistrationStatus::Registered);
-        assert_eq!(full.edges.len(), 2);
+        assert_eq!(full.edges.iter().filter(|e| !heading_only(e)).count(), 2);
+    }
+
+    /// An edge of the heading alone ([`compass`]): no information in translation.
+    fn heading_only(e: &RelativePose) -> bool {
+        e.information
+            .fixed_view::<3, 3>(3, 3)
+            .iter()
+            .all(|&v| v == 0.0)
+    }
+
+    /// A capture that shares no segment with the map — it faces another wall — is turned by
+    /// the room's directions: the heading its odometry got 2° wrong comes back to within a
+    /// twentieth of a degree, in the pose AddCapture answers and in the session's solution;
+    /// its position, which the directions cannot say, stays the odometry's.
+    #[test]
+    fn a_capture_facing_another_wall_takes_its_heading_from_the_rooms_directions() {
+        let world = room();
+        let level = |m: &&Measured| (m.start.z - m.end.z).abs() < 1e-9;
+        let north: Vec<Measured> = world
+            .iter()
+            .filter(level)
+            .filter(|m| m.start.y == 3.0 && m.end.y == 3.0)
+            .copied()
+            .collect();
+        let east: Vec<Measured> = world
+            .iter()
+            .filter(level)
+            .filter(|m| m.start.x == 2.5 && m.end.x == 2.5)
+            .copied()
+            .collect();
+        assert!(north.len() >= 4 && east.len() >= 4);
+        let truths = [pose(0.0, 0.0, 0.0), pose(0.5, 0.2, 0.3)];
+        let seen = |segments: &[Measured], truth: &Isometry3<f64>| -> Vec<Measured> {
+            segments
+                .iter()
+                .map(|m| m.transformed(&truth.inverse()))
+                .collect()
+        };
+        let (first, second) = (seen(&north, &truths[0]), seen(&east, &truths[1]));
+        let off = Isometry3::new(
+            Vector3::new(0.03, -0.02, 0.0),
+            Vector3::z() * 2f64.to_radians(),
+        );
+        let given = Isometry3::from_parts(
+            (truths[1].translation.vector + off.translation.vector).into(),
+            off.rotation * truths[1].rotation,
+        );
+        let priors = [
+            PosePrior::with_default_covariance(truths[0]),
+            PosePrior::with_default_covariance(given),
+        ];
+        let params = SessionParams::default();
+        let mut placed = vec![Placed {
+            prior: priors[0],
+            segments: &first,
+        }];
+        let added = add_capture(&placed, &[], &priors[1], &second, &params);
+        assert_eq!(
+            added.registration.status,
+            RegistrationStatus::TooFewInCommon
+        );
+        let (deg, m) = errors(&added.registration.rig_to_world, &truths[1]);
+        assert!(deg < 0.05, "answered {deg}° off");
+        assert!((m - 0.036).abs() < 0.002, "answered {m} m off");
+        assert_eq!(added.edges.len(), 1);
+        assert!(heading_only(&added.edges[0]) && added.edges[0].to == 0);
+        placed.push(Placed {
+            prior: priors[1],
+            segments: &second,
+        });
+        let solved = solve_poses(&placed, &added.edges);
+        let (deg, m) = errors(&solved[1].rig_to_world, &truths[1]);
+        assert!(deg < 0.05, "solved {deg}° off");
+        assert!((m - 0.036).abs() < 0.002, "solved {m} m off");
+        // Known to what two readings of five segments each allow (each segment within
+        // 0.25° of the room's directions), not to the odometry's 3°.
+        let sigma = solved[1].covariance[(2, 2)].sqrt().to_degrees();
+        assert!(sigma < 0.25, "{sigma}°");
     }
 
     #[test]
@@ -595,6 +799,11 @@ mod tests {
         };
         assert!(graph_work(10_000, &mown(100)) > MAX_GRAPH_WORK);
         assert!(graph_work(10_000, &mown(1000)) < MAX_GRAPH_WORK);
+        // Every capture of the drive tied to the anchor as well (the room's directions)
+        // costs nothing more: the anchor does not move.
+        let mut compassed = drive.clone();
+        compassed.extend((1..10_000).map(|k| edge(k, 0)));
+        assert_eq!(graph_work(10_000, &compassed), graph_work(10_000, &drive));
     }
 
     /// Captures with no segments at `poses`, each prior with the default covariance.

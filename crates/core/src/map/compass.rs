@@ -147,6 +147,54 @@ fn direction_about_vertical(m: &Measured, rig_to_world: &Matrix3<f64>) -> Option
     Some((d.y.atan2(d.x), 1.0 / (variance + BUILT_SIGMA * BUILT_SIGMA)))
 }
 
+/// The readings of several captures as one, each given with the variance of its capture's
+/// heading (its reading is in the world only as well as its pose is): the
+/// information-weighted mean of those that agree with the reading most of the others agree
+/// with (within [`READING_GATE`] of their joint spread; by count of captures, then weight),
+/// and which agreed. A capture whose
+/// view a desk set askew fills reads that desk, and one such reading in a plain mean would
+/// turn every capture that trusts it.
+pub fn consensus(readings: &[(Reading, f64)]) -> Option<(Reading, Vec<bool>)> {
+    let variance = |(r, heading): &(Reading, f64)| r.sigma * r.sigma + heading;
+    let agree = |a: &(Reading, f64), b: &(Reading, f64)| {
+        let d = quarter_wrap(a.0.angle - b.0.angle);
+        d * d <= READING_GATE * (variance(a) + variance(b))
+    };
+    // The reading the most captures agree with — each capture one vote, however precise it
+    // claims to be: a desk read sharply is still one desk — then the most weight (ties: the
+    // first, the anchor's).
+    let support = |c: &(Reading, f64)| -> (usize, f64) {
+        readings
+            .iter()
+            .filter(|r| agree(c, r))
+            .fold((0, 0.0), |(n, w), r| (n + 1, w + 1.0 / variance(r)))
+    };
+    let mut best: Option<(usize, (usize, f64))> = None;
+    for (k, c) in readings.iter().enumerate() {
+        let s = support(c);
+        if best.is_none_or(|(_, b)| s.0 > b.0 || (s.0 == b.0 && s.1 > b.1)) {
+            best = Some((k, s));
+        }
+    }
+    let centre = &readings[best?.0];
+    let agreeing: Vec<bool> = readings.iter().map(|r| agree(centre, r)).collect();
+    let (mut weights, mut sum, mut segments) = (0.0, 0.0, 0);
+    for (r, _) in readings.iter().zip(&agreeing).filter(|(_, &a)| a) {
+        let w = 1.0 / variance(r);
+        weights += w;
+        sum += w * quarter_wrap(r.0.angle - centre.0.angle);
+        segments += r.0.segments;
+    }
+    Some((
+        Reading {
+            angle: quarter_wrap(centre.0.angle + sum / weights),
+            sigma: weights.recip().sqrt(),
+            segments,
+        },
+        agreeing,
+    ))
+}
+
 /// The heading (about world z, radians) that would turn a capture read as `own` so that it
 /// agrees with `other`, the nearest of the quarter turns, and the variance of that turn.
 pub fn relative_heading(own: &Reading, other: &Reading) -> (f64, f64) {
@@ -303,6 +351,29 @@ mod tests {
             })
             .collect();
         assert_eq!(reading(&imprecise, &UnitQuaternion::identity()), None);
+    }
+
+    #[test]
+    fn the_consensus_of_readings_leaves_out_the_one_that_read_a_desk_askew() {
+        let at = |degrees: f64, sigma_deg: f64| Reading {
+            angle: degrees.to_radians(),
+            sigma: sigma_deg.to_radians(),
+            segments: 10,
+        };
+        let heading = 0.05f64.to_radians().powi(2);
+        let readings = [
+            (at(0.1, 0.2), heading),
+            (at(36.3, 0.1), heading),
+            (at(-0.1, 0.2), heading),
+            (at(89.9, 0.2), heading),
+        ];
+        let (got, agreeing) = consensus(&readings).expect("readings agree");
+        assert_eq!(agreeing, [true, false, true, true]);
+        // 89.9° is −0.1° a quarter turn on: the three agree about 0°.
+        assert!(got.angle.to_degrees().abs() < 0.05, "{got:?}");
+        assert_eq!(got.segments, 30);
+        assert!(got.sigma < readings[0].0.sigma);
+        assert_eq!(consensus(&[]), None);
     }
 
     #[test]

@@ -269,12 +269,27 @@ pub fn place_until(
                 .flatten()
         })
         .collect();
-    let map_reading = pooled_reading(
-        neighbours
-            .map
+    // The map's reading: the anchor's and the map's captures', those that agree.
+    let candidates: Vec<usize> = std::iter::once(0)
+        .chain(neighbours.map.iter().copied().filter(|&i| i != 0))
+        .filter(|&i| i < placed.len() && readings[i].is_some())
+        .collect();
+    let with_heading_variance = |i: usize| readings[i].map(|r| (r, current[i].covariance[(2, 2)]));
+    let consensus = compass::consensus(
+        &candidates
             .iter()
-            .filter_map(|&i| readings[i].map(|r| (r, current[i].covariance[(2, 2)]))),
+            .filter_map(|&i| with_heading_variance(i))
+            .collect::<Vec<_>>(),
     );
+    let map_reading = consensus.as_ref().map(|(r, _)| *r);
+    // A capture's reading may stand for the map's when it agrees with the consensus.
+    let trusted = |i: usize| -> Option<(Reading, PosePrior)> {
+        let (map, _) = consensus.as_ref()?;
+        let own = with_heading_variance(i)?;
+        let d = compass::quarter_wrap(own.0.angle - map.angle);
+        let spread = own.0.sigma * own.0.sigma + own.1 + map.sigma * map.sigma;
+        (d * d <= compass::READING_GATE * spread).then_some((own.0, current[i]))
+    };
     let own = params
         .compass
         .then(|| compass::reading(segments, &prior.rig_to_world.rotation))
@@ -354,9 +369,9 @@ pub fn place_until(
         .iter()
         .chain(&neighbours.map)
         .chain(&neighbours.pairs)
-        .find(|&&j| j < placed.len() && readings[j].is_some());
-    if let Some(&to) = target {
-        let other = (readings[to].expect("chosen for its reading"), current[to]);
+        .filter(|&&j| j < placed.len())
+        .find_map(|&j| trusted(j).map(|t| (j, t)));
+    if let Some((to, other)) = target {
         edges.extend(heading_edge(index, segments, &registration, to, &other));
     }
     Ok(Added {
@@ -390,26 +405,6 @@ fn heading_edge(
         pose,
         information,
         inliers: own.segments as u32,
-    })
-}
-
-/// The readings of several captures (each with the variance of its capture's heading) as
-/// one: their information-weighted mean, modulo a quarter turn about the first.
-fn pooled_reading(readings: impl Iterator<Item = (Reading, f64)>) -> Option<Reading> {
-    let mut first: Option<f64> = None;
-    let (mut weights, mut sum, mut segments) = (0.0, 0.0, 0);
-    for (r, heading_variance) in readings {
-        let reference = *first.get_or_insert(r.angle);
-        let w = 1.0 / (r.sigma * r.sigma + heading_variance);
-        weights += w;
-        sum += w * compass::quarter_wrap(r.angle - reference);
-        segments += r.segments;
-    }
-    let reference = first?;
-    Some(Reading {
-        angle: compass::quarter_wrap(reference + sum / weights),
-        sigma: weights.recip().sqrt(),
-        segments,
     })
 }
 

@@ -340,7 +340,8 @@ class Session:
 class CaptureResult:
     """AddCapture's answer: this capture's match (rig frame), its index, the capture count,
     and its registration to the map: `status` ("REGISTERED", "EMPTY_MAP",
-    "TOO_FEW_IN_COMMON", "DISAGREES_WITH_PRIOR"), `rig_to_world` (4x4, refined or as given), `covariance` (6x6),
+    "TOO_FEW_IN_COMMON", "DISAGREES_WITH_PRIOR"), `rig_to_world` (4x4, refined, or as given with
+    its heading turned by the room's directions), `covariance` (6x6),
     `inliers`, `rotation_change_deg`, `translation_change_m`."""
 
     capture_index: int

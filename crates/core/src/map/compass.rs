@@ -51,6 +51,9 @@ const AGREE: f64 = 0.0175;
 const RIVAL_SHARE: f64 = 0.5;
 /// Fewest segments a reading needs.
 const MIN_SEGMENTS: usize = 3;
+/// Most segments a reading compares (pairwise): the most precise are kept. A room's capture
+/// has tens of horizontal certain segments, a large real photograph's a few hundred.
+const MAX_READ: usize = 512;
 /// The reading's precision is never taken to be better than this (radians: 0.05°).
 const MIN_SIGMA: f64 = 0.00087;
 
@@ -71,11 +74,20 @@ pub fn quarter_wrap(a: f64) -> f64 {
 pub fn reading(segments: &[Measured], rotation: &UnitQuaternion<f64>) -> Option<Reading> {
     let r = rotation.to_rotation_matrix().into_inner();
     // (angle, weight) of each certain horizontal segment, in the world.
-    let directions: Vec<(f64, f64)> = segments
+    let mut directions: Vec<(f64, f64)> = segments
         .iter()
         .filter(|m| !m.uncertain)
         .filter_map(|m| direction_about_vertical(m, &r))
         .collect();
+    // The mode search compares every pair: a capture of a client's making with tens of
+    // thousands of segments is read from its most precise few hundred, in their own order.
+    if directions.len() > MAX_READ {
+        let mut by_weight: Vec<usize> = (0..directions.len()).collect();
+        by_weight.sort_by(|&a, &b| directions[b].1.total_cmp(&directions[a].1).then(a.cmp(&b)));
+        by_weight.truncate(MAX_READ);
+        by_weight.sort_unstable();
+        directions = by_weight.into_iter().map(|k| directions[k]).collect();
+    }
     if directions.len() < MIN_SEGMENTS {
         return None;
     }
@@ -318,6 +330,23 @@ mod tests {
             assert_eq!(got.segments, 8);
             assert!(got.sigma > 0.0 && got.sigma < BUILT_SIGMA, "{got:?}");
         }
+    }
+
+    /// A capture with far more segments than a room shows is read from its most precise
+    /// ones, in bounded work, and still reads its room.
+    #[test]
+    fn a_crowd_of_segments_is_read_from_its_most_precise() {
+        let room = square_room(0.1);
+        let mut crowd: Vec<Measured> = (0..70).flat_map(|_| room.iter().copied()).collect();
+        // Imprecise segments askew, three times as many: left out for the precise ones.
+        for k in 0..3 * crowd.len() {
+            let a = 0.5 + 0.001 * (k % 7) as f64;
+            crowd.push(segment([0.0, 0.0, 1.0], [a.cos(), a.sin(), 1.0], 0.004));
+        }
+        assert!(crowd.len() > 4 * MAX_READ);
+        let got = reading(&crowd, &UnitQuaternion::identity()).expect("the room reads");
+        assert!(quarter_wrap(got.angle - 0.1).abs() < 1e-9, "{got:?}");
+        assert_eq!(got.segments, MAX_READ);
     }
 
     #[test]

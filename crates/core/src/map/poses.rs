@@ -312,6 +312,14 @@ mod tests {
         Isometry3::new(Vector3::new(x, y, 1.0), Vector3::z() * angle)
     }
 
+    /// A prior that pins its capture at `t`, as a session's anchor.
+    fn pinned(t: &Isometry3<f64>) -> PosePrior {
+        PosePrior {
+            rig_to_world: *t,
+            covariance: Matrix6::identity() * 1e-12,
+        }
+    }
+
     #[test]
     fn a_loop_of_exact_relative_poses_corrects_noisy_priors() {
         let truth: Vec<Isometry3<f64>> = (0..8)
@@ -329,10 +337,7 @@ mod tests {
                 let off = Isometry3::rotation(Vector3::z() * e) * *t;
                 let prior = PosePrior::odometry(off, 3.0, 0.3, 0.05, 0.01);
                 if k == 0 {
-                    PosePrior {
-                        rig_to_world: *t,
-                        covariance: Matrix6::identity() * 1e-12,
-                    }
+                    pinned(t)
                 } else {
                     prior
                 }
@@ -373,10 +378,7 @@ mod tests {
             .enumerate()
             .map(|(k, t)| {
                 if k == 0 {
-                    PosePrior {
-                        rig_to_world: *t,
-                        covariance: Matrix6::identity() * 1e-12,
-                    }
+                    pinned(t)
                 } else {
                     let off = Isometry3::new(
                         Vector3::new(0.03, -0.02, 0.0),

@@ -258,17 +258,16 @@ pub fn place_until(
     let seen_from = seen_from.unwrap_or_default();
     // The heading the room's directions give the capture against the map's captures: the
     // registration then starts from it and holds it as firmly as the two readings allow.
-    let readings: Vec<Option<Reading>> = placed
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let needed = params.compass
-                && (i == 0 || neighbours.map.contains(&i) || neighbours.pairs.contains(&i));
-            needed
-                .then(|| compass::reading(p.segments, &current[i].rig_to_world.rotation))
-                .flatten()
-        })
-        .collect();
+    let mut readings: Vec<Option<Reading>> = vec![None; placed.len()];
+    if params.compass {
+        for i in neighbours
+            .needed()
+            .into_iter()
+            .filter(|&i| i < placed.len())
+        {
+            readings[i] = compass::reading(placed[i].segments, &current[i].rig_to_world.rotation);
+        }
+    }
     // The map's reading: the anchor's and the map's captures', those that agree.
     let candidates: Vec<usize> = std::iter::once(0)
         .chain(neighbours.map.iter().copied().filter(|&i| i != 0))
@@ -696,19 +695,17 @@ mod tests {
     #[test]
     fn a_capture_facing_another_wall_takes_its_heading_from_the_rooms_directions() {
         let world = room();
-        let level = |m: &&Measured| (m.start.z - m.end.z).abs() < 1e-9;
-        let north: Vec<Measured> = world
-            .iter()
-            .filter(level)
-            .filter(|m| m.start.y == 3.0 && m.end.y == 3.0)
-            .copied()
-            .collect();
-        let east: Vec<Measured> = world
-            .iter()
-            .filter(level)
-            .filter(|m| m.start.x == 2.5 && m.end.x == 2.5)
-            .copied()
-            .collect();
+        // The level edges whose ends both lie on one wall (`across` of the wall's plane).
+        let on_wall = |across: fn(&Point3<f64>) -> f64, at: f64| -> Vec<Measured> {
+            world
+                .iter()
+                .filter(|m| (m.start.z - m.end.z).abs() < 1e-9)
+                .filter(|m| across(&m.start) == at && across(&m.end) == at)
+                .copied()
+                .collect()
+        };
+        let north = on_wall(|p| p.y, 3.0);
+        let east = on_wall(|p| p.x, 2.5);
         assert!(north.len() >= 4 && east.len() >= 4);
         let truths = [pose(0.0, 0.0, 0.0), pose(0.5, 0.2, 0.3)];
         let seen = |segments: &[Measured], truth: &Isometry3<f64>| -> Vec<Measured> {

@@ -58,6 +58,11 @@ struct Args {
     /// in common and their odometry only.
     #[arg(long)]
     no_compass: bool,
+    /// Place the captures without the room's long lines as landmarks (`map::landmarks`): a
+    /// capture that continues a line an earlier one saw, sharing no segment with it, is then
+    /// held across that line by its odometry alone.
+    #[arg(long)]
+    no_landmarks: bool,
 }
 
 /// The loop: an ellipse about the room's middle, clear of the furniture along the walls.
@@ -110,6 +115,7 @@ fn main() -> anyhow::Result<()> {
                 args.verbose,
                 args.in_3d_only,
                 !args.no_compass,
+                !args.no_landmarks,
             );
             let segments: Vec<Segment3> = fused.iter().map(|m| m.segment()).collect();
             let s = score(&segments, &truth_edges, &eligible, mean_centre);
@@ -156,7 +162,7 @@ fn main() -> anyhow::Result<()> {
     println!("|---|---|---|---|");
     for (&(yaw_deg, xy_m), p) in levels.iter().zip(&pooled) {
         println!(
-            "| {yaw_deg}°, {} cm | {:.1}% | {:.1}% | {:.3}°, {:.1} mm |",
+            "| {yaw_deg}°, {} cm | {:.2}% | {:.2}% | {:.3}°, {:.1} mm |",
             xy_m * 100.0,
             100.0 * (1.0 - p.correct as f64 / p.segments.max(1) as f64),
             100.0 * p.covered / p.eligible.max(1e-12),
@@ -306,9 +312,11 @@ fn build_map(
     verbose: bool,
     in_3d_only: bool,
     compass: bool,
+    landmarks: bool,
 ) -> (Vec<Isometry3<f64>>, Vec<map::MapSegment>) {
     let params = SessionParams {
         compass,
+        landmarks,
         ..SessionParams::default()
     };
     let mut placed: Vec<Placed> = Vec::new();
@@ -380,12 +388,16 @@ fn build_map(
     if verbose {
         for (i, (p, s)) in solved.iter().zip(seen).enumerate() {
             eprintln!(
-                "  solved {i:02}: error {:.3} deg {:.1} mm, sigma yaw {:.3} deg",
+                "  solved {i:02}: error {:.3} deg {:.1} mm, sigma yaw {:.3} deg, sigma xy {:.1} mm",
                 (p.rig_to_world.rotation * s.truth.rotation.inverse())
                     .angle()
                     .to_degrees(),
                 (p.rig_to_world.translation.vector - s.truth.translation.vector).norm() * 1e3,
-                p.covariance[(2, 2)].max(0.0).sqrt().to_degrees()
+                p.covariance[(2, 2)].max(0.0).sqrt().to_degrees(),
+                (p.covariance[(3, 3)] + p.covariance[(4, 4)])
+                    .max(0.0)
+                    .sqrt()
+                    * 1e3
             );
         }
     }

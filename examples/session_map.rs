@@ -88,6 +88,11 @@ struct Args {
     /// in common and their odometry only.
     #[arg(long)]
     no_compass: bool,
+    /// Place the captures without the room's long lines as landmarks (`map::landmarks`): a
+    /// capture that continues a line an earlier one saw, sharing no segment with it, is then
+    /// held across that line by its odometry alone.
+    #[arg(long)]
+    no_landmarks: bool,
 }
 
 /// Standard normal draws from a seed (splitmix64, Box–Muller): the same noise for the same
@@ -363,6 +368,7 @@ fn main() -> Result<(), Error> {
             args.graph,
             &SessionParams {
                 compass: !args.no_compass,
+                landmarks: !args.no_landmarks,
                 ..SessionParams::default()
             },
         )

@@ -15,6 +15,7 @@ mod envelope;
 pub mod export;
 mod fuse;
 pub mod images;
+pub mod landmarks;
 pub mod poses;
 pub mod register;
 pub mod session;

@@ -22,6 +22,7 @@ use nalgebra::{Matrix6, Point3};
 
 use super::compass::{self, Reading};
 use super::images::{refine_in_images_until, ImageParams, IndexedViews, Views};
+use super::landmarks;
 use super::poses::{register_pair, relative_covariance, RelativePose};
 use super::register::{register_seen, Measured, PosePrior, RegisterParams, Registration, Sector};
 use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
@@ -63,6 +64,9 @@ pub struct SessionParams {
     /// registration's prior, and an edge of the heading alone to the anchor. Off, a session
     /// is placed by its segments in common and its odometry only.
     pub compass: bool,
+    /// Whether long horizontal lines a capture continues in earlier captures it shares no
+    /// segment with tie its position across them ([`super::landmarks`]).
+    pub landmarks: bool,
 }
 
 impl Default for SessionParams {
@@ -74,6 +78,7 @@ impl Default for SessionParams {
             reach_m: 10.0,
             images: ImageParams::default(),
             compass: true,
+            landmarks: true,
         }
     }
 }
@@ -358,6 +363,33 @@ pub fn place_until(
             });
         }
     }
+    // The long lines it continues in captures it shares no segment with: its position across
+    // them ([`super::landmarks`]), against the anchor's and the map's captures.
+    if params.landmarks {
+        checkpoint.before("registration")?;
+        let tied: Vec<usize> = edges.iter().map(|e| e.to).collect();
+        let mut near: Vec<usize> = std::iter::once(0)
+            .chain(neighbours.map.iter().copied())
+            .filter(|&j| j < placed.len())
+            .collect();
+        near.sort_unstable();
+        near.dedup();
+        let candidates: Vec<(usize, &[Measured], PosePrior)> = near
+            .into_iter()
+            .map(|j| (j, placed[j].segments, current[j]))
+            .collect();
+        let placed_here = PosePrior {
+            rig_to_world: registration.rig_to_world,
+            covariance: registration.covariance,
+        };
+        edges.extend(landmarks::line_edges(
+            index,
+            segments,
+            &placed_here,
+            &candidates,
+            &tied,
+        ));
+    }
     // One edge of the heading alone, to the anchor when it reads the room's directions (else
     // to the nearest capture that does, one the graph places well first): it ties a capture
     // that shares no segment with its neighbours to the session all the same, and, tied to
@@ -596,12 +628,15 @@ mod tests {
             };
             assert_eq!(added.registration.status, expected, "capture {k}");
             assert!(added.edges.iter().all(|e| e.from == k && e.to < k));
-            // It overlaps every earlier one, and pairs with the nearest few; and from the
-            // second capture on, one edge ties its heading to the anchor's by the room's
-            // directions.
-            let (heading, segment): (Vec<&RelativePose>, Vec<&RelativePose>) =
+            // It overlaps every earlier one, and pairs with the nearest few; from the second
+            // capture on, one edge ties its heading to the anchor's by the room's directions;
+            // any other edge is of the room's long lines, to a capture it does not pair with.
+            let (heading, others): (Vec<&RelativePose>, Vec<&RelativePose>) =
                 added.edges.iter().partition(|e| heading_only(e));
+            let (segment, lines): (Vec<&RelativePose>, Vec<&RelativePose>) =
+                others.into_iter().partition(|e| of_segments(e));
             assert_eq!(segment.len(), k.min(params.pair_captures), "capture {k}");
+            assert!(lines.iter().all(|l| segment.iter().all(|s| s.to != l.to)));
             assert_eq!(heading.len(), usize::from(k > 0), "capture {k}");
             assert!(heading.iter().all(|e| e.to == 0));
             placed.push(Placed {
@@ -677,7 +712,15 @@ mod tests {
         .unwrap();
         assert_eq!(read_few, full);
         assert_eq!(full.registration.status, RegistrationStatus::Registered);
-        assert_eq!(full.edges.iter().filter(|e| !heading_only(e)).count(), 2);
+        assert_eq!(full.edges.iter().filter(|e| of_segments(e)).count(), 2);
+    }
+
+    /// An edge of segments in common: information in every direction of the relative pose,
+    /// where one of the room's long lines ([`landmarks`]) has none along itself or in height.
+    fn of_segments(e: &RelativePose) -> bool {
+        let values = nalgebra::SymmetricEigen::new(e.information).eigenvalues;
+        let largest = values.iter().cloned().fold(0.0, f64::max);
+        values.iter().all(|&v| v > 1e-9 * largest)
     }
 
     /// An edge of the heading alone ([`compass`]): no information in translation.

@@ -6,8 +6,9 @@
 //!
 //! Per seed: the standard room (`synth::Scene::room`) and rig (`RigSpec::non_collinear`);
 //! the rig drives once round an ellipse through the middle of the room, 1.2 m up, looking
-//! along its path — `--captures` captures, 0.3–0.45 m and 15–30° apart, the last one seeing
-//! what the first saw, so the loop can close. Each capture is rendered (`render_triplet`) and
+//! along its path — `--captures` captures, 0.3–0.45 m and 15–30° apart, the last one a step
+//! behind the first and turned from it (in seed 6 its views hold 1 of the first capture's 64
+//! segments: the loop does not close by segments). Each capture is rendered (`render_triplet`) and
 //! matched from its images (every 3D segment kept with its covariance, as a session's
 //! AddCapture keeps them); each noise level `YAW_DEG/XY_M` then gives every capture but the
 //! first a heading error N(0, YAW_DEG) about its rig's origin and a floor error N(0, XY_M) per

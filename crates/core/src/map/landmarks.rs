@@ -19,7 +19,7 @@
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, RowVector6, SymmetricEigen, Vector3};
 
 use super::poses::{perturbed, RelativePose};
-use super::register::{Measured, PosePrior};
+use super::register::{block_diag, Measured, PosePrior};
 
 /// Shortest segment used as a landmark, metres: a short segment's line is poorly placed
 /// once extrapolated, and short horizontal edges are mostly furniture.
@@ -289,10 +289,13 @@ fn edge(
         &nalgebra::Vector6::new(0.0, 0.0, 0.0, shift.x, shift.y, shift.z),
     );
     // Into `to`'s frame: both the rotation vector and the translation turn with it.
-    let r = to_pose.rotation.to_rotation_matrix().into_inner();
-    let mut turn = Matrix6::zeros();
-    turn.fixed_view_mut::<3, 3>(0, 0).copy_from(&r.transpose());
-    turn.fixed_view_mut::<3, 3>(3, 3).copy_from(&r.transpose());
+    let turn = block_diag(
+        &to_pose
+            .rotation
+            .to_rotation_matrix()
+            .into_inner()
+            .transpose(),
+    );
     Some(RelativePose {
         from,
         to,

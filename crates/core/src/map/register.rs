@@ -1107,7 +1107,7 @@ fn slack() -> Matrix6<f64> {
 }
 
 /// `r` on both 3x3 diagonal blocks of a 6x6.
-fn block_diag(r: &Matrix3<f64>) -> Matrix6<f64> {
+pub(crate) fn block_diag(r: &Matrix3<f64>) -> Matrix6<f64> {
     let mut m = Matrix6::zeros();
     m.fixed_view_mut::<3, 3>(0, 0).copy_from(r);
     m.fixed_view_mut::<3, 3>(3, 3).copy_from(r);

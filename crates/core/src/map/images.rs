@@ -473,20 +473,46 @@ fn project_all(
     pose: &Isometry3<f64>,
     params: &ImageParams,
 ) -> Vec<[Option<Projected>; 3]> {
-    let inverse = pose.inverse();
-    let to_rig = inverse.rotation.to_rotation_matrix().into_inner();
-    let floor = params.reference_floor_m.powi(2);
+    project_turned(
+        references,
+        lenses,
+        pose,
+        &turned_covariances(references, pose),
+        params,
+    )
+}
+
+/// Each reference's end covariances in the rig frame of a capture at `pose`: they depend on
+/// its rotation alone, so a search's cells of one heading share them.
+fn turned_covariances(references: &[Measured], pose: &Isometry3<f64>) -> Vec<[Matrix3<f64>; 2]> {
+    let to_rig = pose.inverse().rotation.to_rotation_matrix().into_inner();
     references
         .iter()
         .map(|m| {
-            let a = (inverse * m.start).coords;
-            let b = (inverse * m.end).coords;
-            // Each end's covariance in the rig frame, once for the three views.
-            let in_rig = |block: usize| {
+            std::array::from_fn(|block| {
                 let c = m.covariance.fixed_view::<3, 3>(3 * block, 3 * block);
                 to_rig * c * to_rig.transpose()
-            };
-            let (ca, cb) = (in_rig(0), in_rig(1));
+            })
+        })
+        .collect()
+}
+
+/// [`project_all`], given the references' [`turned_covariances`] at `pose`'s rotation.
+fn project_turned(
+    references: &[Measured],
+    lenses: &[Lens; 3],
+    pose: &Isometry3<f64>,
+    turned: &[[Matrix3<f64>; 2]],
+    params: &ImageParams,
+) -> Vec<[Option<Projected>; 3]> {
+    let inverse = pose.inverse();
+    let floor = params.reference_floor_m.powi(2);
+    references
+        .iter()
+        .zip(turned)
+        .map(|(m, [ca, cb])| {
+            let a = (inverse * m.start).coords;
+            let b = (inverse * m.end).coords;
             std::array::from_fn(|k| {
                 let lens = &lenses[k];
                 let (pa, ha) = pixel_of(lens, &a)?;
@@ -506,7 +532,7 @@ fn project_all(
                     let g = lens.across_gradient(pixel, h, &normal);
                     g.dot(&(c * g)) + floor * g.norm_squared()
                 };
-                let (start_var, end_var) = (across(&pa, &ha, &ca), across(&pb, &hb, &cb));
+                let (start_var, end_var) = (across(&pa, &ha, ca), across(&pb, &hb, cb));
                 Some(Projected {
                     start: pa,
                     end: pb,
@@ -1203,9 +1229,23 @@ pub fn refine_in_images_until(
                 })
                 .collect();
             checkpoint.before("registration")?;
+            // The cells of one heading share their rotation, so their covariances: turned
+            // once per heading rather than once per cell.
+            let headings: Vec<i32> = (-GRID_STEPS_YAW..=GRID_STEPS_YAW).collect();
+            let turned: Vec<Vec<[Matrix3<f64>; 2]>> = headings
+                .iter()
+                .map(|&k| {
+                    let xi = Vector6::new(0.0, 0.0, k as f64 * step_rad, 0.0, 0.0, 0.0);
+                    turned_covariances(references, &perturbed(start, &xi))
+                })
+                .collect();
             let projected: Vec<_> = poses
                 .iter()
-                .map(|pose| project_all(references, lenses, pose, params))
+                .zip(order.iter())
+                .map(|(pose, &(_, _, k))| {
+                    let heading = (k + GRID_STEPS_YAW) as usize;
+                    project_turned(references, lenses, pose, &turned[heading], params)
+                })
                 .collect();
             let lists = gathered(&projected, lines);
             let mut candidates = Candidates::listed(lines, &lists);

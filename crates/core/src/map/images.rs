@@ -473,46 +473,51 @@ fn project_all(
     pose: &Isometry3<f64>,
     params: &ImageParams,
 ) -> Vec<[Option<Projected>; 3]> {
-    project_turned(
-        references,
-        lenses,
-        pose,
-        &turned_covariances(references, pose),
-        params,
-    )
+    project_turned(lenses, pose, &turned_references(references, pose), params)
 }
 
-/// Each reference's end covariances in the rig frame of a capture at `pose`: they depend on
-/// its rotation alone, so a search's cells of one heading share them.
-fn turned_covariances(references: &[Measured], pose: &Isometry3<f64>) -> Vec<[Matrix3<f64>; 2]> {
-    let to_rig = pose.inverse().rotation.to_rotation_matrix().into_inner();
+/// A reference turned into the axes of a capture's rig: its ends (not yet shifted by the
+/// capture's position) and their covariances.
+struct Turned {
+    start: Point3<f64>,
+    end: Point3<f64>,
+    covariances: [Matrix3<f64>; 2],
+}
+
+/// Each reference turned by the rotation of a capture at `pose`: what depends on that
+/// rotation alone, so that a search's cells of one heading share it.
+fn turned_references(references: &[Measured], pose: &Isometry3<f64>) -> Vec<Turned> {
+    let rotation = pose.inverse().rotation;
+    let to_rig = rotation.to_rotation_matrix().into_inner();
     references
         .iter()
-        .map(|m| {
-            std::array::from_fn(|block| {
+        .map(|m| Turned {
+            start: rotation.transform_point(&m.start),
+            end: rotation.transform_point(&m.end),
+            covariances: std::array::from_fn(|block| {
                 let c = m.covariance.fixed_view::<3, 3>(3 * block, 3 * block);
                 to_rig * c * to_rig.transpose()
-            })
+            }),
         })
         .collect()
 }
 
-/// [`project_all`], given the references' [`turned_covariances`] at `pose`'s rotation.
+/// [`project_all`], given the references [`turned_references`] by `pose`'s rotation.
 fn project_turned(
-    references: &[Measured],
     lenses: &[Lens; 3],
     pose: &Isometry3<f64>,
-    turned: &[[Matrix3<f64>; 2]],
+    turned: &[Turned],
     params: &ImageParams,
 ) -> Vec<[Option<Projected>; 3]> {
-    let inverse = pose.inverse();
+    // The inverse pose's point transform is its rotation, then its translation.
+    let shift = pose.inverse().translation;
     let floor = params.reference_floor_m.powi(2);
-    references
+    turned
         .iter()
-        .zip(turned)
-        .map(|(m, [ca, cb])| {
-            let a = (inverse * m.start).coords;
-            let b = (inverse * m.end).coords;
+        .map(|t| {
+            let a = (shift * t.start).coords;
+            let b = (shift * t.end).coords;
+            let [ca, cb] = &t.covariances;
             std::array::from_fn(|k| {
                 let lens = &lenses[k];
                 let (pa, ha) = pixel_of(lens, &a)?;
@@ -1229,14 +1234,14 @@ pub fn refine_in_images_until(
                 })
                 .collect();
             checkpoint.before("registration")?;
-            // The cells of one heading share their rotation, so their covariances: turned
-            // once per heading rather than once per cell.
+            // The cells of one heading share their rotation, so the references' turned ends
+            // and covariances: once per heading rather than once per cell.
             let headings: Vec<i32> = (-GRID_STEPS_YAW..=GRID_STEPS_YAW).collect();
-            let turned: Vec<Vec<[Matrix3<f64>; 2]>> = headings
+            let turned: Vec<Vec<Turned>> = headings
                 .iter()
                 .map(|&k| {
                     let xi = Vector6::new(0.0, 0.0, k as f64 * step_rad, 0.0, 0.0, 0.0);
-                    turned_covariances(references, &perturbed(start, &xi))
+                    turned_references(references, &perturbed(start, &xi))
                 })
                 .collect();
             let projected: Vec<_> = poses
@@ -1244,7 +1249,7 @@ pub fn refine_in_images_until(
                 .zip(order.iter())
                 .map(|(pose, &(_, _, k))| {
                     let heading = (k + GRID_STEPS_YAW) as usize;
-                    project_turned(references, lenses, pose, &turned[heading], params)
+                    project_turned(lenses, pose, &turned[heading], params)
                 })
                 .collect();
             let lists = gathered(&projected, lines);

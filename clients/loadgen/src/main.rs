@@ -199,6 +199,7 @@ async fn main() -> anyhow::Result<()> {
             // As the server: wide HTTP/2 windows, so large answers need no WINDOW_UPDATE wait.
             .initial_stream_window_size(Some(4 << 20))
             .initial_connection_window_size(Some(16 << 20))
+            .max_frame_size(Some(1 << 20))
             .connect()
             .await
             .context("cannot connect")?;

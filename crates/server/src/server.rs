@@ -17,6 +17,10 @@ use trinocular_schema::pb;
 /// HTTP/2 flow-control windows of the gRPC server, bytes.
 const H2_STREAM_WINDOW: u32 = 4 << 20;
 const H2_CONNECTION_WINDOW: u32 = 16 << 20;
+/// Largest HTTP/2 frame the gRPC server accepts, bytes: at the protocol's default 16 KiB a
+/// 600-segment request arrives in six DATA frames and an image triplet in hundreds, each
+/// framed and handled on its own.
+const H2_MAX_FRAME: u32 = 1 << 20;
 
 /// Concurrent calls on one gRPC connection.
 const GRPC_MAX_STREAMS: u32 = 64;
@@ -111,6 +115,7 @@ pub async fn start_with_tls(
             // 80 KiB, an image triplet megabytes): open them wide.
             .initial_stream_window_size(Some(H2_STREAM_WINDOW))
             .initial_connection_window_size(Some(H2_CONNECTION_WINDOW))
+            .max_frame_size(Some(H2_MAX_FRAME))
             .add_service(health_service)
             .add_service(reflection_v1)
             .add_service(reflection_v1alpha)

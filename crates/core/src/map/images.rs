@@ -18,8 +18,9 @@
 //! to its χ². Where the refinements leave many projections in view unpaired, each start is
 //! searched locally (a grid across the floor and in heading, as far as twice the prior's
 //! spread, scored by one truncated cost over every visible projection) and the grid's
-//! cheapest cells refined — those of its inner ±4 cm and those of the whole grid — so a
-//! start outside the right basin, where a 3D registration of few segments may leave it
+//! cheapest cells refined — its inner ±4 cm first, the rest only when that leaves the fit
+//! unsettled and only cells cheaper than the best refined fit — so a start outside the
+//! right basin, where a 3D registration of few segments may leave it
 //! (one stride over along a repetitive wall), is not refined into the wrong one; the
 //! refined pose of lowest cost wins. A start
 //! that sees too few references for a fit is not refined at all.
@@ -1049,107 +1050,112 @@ pub fn refine_in_images_until(
     // fit, and a search a few centimetres and half a degree about them would bring in a few
     // at the images' borders at most. (In a panorama, most of a capture's pair neighbours are
     // such: searching each cost three quarters of an AddCapture.)
-    let in_view = |start: &Isometry3<f64>| {
-        project_all(references, lenses, start, params)
+    let at_starts: Vec<Vec<[Option<Projected>; 3]>> = starts
+        .iter()
+        .map(|start| project_all(references, lenses, start, params))
+        .collect();
+    let in_view = |projected: &[[Option<Projected>; 3]]| {
+        projected
             .iter()
             .filter(|views| views.iter().any(Option::is_some))
             .count()
     };
-    if starts
+    if at_starts
         .iter()
-        .all(|start| in_view(start) < params.min_references as usize)
+        .all(|projected| in_view(projected) < params.min_references as usize)
     {
         return Ok(None);
     }
     let lines = views.lines();
-    let refine = |start: &Isometry3<f64>| -> Option<(ImageFit, f64)> {
-        let mut pose = *start;
-        let mut information = Matrix6::zeros();
-        let rounds = params
-            .pixel_gates
-            .iter()
-            .map(|&g| Some(g))
-            .chain(std::iter::repeat_n(None, CHI2_ROUNDS));
-        let anchors = project_all(references, lenses, &pose, params);
-        let lists = gathered_about(&anchors, lines);
-        let mut candidates = Candidates::anchored(lines, &lists, &anchors);
-        // The last round's gate and pairings: a χ² round that pairs as the one before it
-        // solves the same problem from where that one converged, and so would every round
-        // after it.
-        let mut last: Option<(Option<f64>, Vec<Pairing>)> = None;
-        for (round, gate) in rounds.enumerate() {
-            // The first round is at the start, where the lists were gathered.
-            let moved;
-            let projected = if round == 0 {
-                &anchors
-            } else {
-                moved = project_all(references, lenses, &pose, params);
-                &moved
-            };
-            let pairings = associate(projected, lines, gate, &mut candidates);
-            if pairings.len() < params.min_references as usize
-                || last
-                    .as_ref()
-                    .is_some_and(|(g, p)| *g == gate && *p == pairings)
-            {
-                break;
-            }
-            let variances: Vec<Vector2<f64>> = pairings
+    // From `start`, whose projections are `anchors`.
+    let refine =
+        |start: &Isometry3<f64>, anchors: Vec<[Option<Projected>; 3]>| -> Option<(ImageFit, f64)> {
+            let mut pose = *start;
+            let mut information = Matrix6::zeros();
+            let rounds = params
+                .pixel_gates
                 .iter()
-                .map(|p| {
-                    let proj = projected[p.reference][p.view].as_ref().expect("paired");
-                    residuals(proj, &lines[p.view][p.line]).expect("paired").1
-                })
-                .collect();
-            (pose, information) = solve(
-                references,
-                lenses,
+                .map(|&g| Some(g))
+                .chain(std::iter::repeat_n(None, CHI2_ROUNDS));
+            let lists = gathered_about(&anchors, lines);
+            let mut candidates = Candidates::anchored(lines, &lists, &anchors);
+            // The last round's gate and pairings: a χ² round that pairs as the one before it
+            // solves the same problem from where that one converged, and so would every round
+            // after it.
+            let mut last: Option<(Option<f64>, Vec<Pairing>)> = None;
+            for (round, gate) in rounds.enumerate() {
+                // The first round is at the start, where the lists were gathered.
+                let moved;
+                let projected = if round == 0 {
+                    &anchors
+                } else {
+                    moved = project_all(references, lenses, &pose, params);
+                    &moved
+                };
+                let pairings = associate(projected, lines, gate, &mut candidates);
+                if pairings.len() < params.min_references as usize
+                    || last
+                        .as_ref()
+                        .is_some_and(|(g, p)| *g == gate && *p == pairings)
+                {
+                    break;
+                }
+                let variances: Vec<Vector2<f64>> = pairings
+                    .iter()
+                    .map(|p| {
+                        let proj = projected[p.reference][p.view].as_ref().expect("paired");
+                        residuals(proj, &lines[p.view][p.line]).expect("paired").1
+                    })
+                    .collect();
+                (pose, information) = solve(
+                    references,
+                    lenses,
+                    lines,
+                    &pairings,
+                    &variances,
+                    prior,
+                    &prior_information,
+                    pose,
+                    params.min_variance_factor,
+                );
+                last = Some((gate, pairings));
+            }
+            let scored = cost(
+                &project_all(references, lenses, &pose, params),
                 lines,
-                &pairings,
-                &variances,
+                &mut candidates,
+                &pose,
                 prior,
                 &prior_information,
-                pose,
-                params.min_variance_factor,
             );
-            last = Some((gate, pairings));
-        }
-        let scored = cost(
-            &project_all(references, lenses, &pose, params),
-            lines,
-            &mut candidates,
-            &pose,
-            prior,
-            &prior_information,
-        );
-        let mut paired: Vec<usize> = scored.pairings.iter().map(|p| p.reference).collect();
-        paired.sort_unstable();
-        paired.dedup();
-        if paired.len() < params.min_references as usize {
-            return None;
-        }
-        let covariance = (information + prior_information).try_inverse()?;
-        let fit = ImageFit {
-            pose,
-            covariance,
-            information,
-            inliers: scored.pairings.len() as u32,
-            references: paired.len() as u32,
-            cost: scored.total,
+            let mut paired: Vec<usize> = scored.pairings.iter().map(|p| p.reference).collect();
+            paired.sort_unstable();
+            paired.dedup();
+            if paired.len() < params.min_references as usize {
+                return None;
+            }
+            let covariance = (information + prior_information).try_inverse()?;
+            let fit = ImageFit {
+                pose,
+                covariance,
+                information,
+                inliers: scored.pairings.len() as u32,
+                references: paired.len() as u32,
+                cost: scored.total,
+            };
+            Some((
+                fit,
+                scored.pairings.len() as f64 / scored.visible.max(1) as f64,
+            ))
         };
-        Some((
-            fit,
-            scored.pairings.len() as f64 / scored.visible.max(1) as f64,
-        ))
-    };
     let better = |a: Option<(ImageFit, f64)>, b: Option<(ImageFit, f64)>| match (a, b) {
         (Some(a), Some(b)) => Some(if b.0.cost < a.0.cost { b } else { a }),
         (a, b) => a.or(b),
     };
     let mut best = None;
-    for start in starts {
+    for (start, anchors) in starts.iter().zip(at_starts) {
         checkpoint.before("registration")?;
-        best = better(best, refine(start));
+        best = better(best, refine(start, anchors));
     }
     if best
         .as_ref()
@@ -1184,6 +1190,19 @@ pub fn refine_in_images_until(
             .collect()
     };
     let inner = grid(GRID_STEPS_XY, GRID_STEPS_XY, GRID_STEPS_YAW);
+    // The cells of one heading share their rotation, so the references' turned ends and
+    // covariances: once per start and heading, for both stages, rather than once per cell.
+    let turned: Vec<Vec<Vec<Turned>>> = starts
+        .iter()
+        .map(|start| {
+            (-GRID_STEPS_YAW..=GRID_STEPS_YAW)
+                .map(|k| {
+                    let xi = Vector6::new(0.0, 0.0, k as f64 * step_rad, 0.0, 0.0, 0.0);
+                    turned_references(references, &perturbed(start, &xi))
+                })
+                .collect()
+        })
+        .collect();
     // Beyond it in heading too: at the start's heading alone, one of the driving loop's
     // seeds at 3° (7, third draw) stayed a stride over.
     let outer: Vec<_> = grid(reach_x, reach_y, GRID_STEPS_YAW)
@@ -1234,22 +1253,12 @@ pub fn refine_in_images_until(
                 })
                 .collect();
             checkpoint.before("registration")?;
-            // The cells of one heading share their rotation, so the references' turned ends
-            // and covariances: once per heading rather than once per cell.
-            let headings: Vec<i32> = (-GRID_STEPS_YAW..=GRID_STEPS_YAW).collect();
-            let turned: Vec<Vec<Turned>> = headings
-                .iter()
-                .map(|&k| {
-                    let xi = Vector6::new(0.0, 0.0, k as f64 * step_rad, 0.0, 0.0, 0.0);
-                    turned_references(references, &perturbed(start, &xi))
-                })
-                .collect();
             let projected: Vec<_> = poses
                 .iter()
                 .zip(order.iter())
                 .map(|(pose, &(_, _, k))| {
                     let heading = (k + GRID_STEPS_YAW) as usize;
-                    project_turned(lenses, pose, &turned[heading], params)
+                    project_turned(lenses, pose, &turned[s][heading], params)
                 })
                 .collect();
             let lists = gathered(&projected, lines);
@@ -1286,7 +1295,10 @@ pub fn refine_in_images_until(
         cells.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         for (_, _, start) in cells.iter().take(kept) {
             checkpoint.before("registration")?;
-            best = better(best, refine(start));
+            best = better(
+                best,
+                refine(start, project_all(references, lenses, start, params)),
+            );
         }
     }
     Ok(best.map(|(fit, _)| fit))

@@ -8,7 +8,8 @@ use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
-    eligible_intervals_with, rig_centre, score, shaped_capture, Defects, RigShape,
+    eligible_intervals_with, render_triplet, rig_centre, score, score_capture, shaped_capture,
+    Defects, RenderParams, RigShape,
 };
 
 use crate::accuracy::{COLLINEAR_MIN_COMPLETENESS, EXACT_MAX_ERROR};
@@ -73,6 +74,60 @@ fn a_third_camera_ahead_or_behind_is_kept_and_its_matches_are_exact() {
         assert!(
             completeness >= COLLINEAR_MIN_COMPLETENESS,
             "{}: completeness {completeness:.4}",
+            shape.name()
+        );
+    }
+}
+
+/// Pooled 3D error and completeness of the default answer from rendered images.
+fn rendered(shape: RigShape, seeds: std::ops::RangeInclusive<u64>) -> (f64, f64) {
+    let (mut n, mut correct, mut eligible, mut covered) = (0, 0, 0.0, 0.0);
+    for seed in seeds {
+        let (scene, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
+        let images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
+        let out = pipeline::run(
+            &rig,
+            Input::Images([&images[0], &images[1], &images[2]]),
+            &Options::default(),
+        )
+        .expect("valid input")
+        .output;
+        let s = score_capture(&out.segments(), &obs, &rig);
+        n += s.n_segments;
+        correct += s.n_correct;
+        eligible += s.eligible_length_m;
+        covered += s.covered_length_m;
+    }
+    let error = 1.0 - correct as f64 / n.max(1) as f64;
+    let completeness = covered / eligible;
+    println!(
+        "{} (images): {n} segments, error {error:.4}, completeness {completeness:.4}",
+        shape.name()
+    );
+    (error, completeness)
+}
+
+/// Issue 14's goal, for the shapes that meet it: from rendered images, the default answer of
+/// an L-shaped, a wide and a converging rig is within 1.25x of the facing triangle's error
+/// and completeness on the same scenes. (The L-shape met it only once a ghost — two views on
+/// one edge, the searched view on another — had to agree in gradient where its verification
+/// cannot check the depth: `MatchParams::depth_blind_gradient_ratio_max`, docs/RIGS.md. The
+/// other shapes miss it for want of parallax or overlap, not of matching: docs/RIGS.md.)
+#[test]
+fn an_l_shaped_wide_or_converging_rig_is_as_good_as_a_facing_triangle() {
+    const SEEDS: std::ops::RangeInclusive<u64> = 1..=8;
+    const WITHIN: f64 = 1.25;
+    let (facing_error, facing_completeness) = rendered(RigShape::FacingTriangle, SEEDS);
+    for shape in [RigShape::LShape, RigShape::Wide, RigShape::Converging] {
+        let (error, completeness) = rendered(shape, SEEDS);
+        assert!(
+            error <= WITHIN * facing_error,
+            "{}: error {error:.4} against the facing triangle's {facing_error:.4}",
+            shape.name()
+        );
+        assert!(
+            completeness >= facing_completeness / WITHIN,
+            "{}: completeness {completeness:.4} against the facing triangle's {facing_completeness:.4}",
             shape.name()
         );
     }

@@ -138,9 +138,9 @@ struct Extra {
 
 #[derive(Arbitrary, Debug)]
 struct Options {
-    /// Each of the fifteen numeric options, from 0 to 4 times its default (steps of 1/64).
-    scaled: [Option<u8>; 15],
-    /// One option set to any number (index modulo 15).
+    /// Each of the sixteen numeric options, from 0 to 4 times its default (steps of 1/64).
+    scaled: [Option<u8>; 16],
+    /// One option set to any number (index modulo 16).
     raw: Option<(u8, f64)>,
     validate: Option<bool>,
     include_uncertain: Option<bool>,
@@ -148,7 +148,7 @@ struct Options {
 
 /// The numeric options, as (default, setter): the order of `Options::scaled`.
 type Setter = fn(&mut pb::MatchOptions, f64);
-const NUMERIC: [(f64, Setter); 15] = [
+const NUMERIC: [(f64, Setter); 16] = [
     (0.3, |o, v| o.depth_min_m = Some(v)),
     (15.0, |o, v| o.depth_max_m = Some(v)),
     (2.0, |o, v| o.tolerance_px = Some(v)),
@@ -156,6 +156,7 @@ const NUMERIC: [(f64, Setter); 15] = [
     (3.0, |o, v| o.verify_angle_tolerance_deg = Some(v)),
     (8.0, |o, v| o.min_length_px = Some(v)),
     (3.0, |o, v| o.gradient_ratio_max = Some(v)),
+    (1.6, |o, v| o.depth_blind_gradient_ratio_max = Some(v)),
     (4.0, |o, v| o.neighbour_radius_px = Some(v)),
     (1.5, |o, v| o.max_residual_px = Some(v)),
     (0.3, |o, v| o.line_noise_px = Some(v)),

@@ -260,6 +260,7 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         verify_angle_tolerance_deg,
         min_length_px,
         gradient_ratio_max,
+        depth_blind_gradient_ratio_max,
         min_gradient,
         min_gradient_to_background,
         validate,
@@ -285,6 +286,8 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
             .unwrap_or(d.verify_angle_tolerance_deg),
         min_length_px: min_length_px.unwrap_or(d.min_length_px),
         gradient_ratio_max: gradient_ratio_max.unwrap_or(d.gradient_ratio_max),
+        depth_blind_gradient_ratio_max: depth_blind_gradient_ratio_max
+            .unwrap_or(d.depth_blind_gradient_ratio_max),
         min_gradient: min_gradient.unwrap_or(d.min_gradient),
         min_gradient_to_background: min_gradient_to_background
             .unwrap_or(d.min_gradient_to_background),

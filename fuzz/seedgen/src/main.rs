@@ -140,6 +140,7 @@ fn main() {
         verify_angle_tolerance_deg: Some(4.0),
         min_length_px: Some(6.0),
         gradient_ratio_max: Some(3.0),
+        depth_blind_gradient_ratio_max: Some(1.6),
         validate: Some(true),
         neighbour_radius_px: Some(4.0),
         max_residual_px: Some(1.5),

@@ -34,6 +34,12 @@ pub struct MatchParams {
     pub min_length_px: f64,
     /// Largest ratio of the gradient magnitudes of two matched segments (when both known).
     pub gradient_ratio_max: f64,
+    /// The same, among the three segments of a triplet whose verification cannot check its
+    /// depth: the segment of view 1 runs within 15° of the verifying view's epipolar lines,
+    /// so that view confirms the line wherever along the rays it lies, and the depth rests on
+    /// the searched view alone. Correct triplets of the rendered rooms have a median ratio of
+    /// 1.02 and 1.33–1.36 at the 95th percentile (docs/RIGS.md).
+    pub depth_blind_gradient_ratio_max: f64,
     /// Segments whose mean gradient is known and below this are not matched, grey levels
     /// per pixel. On real photographs faint repetitive texture (mortar between bricks) is
     /// where false matches come from (docs/RIGS.md#real-photographs); 0 matches everything.
@@ -78,6 +84,7 @@ impl Default for MatchParams {
             verify_angle_tolerance_deg: 3.0,
             min_length_px: 8.0,
             gradient_ratio_max: 3.0,
+            depth_blind_gradient_ratio_max: 1.6,
             min_gradient: 0.0,
             min_gradient_to_background: 2.5,
             validate: true,
@@ -145,6 +152,12 @@ impl MatchParams {
                 "gradient_ratio_max",
                 self.gradient_ratio_max,
                 self.gradient_ratio_max >= 1.0,
+                "a finite number at least 1",
+            ),
+            rule(
+                "depth_blind_gradient_ratio_max",
+                self.depth_blind_gradient_ratio_max,
+                self.depth_blind_gradient_ratio_max >= 1.0,
                 "a finite number at least 1",
             ),
             rule(

@@ -34,6 +34,11 @@ use crate::geometry::{Rectification, RigFrames};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Instant;
 
+/// A prediction in the verifying view that runs within this angle of the direction it moves
+/// in as the disparity changes checks the line, not its depth (`verification_blind_to_depth`):
+/// sin 15°. The angles in a room are either near 0 (lines along a baseline) or well away, so
+/// 10° and 20° select the same triplets on the rendered rooms and rigs (docs/RIGS.md).
+const DEPTH_BLIND_SIN: f64 = 0.258_819_045_102_520_76;
 /// Shortest common part of two segments along the epipolar lines, and of a predicted segment
 /// with the verifying one, pixels: below it the overlap is an accident of noise.
 pub const MIN_OVERLAP_PX: f64 = 3.0;
@@ -434,6 +439,31 @@ impl Search<'_> {
         scratch.candidates = candidates;
     }
 
+    /// True when the prediction in the verifying view runs within 15° ([`DEPTH_BLIND_SIN`]) of
+    /// the direction it moves in as the disparity changes: the verification then confirms
+    /// the line but hardly its depth, which rests on the searched view alone (a line along
+    /// the baseline of view 1 and the verifying view).
+    fn verification_blind_to_depth(
+        &self,
+        pair: &Pair,
+        p0: Point2<f64>,
+        d0: f64,
+        q0: Point2<f64>,
+        q_dir: Vector2<f64>,
+    ) -> bool {
+        let moved = if self.frames.shared {
+            pair.e_k
+        } else {
+            let step = 0.01 * (self.d_max - self.d_min).max(1e-9);
+            match self.frames.transfer(pair.frame, p0, d0 + step, pair.k) {
+                Some(q) => q - q0,
+                None => return false,
+            }
+        };
+        let n = moved.norm();
+        n > 0.0 && (moved.x * q_dir.y - moved.y * q_dir.x).abs() < DEPTH_BLIND_SIN * n
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn verify_pair(
         &self,
@@ -555,6 +585,17 @@ impl Search<'_> {
             if aligned < cos_tol
                 || !gradients_compatible(s1.gradient, sk.gradient, params.gradient_ratio_max)
                 || !gradients_compatible(sj.gradient, sk.gradient, params.gradient_ratio_max)
+            {
+                continue;
+            }
+            // Where the verification cannot check the depth, the three views' gradients must
+            // agree more closely: a ghost (views 1 and 2 on one edge, the searched view on
+            // another at a different depth) has nothing else against it.
+            let depth_blind_ratio = params.depth_blind_gradient_ratio_max;
+            if !(gradients_compatible(s1.gradient, sj.gradient, depth_blind_ratio)
+                && gradients_compatible(s1.gradient, sk.gradient, depth_blind_ratio)
+                && gradients_compatible(sj.gradient, sk.gradient, depth_blind_ratio))
+                && self.verification_blind_to_depth(pair, p0, d0, q0, q_dir)
             {
                 continue;
             }

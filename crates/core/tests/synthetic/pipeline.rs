@@ -132,6 +132,91 @@ fn faint_segments_are_left_out_when_asked_and_lists_without_gradients_never() {
     .is_err());
 }
 
+/// The angle (degrees, 0–90) between view `k`'s segment `s` and the epipolar line of the pair
+/// (1, `k`) through its midpoint, in view `k`.
+fn angle_to_epipolar_line(rig: &Rig, s: &Segment2, k: usize) -> f64 {
+    let (c1, ck) = (rig.camera(0), rig.camera(k));
+    let mid = Point2::from((s.start.coords + s.end.coords) / 2.0);
+    let x = ck.centre() + ck.ray(mid).normalize() * 3.0;
+    let moved = x + (c1.centre() - ck.centre()) * 0.05;
+    let along = ck.project(&moved).expect("in front") - ck.project(&x).expect("in front");
+    let d = s.end - s.start;
+    let cos = (along.dot(&d) / (along.norm() * d.norm())).abs().min(1.0);
+    cos.acos().to_degrees()
+}
+
+#[test]
+fn where_the_verifying_view_cannot_check_the_depth_the_gradients_must_agree_closely() {
+    let (rig, lists) = scattered_capture(300, 0.0, 0.0, 5);
+    // Views 1 and 2 at one gradient, view 3 at `ratio` times it.
+    let with_third = |ratio: f64| -> [SegmentList; 3] {
+        let mut out = lists.clone();
+        for (v, l) in out.iter_mut().enumerate() {
+            for s in &mut l.segments {
+                s.gradient = Some(if v == 2 { 20.0 * ratio } else { 20.0 });
+            }
+        }
+        out
+    };
+    // Every verified hypothesis, so that what is refused is seen directly, not through the
+    // rivals and supports that validation weighs.
+    let params = MatchParams {
+        validate: false,
+        include_uncertain: true,
+        ..MatchParams::default()
+    };
+    let even = match_segments(&rig, &with_third(1.0), &params).unwrap();
+    let uneven = match_segments(&rig, &with_third(2.0), &params).unwrap();
+    // Twice the gradient is within the general ratio (3): with the depth-blind ratio as
+    // loose, nothing changes.
+    let loose = MatchParams {
+        depth_blind_gradient_ratio_max: params.gradient_ratio_max,
+        ..params.clone()
+    };
+    assert_eq!(
+        match_segments(&rig, &with_third(2.0), &loose)
+            .unwrap()
+            .triplets,
+        even.triplets
+    );
+    // What the tighter ratio refuses is a triplet whose segment in the verifying view runs
+    // along that pair's epipolar lines — it confirms the line at any depth — and what it
+    // keeps runs across them.
+    let kept: Vec<[u32; 3]> = uneven.triplets.iter().map(|t| t.segments).collect();
+    let lost: Vec<[u32; 3]> = even
+        .triplets
+        .iter()
+        .map(|t| t.segments)
+        .filter(|t| !kept.contains(t))
+        .collect();
+    assert!(!lost.is_empty() && !kept.is_empty(), "lost {lost:?}");
+    let nearest_pair_angle = |t: &[u32; 3]| {
+        let angle = |k: usize| angle_to_epipolar_line(&rig, &lists[k].segments[t[k] as usize], k);
+        angle(1).min(angle(2))
+    };
+    // 15° in the verifying view's rectified frame, within a degree of it in its image.
+    for t in &lost {
+        let a = nearest_pair_angle(t);
+        assert!(
+            a < 16.0,
+            "{t:?} refused at {a:.1}° from a pair's epipolar lines"
+        );
+    }
+    for t in &kept {
+        let a = nearest_pair_angle(t);
+        assert!(
+            a > 14.0,
+            "{t:?} kept at {a:.1}° from a pair's epipolar lines"
+        );
+    }
+    assert!(MatchParams {
+        depth_blind_gradient_ratio_max: 0.9,
+        ..MatchParams::default()
+    }
+    .check()
+    .is_err());
+}
+
 #[test]
 fn segments_that_do_not_stand_out_from_their_images_background_are_left_out() {
     let (rig, lists) = scattered_capture(200, 0.3, 0.2, 3);

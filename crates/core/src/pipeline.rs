@@ -220,6 +220,14 @@ pub struct MatchStats {
     /// factor on σ, at least 1; read off the first reconstructions: mostly the calibration's
     /// own error).
     pub noise_scale: f64,
+    /// Each view's gradient gain relative to view 1, measured on the hypotheses whose depth
+    /// two views check (`matching::gain`; 1 where too few gradients are known): cameras with
+    /// their own exposure. The gradient test of the depth-blind hypotheses divides it out.
+    pub gradient_gains: [f64; 3],
+    /// Hypotheses refused because the verifying view could not check their depth and their
+    /// gradients, divided by the gains, disagree by more than
+    /// `MatchParams::depth_blind_gradient_ratio_max`.
+    pub depth_blind_refused: u32,
     pub rectify_ms: f64,
     pub predict_ms: f64,
     pub validate_ms: f64,
@@ -668,6 +676,7 @@ fn match_lists(
     }
     let mut stats = MatchStats {
         noise_scale: 1.0,
+        gradient_gains: [1.0; 3],
         segments_in: std::array::from_fn(|v| lists[v].segments.len() as u32),
         segments_used: std::array::from_fn(|v| prepared[v].rect.len() as u32),
         zero_length_dropped: std::array::from_fn(|v| prepared[v].zero_length),
@@ -696,15 +705,18 @@ fn match_lists(
     } else {
         [&prepared[0].rect, &prepared[0].rect_second]
     };
-    let hypotheses = matching::predict_in_frames_until(&frames, &views, first, params, checkpoint)
+    let predicted = matching::predict_in_frames_until(&frames, &views, first, params, checkpoint)
         .map_err(|e| match e {
-            matching::PredictError::Stopped(s) => MatchError::from(s),
-            matching::PredictError::TooManyHypotheses { limit } => {
-                MatchError::TooManyHypotheses { limit }
-            }
-        })?;
+        matching::PredictError::Stopped(s) => MatchError::from(s),
+        matching::PredictError::TooManyHypotheses { limit } => {
+            MatchError::TooManyHypotheses { limit }
+        }
+    })?;
     stats.predict_ms = ms(t);
+    let hypotheses = predicted.hypotheses;
     stats.hypotheses = hypotheses.len() as u32;
+    stats.gradient_gains = predicted.gradient_gains;
+    stats.depth_blind_refused = predicted.depth_blind_refused;
 
     let request = Matching {
         rig,
@@ -1579,19 +1591,27 @@ mod tests {
             ..MatchParams::default()
         };
         // Views 1 and 2 see the edge at 20 grey levels per pixel; the ghost's segment in view 3
-        // is a stronger edge (36).
-        let answer = |third: Vec<Segment2>| {
+        // is a stronger edge (30: within the depth-blind ratio, 1.6, of the other two).
+        let run_with = |third: Vec<Segment2>| {
             let lists = [
                 list(vec![seen(0, &edge, false, 20.0)]),
                 list(vec![seen(1, &edge, false, 21.0)]),
                 list(third),
             ];
             let options = Options::with(params.clone());
-            let out = run(&rig, Input::lists(&lists), &options).unwrap().output;
+            run(&rig, Input::lists(&lists), &options).unwrap().output
+        };
+        let answer = |third: Vec<Segment2>| {
+            let out = run_with(third);
             assert_eq!(out.segments_3d.len(), 1, "{:?}", out.stats);
             (out.segments_3d[0].uncertain, out.stats.ambiguous)
         };
-        let ghost_in_three = seen(2, &ghost, false, 36.0);
+        // A ghost whose view-3 edge is 1.8 times as strong as the others' is not a triplet at
+        // all: view 2, along the line, cannot check its depth, so the gradients must agree.
+        let out = run_with(vec![seen(2, &ghost, false, 36.0)]);
+        assert!(out.segments_3d.is_empty(), "{:?}", out.stats);
+        assert_eq!(out.stats.depth_blind_refused, 1);
+        let ghost_in_three = seen(2, &ghost, false, 30.0);
         // View 3 sees only the ghost's line: nothing else fits, the answer vouches for it.
         assert_eq!(answer(vec![ghost_in_three]), (false, 0));
         // View 3 also sees the true edge, its contrast flipped (seen against another
@@ -1599,7 +1619,7 @@ mod tests {
         // cannot form that triplet, but it fits views 1 and 2 as well as the ghost does, so
         // the ghost is not vouched for.
         let flipped = |gradient| seen(2, &edge, true, gradient);
-        assert_eq!(answer(vec![ghost_in_three, flipped(14.0)]), (true, 1));
+        assert_eq!(answer(vec![ghost_in_three, flipped(18.0)]), (true, 1));
         // A flipped edge whose strength agrees with views 1 and 2 worse than the winner's
         // does: both the sign and the strength speak for the winner.
         assert_eq!(answer(vec![ghost_in_three, flipped(70.0)]), (false, 0));

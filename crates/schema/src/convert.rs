@@ -756,6 +756,8 @@ pub fn match_response(
             inconsistent: s.inconsistent,
             noise_scale: s.noise_scale,
             ambiguous: s.ambiguous,
+            gradient_gains: s.gradient_gains.to_vec(),
+            depth_blind_refused: s.depth_blind_refused,
         }),
         extracted: extracted
             .map(|e| e.iter().map(|x| segment_list_to_pb(&x.segments)).collect())

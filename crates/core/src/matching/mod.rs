@@ -7,6 +7,7 @@
 //! pool, and the output is the same whatever the number of threads.
 
 pub mod bucket;
+pub mod gain;
 pub mod predict;
 pub mod validate;
 
@@ -14,7 +15,9 @@ use nalgebra::{Point2, Vector2};
 
 use crate::params::{check_all, Rule};
 
-pub use predict::{predict, predict_in_frames_until, predict_until, Hypothesis, PredictError};
+pub use predict::{
+    predict, predict_in_frames_until, predict_until, Hypothesis, PredictError, Predicted,
+};
 pub use validate::{adjacency, rank, rank_until, select, validate};
 
 /// Matching parameters. Units are in the names; `Default` gives the documented defaults.
@@ -37,8 +40,9 @@ pub struct MatchParams {
     /// The same, among the three segments of a triplet whose verification cannot check its
     /// depth: the segment of view 1 runs within 15° of the verifying view's epipolar lines,
     /// so that view confirms the line wherever along the rays it lies, and the depth rests on
-    /// the searched view alone. Correct triplets of the rendered rooms have a median ratio of
-    /// 1.02 and 1.33–1.36 at the 95th percentile (docs/RIGS.md).
+    /// the searched view alone. Each gradient is first divided by its view's gain, measured
+    /// on the request's hypotheses ([`gain`]). Correct triplets of the rendered rooms have a
+    /// median ratio of 1.02 and 1.33–1.36 at the 95th percentile (docs/RIGS.md).
     pub depth_blind_gradient_ratio_max: f64,
     /// Segments whose mean gradient is known and below this are not matched, grey levels
     /// per pixel. On real photographs faint repetitive texture (mortar between bricks) is

@@ -88,6 +88,11 @@ pub struct Hypothesis {
     /// The pair frame the span and disparities are in (`RigFrames::pair_frames`): 0 once
     /// prediction returns.
     pub frame: u8,
+    /// The verifying view could not check the depth (its prediction runs within 15° of the
+    /// direction it moves in with the disparity), which the searched view alone then fixes:
+    /// such a triplet's gradients must agree closely ([`super::gain`]). False when a gradient
+    /// is unknown.
+    pub depth_blind: bool,
 }
 
 impl Hypothesis {
@@ -167,6 +172,17 @@ pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec
     predict_until(rect, views, params, Checkpoint::NEVER).unwrap_or_default()
 }
 
+/// What prediction found: the hypotheses, and what the gradient test of the depth-blind ones
+/// measured and refused ([`super::gain`]).
+#[derive(Debug, Clone, Default)]
+pub struct Predicted {
+    pub hypotheses: Vec<Hypothesis>,
+    /// Each view's gradient gain relative to view 1.
+    pub gradient_gains: [f64; 3],
+    /// Depth-blind hypotheses refused for gradients that disagree.
+    pub depth_blind_refused: u32,
+}
+
 /// [`predict`], asking `checkpoint` before each S1, and failing past [`MAX_HYPOTHESES`].
 pub fn predict_until(
     rect: &Rectification,
@@ -181,6 +197,7 @@ pub fn predict_until(
     };
     let first = views.segments[0];
     predict_in_frames_until(&frames, views, [first, first], params, checkpoint)
+        .map(|p| p.hypotheses)
 }
 
 /// [`predict_until`] in a rig's [`RigFrames`]: `views` holds view 1 and 2 rectified in the
@@ -192,7 +209,7 @@ pub fn predict_in_frames_until(
     first: [&[RectSegment]; 2],
     params: &MatchParams,
     checkpoint: Checkpoint,
-) -> Result<Vec<Hypothesis>, PredictError> {
+) -> Result<Predicted, PredictError> {
     let period = period(views.oriented);
     let tol = params.tolerance_px;
     let [frame_a, frame_b] = &frames.pair_frames;
@@ -312,7 +329,16 @@ pub fn predict_in_frames_until(
             }
         });
     }
-    Ok(hypotheses)
+    let (gradient_gains, depth_blind_refused) = super::gain::refuse_depth_blind(
+        views,
+        &mut hypotheses,
+        params.depth_blind_gradient_ratio_max,
+    );
+    Ok(Predicted {
+        hypotheses,
+        gradient_gains,
+        depth_blind_refused,
+    })
 }
 
 /// `h`, found in the second pair frame, with its span and disparities in the first.
@@ -588,17 +614,6 @@ impl Search<'_> {
             {
                 continue;
             }
-            // Where the verification cannot check the depth, the three views' gradients must
-            // agree more closely: a ghost (views 1 and 2 on one edge, the searched view on
-            // another at a different depth) has nothing else against it.
-            let depth_blind_ratio = params.depth_blind_gradient_ratio_max;
-            if !(gradients_compatible(s1.gradient, sj.gradient, depth_blind_ratio)
-                && gradients_compatible(s1.gradient, sk.gradient, depth_blind_ratio)
-                && gradients_compatible(sj.gradient, sk.gradient, depth_blind_ratio))
-                && self.verification_blind_to_depth(pair, p0, d0, q0, q_dir)
-            {
-                continue;
-            }
             let (ta, tb) = (sk.along(q0), sk.along(q1));
             if (tb - ta).abs() < 1e-9 {
                 continue;
@@ -619,12 +634,20 @@ impl Search<'_> {
             } else {
                 [i1, ik, ij]
             };
+            // Where the verification cannot check the depth, the three views' gradients must
+            // agree more closely (once the views' gains are known: `gain`).
+            let gradients_known = [s1.gradient, sj.gradient, sk.gradient]
+                .iter()
+                .all(|&g| g > 0.0 && g.is_finite());
+            let depth_blind =
+                gradients_known && self.verification_blind_to_depth(pair, p0, d0, q0, q_dir);
             out.push(Hypothesis {
                 segments,
                 residual_px: residual,
                 s1_span: (t0, t1),
                 disparity: (d0, d1),
                 frame: pair.frame as u8,
+                depth_blind,
             });
         }
         let verified = &mut out[verified_before..];

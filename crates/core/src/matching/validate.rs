@@ -322,6 +322,7 @@ mod tests {
             s1_span: (0.0, len),
             disparity: (disparity, disparity),
             frame: 0,
+            depth_blind: false,
         }
     }
 

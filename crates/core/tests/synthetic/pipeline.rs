@@ -148,12 +148,18 @@ fn angle_to_epipolar_line(rig: &Rig, s: &Segment2, k: usize) -> f64 {
 #[test]
 fn where_the_verifying_view_cannot_check_the_depth_the_gradients_must_agree_closely() {
     let (rig, lists) = scattered_capture(300, 0.0, 0.0, 5);
-    // Views 1 and 2 at one gradient, view 3 at `ratio` times it.
-    let with_third = |ratio: f64| -> [SegmentList; 3] {
+    // Views 1 and 2 at one gradient; view 3 at `gain` times it, and every third of its
+    // segments at `odd` times that again (a ghost's edge, seen at another strength).
+    let graded = |gain: f64, odd: f64| -> [SegmentList; 3] {
         let mut out = lists.clone();
         for (v, l) in out.iter_mut().enumerate() {
-            for s in &mut l.segments {
-                s.gradient = Some(if v == 2 { 20.0 * ratio } else { 20.0 });
+            for (i, s) in l.segments.iter_mut().enumerate() {
+                let g = match v {
+                    2 if i % 3 == 0 => 20.0 * gain * odd,
+                    2 => 20.0 * gain,
+                    _ => 20.0,
+                };
+                s.gradient = Some(g);
             }
         }
         out
@@ -165,31 +171,25 @@ fn where_the_verifying_view_cannot_check_the_depth_the_gradients_must_agree_clos
         include_uncertain: true,
         ..MatchParams::default()
     };
-    let even = match_segments(&rig, &with_third(1.0), &params).unwrap();
-    let uneven = match_segments(&rig, &with_third(2.0), &params).unwrap();
+    let even = match_segments(&rig, &graded(1.0, 1.0), &params).unwrap();
+    let uneven = match_segments(&rig, &graded(1.0, 2.0), &params).unwrap();
     // Twice the gradient is within the general ratio (3): with the depth-blind ratio as
-    // loose, nothing changes.
+    // loose, nothing is refused for it.
     let loose = MatchParams {
         depth_blind_gradient_ratio_max: params.gradient_ratio_max,
         ..params.clone()
     };
-    assert_eq!(
-        match_segments(&rig, &with_third(2.0), &loose)
-            .unwrap()
-            .triplets,
-        even.triplets
-    );
-    // What the tighter ratio refuses is a triplet whose segment in the verifying view runs
-    // along that pair's epipolar lines — it confirms the line at any depth — and what it
-    // keeps runs across them.
+    let loose = match_segments(&rig, &graded(1.0, 2.0), &loose).unwrap();
+    assert_eq!(loose.stats.depth_blind_refused, 0);
+    // What the tighter ratio refuses is a triplet whose view-3 segment is one of the
+    // stronger ones and whose segment in the verifying view runs along that pair's epipolar
+    // lines — it confirms the line at any depth; what it keeps either runs across them or
+    // agrees in gradient.
     let kept: Vec<[u32; 3]> = uneven.triplets.iter().map(|t| t.segments).collect();
-    let lost: Vec<[u32; 3]> = even
-        .triplets
-        .iter()
-        .map(|t| t.segments)
-        .filter(|t| !kept.contains(t))
-        .collect();
+    let all: Vec<[u32; 3]> = loose.triplets.iter().map(|t| t.segments).collect();
+    let lost: Vec<[u32; 3]> = all.into_iter().filter(|t| !kept.contains(t)).collect();
     assert!(!lost.is_empty() && !kept.is_empty(), "lost {lost:?}");
+    assert!(lost.len() <= uneven.stats.depth_blind_refused as usize);
     let nearest_pair_angle = |t: &[u32; 3]| {
         let angle = |k: usize| angle_to_epipolar_line(&rig, &lists[k].segments[t[k] as usize], k);
         angle(1).min(angle(2))
@@ -197,18 +197,26 @@ fn where_the_verifying_view_cannot_check_the_depth_the_gradients_must_agree_clos
     // 15° in the verifying view's rectified frame, within a degree of it in its image.
     for t in &lost {
         let a = nearest_pair_angle(t);
+        assert!(t[2] % 3 == 0, "{t:?} refused, its gradients agreeing");
         assert!(
             a < 16.0,
             "{t:?} refused at {a:.1}° from a pair's epipolar lines"
         );
     }
-    for t in &kept {
+    for t in kept.iter().filter(|t| t[2] % 3 == 0) {
         let a = nearest_pair_angle(t);
         assert!(
             a > 14.0,
             "{t:?} kept at {a:.1}° from a pair's epipolar lines"
         );
     }
+    // A third camera at twice the others' gain throughout: measured and divided out, so
+    // nothing is refused for it.
+    let brighter = match_segments(&rig, &graded(2.0, 1.0), &params).unwrap();
+    let gain = brighter.stats.gradient_gains[2];
+    assert!((gain - 2.0).abs() < 1e-9, "third gain measured {gain}");
+    assert_eq!(brighter.stats.depth_blind_refused, 0);
+    assert_eq!(brighter.triplets, even.triplets);
     assert!(MatchParams {
         depth_blind_gradient_ratio_max: 0.9,
         ..MatchParams::default()

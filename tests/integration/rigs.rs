@@ -17,6 +17,32 @@ use crate::accuracy::{COLLINEAR_MIN_COMPLETENESS, EXACT_MAX_ERROR};
 
 const SEEDS: [u64; 2] = [1, 2];
 
+/// Scores pooled over seeds: error over all segments, completeness over all eligible length.
+#[derive(Default)]
+struct Pooled {
+    segments: usize,
+    correct: usize,
+    eligible_m: f64,
+    covered_m: f64,
+}
+
+impl Pooled {
+    fn add(&mut self, s: &trinocular::synth::Score) {
+        self.segments += s.n_segments;
+        self.correct += s.n_correct;
+        self.eligible_m += s.eligible_length_m;
+        self.covered_m += s.covered_length_m;
+    }
+
+    fn error(&self) -> f64 {
+        1.0 - self.correct as f64 / self.segments.max(1) as f64
+    }
+
+    fn completeness(&self) -> f64 {
+        self.covered_m / self.eligible_m
+    }
+}
+
 /// Pooled 3D error and completeness of every match of exact segment lists, and whether the
 /// rig was matched in per-pair frames.
 fn exact(shape: RigShape) -> (f64, f64, bool) {
@@ -24,7 +50,7 @@ fn exact(shape: RigShape) -> (f64, f64, bool) {
         include_uncertain: true,
         ..MatchParams::default()
     };
-    let (mut n, mut correct, mut eligible, mut covered) = (0, 0, 0.0, 0.0);
+    let mut pooled = Pooled::default();
     let mut per_pair = false;
     for seed in SEEDS {
         let (_, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
@@ -38,14 +64,9 @@ fn exact(shape: RigShape) -> (f64, f64, bool) {
         per_pair = out.stats.per_pair_rectification;
         let segs: Vec<Segment3> = out.segments();
         let e = eligible_intervals_with(&obs, 20.0, Some(10.0));
-        let s = score(&segs, &obs.ground_truth, &e, rig_centre(&rig));
-        n += s.n_segments;
-        correct += s.n_correct;
-        eligible += s.eligible_length_m;
-        covered += s.covered_length_m;
+        pooled.add(&score(&segs, &obs.ground_truth, &e, rig_centre(&rig)));
     }
-    let error = 1.0 - correct as f64 / n.max(1) as f64;
-    let completeness = covered / eligible;
+    let (n, error, completeness) = (pooled.segments, pooled.error(), pooled.completeness());
     println!(
         "{}: {n} segments, error {error:.4}, completeness {completeness:.4}, per-pair {per_pair}",
         shape.name()
@@ -88,7 +109,7 @@ fn rendered_with_gain(
     seeds: std::ops::RangeInclusive<u64>,
     third_gain: f32,
 ) -> (f64, f64, f64) {
-    let (mut n, mut correct, mut eligible, mut covered) = (0, 0, 0.0, 0.0);
+    let mut pooled = Pooled::default();
     let mut gains = Vec::new();
     for seed in seeds {
         let (scene, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
@@ -104,14 +125,9 @@ fn rendered_with_gain(
         .expect("valid input")
         .output;
         gains.push(out.stats.gradient_gains[2]);
-        let s = score_capture(&out.segments(), &obs, &rig);
-        n += s.n_segments;
-        correct += s.n_correct;
-        eligible += s.eligible_length_m;
-        covered += s.covered_length_m;
+        pooled.add(&score_capture(&out.segments(), &obs, &rig));
     }
-    let error = 1.0 - correct as f64 / n.max(1) as f64;
-    let completeness = covered / eligible;
+    let (n, error, completeness) = (pooled.segments, pooled.error(), pooled.completeness());
     gains.sort_by(f64::total_cmp);
     let gain = gains[gains.len() / 2];
     println!(

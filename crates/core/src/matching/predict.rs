@@ -12,7 +12,11 @@
 //!    segment in the third view k — its position, orientation and extent;
 //! 4. a segment Sk of compatible orientation must lie within `tolerance_px` of that prediction
 //!    over their common part. Every surviving (S1, S2, S3) is a hypothesis, with the largest
-//!    of those two distances as its residual.
+//!    of those two distances as its residual;
+//! 5. where the prediction in the verifying view runs along its own disparity direction (S1
+//!    along that pair's baseline), the verification cannot check the depth: such a hypothesis
+//!    is kept only if its three gradients, divided by their views' gains, agree closely
+//!    ([`super::gain`]), since a ghost has nothing else against it.
 //!
 //! Every count is bounded, so that no list — however repetitive: a thousand copies of one
 //! line give a thousand cubed triplets — makes the work or the memory grow past a fixed
@@ -174,7 +178,7 @@ pub fn predict(rect: &Rectification, views: &Views, params: &MatchParams) -> Vec
 
 /// What prediction found: the hypotheses, and what the gradient test of the depth-blind ones
 /// measured and refused ([`super::gain`]).
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct Predicted {
     pub hypotheses: Vec<Hypothesis>,
     /// Each view's gradient gain relative to view 1.

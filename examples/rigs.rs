@@ -2,9 +2,12 @@
 //! completeness (strict scorer, as `tests/integration/rigs.rs`) of the default answer,
 //! rendered images in, pooled over seeds.
 //!
-//!     cargo run --release --example rigs [-- SEEDS]
+//!     cargo run --release --example rigs [-- SEEDS] [lists] [all] [third-gain=G]
+//!
+//! `third-gain=G` scales the third camera's image (signal and noise) by G, as a camera with an
+//! exposure of its own would see the scene (docs/RIGS.md, "Cameras with their own exposure").
 
-use trinocular::extract::Params;
+use trinocular::extract::{GreyImage, Params};
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
@@ -21,6 +24,9 @@ fn main() {
     let lists = std::env::args().any(|a| a == "lists");
     // `all`: every match of the images, not only what meets the accuracy gate.
     let all = std::env::args().any(|a| a == "all");
+    let third_gain: f32 = std::env::args()
+        .find_map(|a| a.strip_prefix("third-gain=").and_then(|g| g.parse().ok()))
+        .unwrap_or(1.0);
     println!(
         "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );
@@ -43,7 +49,11 @@ fn main() {
                 .map(|m| m.output)
                 .expect("match")
             } else {
-                let images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
+                let mut images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
+                let third = &images[2];
+                let scaled = third.pixels().iter().map(|p| p * third_gain).collect();
+                images[2] =
+                    GreyImage::new(third.width(), third.height(), scaled).expect("same size");
                 pipeline::run(
                     &rig,
                     Input::Images([&images[0], &images[1], &images[2]]),

@@ -27,14 +27,18 @@ pub fn view_gains(views: &Views, hypotheses: &[Hypothesis]) -> [f64; 3] {
     for h in hypotheses {
         let g = gradients(views, h);
         if g.iter().all(|&x| x > 0.0 && x.is_finite()) {
-            logs[0].push((g[1] / g[0]).ln());
-            logs[1].push((g[2] / g[0]).ln());
+            logs[0].push(log_ratio(g[1], g[0]));
+            logs[1].push(log_ratio(g[2], g[0]));
         }
     }
     if logs[0].len() < MIN_GAIN_SAMPLES {
         return [1.0; 3];
     }
     let [l2, l3] = logs.map(|mut l| median(&mut l).exp());
+    // A list may give gradients so far apart that their gain is past f64: no gain is known.
+    if !(l2.is_normal() && l3.is_normal()) {
+        return [1.0; 3];
+    }
     [1.0, l2, l3]
 }
 
@@ -58,6 +62,16 @@ pub fn refuse_depth_blind(
             && gradients_compatible(b, c, ratio_max)
     });
     (gains, (before - hypotheses.len()) as u32)
+}
+
+/// ln(a / b) of two positive finite numbers, finite even where a / b is not.
+fn log_ratio(a: f64, b: f64) -> f64 {
+    let r = a / b;
+    if r.is_normal() {
+        r.ln()
+    } else {
+        a.ln() - b.ln()
+    }
 }
 
 fn gradients(views: &Views, h: &Hypothesis) -> [f64; 3] {
@@ -134,5 +148,15 @@ mod tests {
         let (_, refused) = refuse_depth_blind(&views, &mut hypotheses, 1.6);
         assert_eq!(refused, 1);
         assert!(hypotheses.iter().all(|h| h.segments[0] != 0));
+        // Gradients a list may give, 1e-300 against 1e300: no gain past f64 is reported.
+        let extreme: [Vec<RectSegment>; 3] = std::array::from_fn(|v| {
+            let g = [1e-300, 1e300, 1.0][v];
+            (0..n).map(|i| segment(g, i)).collect()
+        });
+        let views = Views {
+            segments: [&extreme[0], &extreme[1], &extreme[2]],
+            oriented: true,
+        };
+        assert_eq!(view_gains(&views, &hypotheses), [1.0; 3]);
     }
 }

@@ -186,6 +186,21 @@ def classify(S, E, c, S_mod):
     return classes
 
 
+def nearest(s, E, c, S_mod):
+    """The start, midpoint and end's distances from the true edge nearest the segment (least
+    summed), each over the scorer's tolerance there, and the angle: says whether a wrong
+    segment is off across its edge or runs on past an end of it."""
+    A, B = E[:, :3], E[:, 3:]
+    pts = (s[:3], 0.5 * (s[:3] + s[3:]), s[3:])
+    d = np.stack([S_mod.point_seg_dist(P[None], A, B)[0] for P in pts])
+    j = int(np.argmin(d.sum(axis=0)))
+    rel = [d[k, j] / max(0.02, 0.01 * np.linalg.norm(P - c)) for k, P in enumerate(pts)]
+    su = (s[3:] - s[:3]) / max(np.linalg.norm(s[3:] - s[:3]), 1e-12)
+    eu = (B[j] - A[j]) / np.linalg.norm(B[j] - A[j])
+    angle = np.degrees(np.arccos(np.clip(abs(eu @ su), 0, 1)))
+    return "/".join(f"{r:.1f}" for r in rel) + f" tol, {angle:.1f}°"
+
+
 def mahalanobis(seg_rig, cov6, edge_rig):
     """Squared normalised errors of direction and midpoint position (2 dof each), or None."""
     p1, p2 = seg_rig[:3], seg_rig[3:]
@@ -279,7 +294,8 @@ def main():
                         print(f"  wrong {room} {inp} {cap} #{i} {k:8} len={np.linalg.norm(sr[3:] - sr[:3]):.2f}m "
                               f"range={np.linalg.norm(0.5 * (sr[:3] + sr[3:])):.2f}m dirσ={s.get('directionSigmaDeg', 0):.2f}° "
                               f"posσ={100 * s.get('positionSigmaM', 0):.2f}cm triplet=({t.get('s1', 0)},{t.get('s2', 0)},{t.get('s3', 0)}) "
-                              f"pieces={len(s.get('triplets', []))} resid={s.get('residualPx', 0):.3f}px")
+                              f"pieces={len(s.get('triplets', []))} resid={s.get('residualPx', 0):.3f}px "
+                              f"nearest edge: start/mid/end {nearest(seg_w[i], E, c, S_mod)}")
                 lengths += list(np.linalg.norm(seg_rig[:, 3:] - seg_rig[:, :3], axis=1))
                 if a.calibration:
                     Tinv = np.linalg.inv(T)

@@ -14,14 +14,14 @@
 //! wrong segments was read from.
 
 use nalgebra::Point3;
-use trinocular::extract::{Extraction, Params};
+use trinocular::extract::Extraction;
 use trinocular::geometry::Rig;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, MatchOutput, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
-    error_classes, observe, render_triplet, rig_centre, score_capture, Defects, Observation, Pose,
-    RenderParams, RigSpec, Scene, STANDARD_RIG_POSITION,
+    error_classes, observe, render_triplet, rig_centre, score_capture, Defects, Observation,
+    Pooled, Pose, RenderParams, RigSpec, Scene, STANDARD_RIG_POSITION,
 };
 
 /// One rig variant: image size, focal length scale, baseline scale.
@@ -169,8 +169,7 @@ fn main() {
         "|---|---|---|---|---|".to_string(),
     ];
     for variant in &VARIANTS {
-        let (mut n, mut correct, mut eligible, mut covered) = (0usize, 0usize, 0.0, 0.0);
-        let mut classes = [0usize; 3];
+        let mut pooled = Pooled::default();
         for seed in 1..=seeds {
             let rig = rig_of(variant, seed);
             let scene = Scene::room(seed);
@@ -179,14 +178,10 @@ fn main() {
             let matched = pipeline::run(
                 &rig,
                 Input::Images([&images[0], &images[1], &images[2]]),
-                &Options {
-                    params: MatchParams {
-                        include_uncertain: all,
-                        ..MatchParams::default()
-                    },
-                    extract: Params::default(),
-                    ..Options::default()
-                },
+                &Options::with(MatchParams {
+                    include_uncertain: all,
+                    ..MatchParams::default()
+                }),
             )
             .expect("match");
             let out = &matched.output;
@@ -196,23 +191,23 @@ fn main() {
                 let extracted = matched.extracted.as_ref().expect("images in");
                 list_wrong(variant.name, seed, &rig, &obs, out, extracted, &s.matches);
             }
-            let c = error_classes(&segments, &s.matches, &obs.ground_truth, rig_centre(&rig));
-            classes[0] += c.direction_only;
-            classes[1] += c.near;
-            classes[2] += c.far;
-            n += s.n_segments;
-            correct += s.n_correct;
-            eligible += s.eligible_length_m;
-            covered += s.covered_length_m;
+            pooled.add(&s);
+            pooled.add_classes(&error_classes(
+                &segments,
+                &s.matches,
+                &obs.ground_truth,
+                rig_centre(&rig),
+            ));
         }
         table.push(format!(
-            "| {} | {n} | {:.1}% | {} / {} / {} | {:.1}% |",
+            "| {} | {} | {:.1}% | {} / {} / {} | {:.1}% |",
             variant.name,
-            100.0 * (1.0 - correct as f64 / n.max(1) as f64),
-            classes[0],
-            classes[1],
-            classes[2],
-            100.0 * covered / eligible,
+            pooled.segments,
+            100.0 * pooled.error(),
+            pooled.classes.direction_only,
+            pooled.classes.near,
+            pooled.classes.far,
+            100.0 * pooled.completeness(),
         ));
     }
     for line in table {

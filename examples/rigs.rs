@@ -11,7 +11,7 @@ use trinocular::extract::{GreyImage, Params};
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
-    error_classes, render_triplet, rig_centre, score_capture, shaped_capture, Defects,
+    error_classes, render_triplet, rig_centre, score_capture, shaped_capture, Defects, Pooled,
     RenderParams, RigShape,
 };
 
@@ -31,9 +31,8 @@ fn main() {
         "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );
     for shape in RigShape::ALL {
-        let (mut n, mut correct, mut eligible, mut covered) = (0usize, 0usize, 0.0, 0.0);
+        let mut pooled = Pooled::default();
         let (mut per_pair, mut angle) = (false, 0.0);
-        let mut classes = [0usize; 3];
         for seed in 1..=seeds {
             let (scene, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
             let out = if lists {
@@ -71,25 +70,25 @@ fn main() {
             };
             let segments = out.segments();
             let s = score_capture(&segments, &obs, &rig);
-            let c = error_classes(&segments, &s.matches, &obs.ground_truth, rig_centre(&rig));
-            classes[0] += c.direction_only;
-            classes[1] += c.near;
-            classes[2] += c.far;
-            n += s.n_segments;
-            correct += s.n_correct;
-            eligible += s.eligible_length_m;
-            covered += s.covered_length_m;
+            pooled.add(&s);
+            pooled.add_classes(&error_classes(
+                &segments,
+                &s.matches,
+                &obs.ground_truth,
+                rig_centre(&rig),
+            ));
             per_pair = out.stats.per_pair_rectification;
             angle = out.stats.epipolar_angle_deg;
         }
         println!(
-            "| {} | {n} | {:.1}% | {} / {} / {} | {:.1}% | {per_pair} | {angle:.0}° |",
+            "| {} | {} | {:.1}% | {} / {} / {} | {:.1}% | {per_pair} | {angle:.0}° |",
             shape.name(),
-            100.0 * (1.0 - correct as f64 / n.max(1) as f64),
-            classes[0],
-            classes[1],
-            classes[2],
-            100.0 * covered / eligible,
+            pooled.segments,
+            100.0 * pooled.error(),
+            pooled.classes.direction_only,
+            pooled.classes.near,
+            pooled.classes.far,
+            100.0 * pooled.completeness(),
         );
     }
 }

@@ -10,38 +10,12 @@ use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
     eligible_intervals_with, render_triplet, rig_centre, score, score_capture, shaped_capture,
-    Defects, RenderParams, RigShape,
+    Defects, Pooled, RenderParams, RigShape,
 };
 
 use crate::accuracy::{COLLINEAR_MIN_COMPLETENESS, EXACT_MAX_ERROR};
 
 const SEEDS: [u64; 2] = [1, 2];
-
-/// Scores pooled over seeds: error over all segments, completeness over all eligible length.
-#[derive(Default)]
-struct Pooled {
-    segments: usize,
-    correct: usize,
-    eligible_m: f64,
-    covered_m: f64,
-}
-
-impl Pooled {
-    fn add(&mut self, s: &trinocular::synth::Score) {
-        self.segments += s.n_segments;
-        self.correct += s.n_correct;
-        self.eligible_m += s.eligible_length_m;
-        self.covered_m += s.covered_length_m;
-    }
-
-    fn error(&self) -> f64 {
-        1.0 - self.correct as f64 / self.segments.max(1) as f64
-    }
-
-    fn completeness(&self) -> f64 {
-        self.covered_m / self.eligible_m
-    }
-}
 
 /// Pooled 3D error and completeness of every match of exact segment lists, and whether the
 /// rig was matched in per-pair frames.

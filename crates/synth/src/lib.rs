@@ -54,7 +54,7 @@ pub use scatter::scattered_capture;
 pub use scene::{Box3, Face, Hit, Scene, Tracer};
 pub use score::{
     edge_recall, eligible_intervals, eligible_intervals_with, error_classes, match_labels, score,
-    score_labelled, ErrorClasses, Score,
+    score_labelled, ErrorClasses, Pooled, Score,
 };
 pub use visibility::{
     contrast_at, edge_contrast, intersect_intervals, rig_visibility, total_length, union_intervals,

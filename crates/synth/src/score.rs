@@ -240,6 +240,43 @@ pub struct ErrorClasses {
     pub far: usize,
 }
 
+/// Scores pooled over several captures (seeds): the error and completeness of all their
+/// segments together, as the rig figures and tests quote them, and the wrong ones' classes.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Pooled {
+    pub segments: usize,
+    pub correct: usize,
+    pub eligible_m: f64,
+    pub covered_m: f64,
+    pub classes: ErrorClasses,
+}
+
+impl Pooled {
+    pub fn add(&mut self, s: &Score) {
+        self.segments += s.n_segments;
+        self.correct += s.n_correct;
+        self.eligible_m += s.eligible_length_m;
+        self.covered_m += s.covered_length_m;
+    }
+
+    pub fn add_classes(&mut self, c: &ErrorClasses) {
+        self.classes.direction_only += c.direction_only;
+        self.classes.near += c.near;
+        self.classes.far += c.far;
+    }
+
+    /// Share of the segments that are wrong; 1 when there are none, so that a rig that
+    /// answers nothing does not pass for an accurate one.
+    pub fn error(&self) -> f64 {
+        1.0 - self.correct as f64 / self.segments.max(1) as f64
+    }
+
+    /// Share of the eligible length covered (NaN when nothing is eligible).
+    pub fn completeness(&self) -> f64 {
+        self.covered_m / self.eligible_m
+    }
+}
+
 /// Classifies the segments that `matches` (from [`score`]) says are wrong.
 pub fn error_classes(
     segments: &[Segment3],
@@ -459,6 +496,47 @@ mod tests {
             start: Point3::from(a),
             end: Point3::from(b),
         }
+    }
+
+    #[test]
+    fn pooled_scores_weigh_each_capture_by_its_segments_and_its_eligible_length() {
+        let capture = |n_segments, n_correct, eligible_length_m, covered_length_m| Score {
+            n_segments,
+            n_correct,
+            error_rate: None,
+            completeness: None,
+            acc_median_mm: None,
+            acc_p90_mm: None,
+            matches: Vec::new(),
+            n_eligible_edges: 0,
+            eligible_length_m,
+            covered_length_m,
+        };
+        let mut pooled = Pooled::default();
+        pooled.add(&capture(10, 9, 4.0, 1.0));
+        pooled.add(&capture(30, 15, 1.0, 1.0));
+        // 16 of 40 wrong, not the mean of 10% and 50%; 2 m of 5, not the mean of 25% and 100%.
+        assert!((pooled.error() - 0.4).abs() < 1e-12);
+        assert!((pooled.completeness() - 0.4).abs() < 1e-12);
+        pooled.add_classes(&ErrorClasses {
+            direction_only: 1,
+            near: 2,
+            far: 3,
+        });
+        pooled.add_classes(&ErrorClasses {
+            direction_only: 1,
+            near: 0,
+            far: 1,
+        });
+        assert_eq!(
+            pooled.classes,
+            ErrorClasses {
+                direction_only: 2,
+                near: 2,
+                far: 4
+            }
+        );
+        assert_eq!(Pooled::default().error(), 1.0, "no segments: none correct");
     }
 
     fn truth() -> Vec<Segment3> {

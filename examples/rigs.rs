@@ -7,12 +7,12 @@
 //! `third-gain=G` scales the third camera's image (signal and noise) by G, as a camera with an
 //! exposure of its own would see the scene (docs/RIGS.md, "Cameras with their own exposure").
 
-use trinocular::extract::{GreyImage, Params};
+use trinocular::extract::Params;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
-    error_classes, render_triplet, rig_centre, score_capture, shaped_capture, Defects, Pooled,
-    RenderParams, RigShape,
+    error_classes, render_triplet, rig_centre, score_capture, shaped_capture, with_exposure,
+    Defects, Pooled, RenderParams, RigShape,
 };
 
 fn main() {
@@ -49,10 +49,7 @@ fn main() {
                 .expect("match")
             } else {
                 let mut images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
-                let third = &images[2];
-                let scaled = third.pixels().iter().map(|p| p * third_gain).collect();
-                images[2] =
-                    GreyImage::new(third.width(), third.height(), scaled).expect("same size");
+                images[2] = with_exposure(&images[2], third_gain);
                 pipeline::run(
                     &rig,
                     Input::Images([&images[0], &images[1], &images[2]]),

@@ -4,13 +4,12 @@
 //! keeps its third camera. `cargo run --release --example rigs` prints every shape's figures
 //! (docs/RIGS.md).
 
-use trinocular::extract::GreyImage;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
     eligible_intervals_with, render_triplet, rig_centre, score, score_capture, shaped_capture,
-    Defects, Pooled, RenderParams, RigShape,
+    with_exposure, Defects, Pooled, RenderParams, RigShape,
 };
 
 use crate::accuracy::{COLLINEAR_MIN_COMPLETENESS, EXACT_MAX_ERROR};
@@ -88,9 +87,7 @@ fn rendered_with_gain(
     for seed in seeds {
         let (scene, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
         let mut images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
-        let third = &images[2];
-        let scaled = third.pixels().iter().map(|p| p * third_gain).collect();
-        images[2] = GreyImage::new(third.width(), third.height(), scaled).expect("same size");
+        images[2] = with_exposure(&images[2], third_gain);
         let out = pipeline::run(
             &rig,
             Input::Images([&images[0], &images[1], &images[2]]),

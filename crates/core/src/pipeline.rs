@@ -220,9 +220,9 @@ pub struct MatchStats {
     /// factor on σ, at least 1; read off the first reconstructions: mostly the calibration's
     /// own error).
     pub noise_scale: f64,
-    /// Each view's gradient gain relative to view 1, measured on the hypotheses whose depth
-    /// two views check (`matching::gain`; 1 where too few gradients are known): cameras with
-    /// their own exposure. The gradient test of the depth-blind hypotheses divides it out.
+    /// Each view's gradient gain relative to view 1, measured on every hypothesis whose three
+    /// gradients are known (`matching::gain`; 1 where too few are): cameras with their own
+    /// exposure. The gradient test of the depth-blind hypotheses divides it out.
     pub gradient_gains: [f64; 3],
     /// Hypotheses refused because the verifying view could not check their depth and their
     /// gradients, divided by the gains, disagree by more than

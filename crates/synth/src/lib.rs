@@ -47,7 +47,7 @@ pub mod visibility;
 pub use bvh::SceneIndex;
 pub use defects::{observe, Defects, Observation};
 pub use pattern::{pattern_scene, pattern_views};
-pub use render::{render, render_image, render_triplet, RenderParams};
+pub use render::{render, render_image, render_triplet, with_exposure, RenderParams};
 pub use rig::{cam_from_rig_rotation, CameraSpec, Pose, RigShape, RigSpec, SynthError};
 pub use rng::Rng;
 pub use scatter::scattered_capture;

@@ -168,6 +168,14 @@ pub fn render_triplet(
     std::array::from_fn(|i| render_image(scene, rig.camera(i), params, camera_seed(&root, i)))
 }
 
+/// `image` as a camera with `gain` times the exposure would see it: every grey level, signal
+/// and noise alike, scaled (cameras of one rig with exposures of their own).
+pub fn with_exposure(image: &GreyImage, gain: f32) -> GreyImage {
+    let scaled = image.pixels().iter().map(|p| p * gain).collect();
+    GreyImage::new(image.width(), image.height(), scaled)
+        .expect("the same number of pixels as the image's own")
+}
+
 /// The noise seed of camera `i` in [`render_triplet`].
 fn camera_seed(root: &Rng, i: usize) -> u64 {
     root.fork(i as u64).next_u64()

@@ -38,6 +38,8 @@ fn main() {
             let out = if lists {
                 let params = MatchParams {
                     include_uncertain: true,
+                    // Exact lines: no detector pushed them.
+                    list_push_px: 0.0,
                     ..MatchParams::default()
                 };
                 pipeline::run(

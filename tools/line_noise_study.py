@@ -12,7 +12,11 @@ its direction error, each divided by the segment's reported 1σ (image input: th
 `offsetSigmaPx` / `angleSigmaDeg`; LSD lists: the matcher's list model, computed here the same
 way). Prints, by segment length, the median squared normalised error (1 dof: 0.455 when
 calibrated) and the share within 1.96σ and 2.58σ (95% and 99% when calibrated); then the same by the
-distance of the nearest parallel neighbour segment and of the nearest other true edge.
+distance of the nearest parallel neighbour segment and of the nearest other true edge; then,
+by that neighbour's contrast (same or opposite orientation) and distance in 0.5-px bins, how
+far the segment's midpoint lies off its true edge toward the neighbour (negative: pushed
+away) and the robust spread about that median (1.4826 x MAD), the measurement behind the
+list model's correction of an opposite-contrast neighbour's push (`segment::Repulsion`).
 """
 import argparse
 import json
@@ -119,13 +123,21 @@ def main():
                     across = np.abs((om - m) @ np.array([u[1], -u[0]]))
                     near = par & (along > 0) & (along < L) & (across > 0.3)
                     crowd = across[near].min() if near.any() else 99.0
+                    # That neighbour's contrast (+1 same orientation, -1 opposite) and the error
+                    # toward it (positive: pulled toward, negative: pushed away).
+                    if near.any():
+                        j = np.where(near)[0][np.argmin(across[near])]
+                        same = float(np.sign((od[j] / ol[j]) @ u))
+                        toward = e_signed * np.sign((om[j] - m) @ np.array([u[1], -u[0]]))
+                    else:
+                        same, toward = 0.0, 0.0
                     # Nearest other true edge alongside: parallel within 6 degrees, its projection
                     # passing the midpoint; two edges that close blur into one in the image.
                     dm = np.abs(np.einsum("ij,ij->i", m - LA, LN))
                     tm = np.einsum("ij,ij->i", m - LA, LU) / LL
                     other = (ang < 6) & (tm > -0.1) & (tm < 1.1) & (edge_ids != edge_ids[k])
                     other_px = dm[other].min() if other.any() else 99.0
-                    rows.append((L, e_off / so, e_ang / sa, s.get("gradient", 0.0), e_signed, so, math.degrees(e_ang), abs(u[1]), (m - (LA[k] + ((m - LA[k]) @ LU[k]) * LU[k]))[0], cam, crowd, other_px))
+                    rows.append((L, e_off / so, e_ang / sa, s.get("gradient", 0.0), e_signed, so, math.degrees(e_ang), abs(u[1]), (m - (LA[k] + ((m - LA[k]) @ LU[k]) * LU[k]))[0], cam, crowd, other_px, same, toward))
     R = np.array(rows)
     print(f"{len(R)} segments on a true edge ({a.input}, rooms {a.rooms})")
     for lo, hi in BINS + [(0, 1e9)]:
@@ -153,6 +165,14 @@ def main():
             print(f"another true edge {lo}-{hi} px alongside: n={sel.sum():5} |offset| median "
                   f"{np.median(np.abs(R[sel, 4])):.3f} p90 {np.percentile(np.abs(R[sel, 4]), 90):.3f} "
                   f"offset in1.96={np.mean(R[sel, 1] < 1.96):.3f} angle in1.96={np.mean(R[sel, 2] < 1.96):.3f}")
+    for contrast, name in ((-1.0, "opposite"), (1.0, "same")):
+        for lo in np.arange(1.0, 6.0, 0.5):
+            sel = (R[:, 10] >= lo) & (R[:, 10] < lo + 0.5) & (R[:, 0] > 20) & (R[:, 12] == contrast)
+            if sel.sum() > 3:
+                t = R[sel, 13]
+                med = np.median(t)
+                print(f"{name} contrast neighbour {lo:.1f}-{lo + 0.5:.1f} px: n={sel.sum():4} toward it median {med:+.3f} "
+                      f"spread about it {1.4826 * np.median(np.abs(t - med)):.3f} pushed away {np.mean(t < 0):.2f}")
     if os.environ.get("BY_ORIENTATION"):
         vert = R[:, 7] > 0.9
         for cam in range(3):

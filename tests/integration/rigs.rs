@@ -21,6 +21,8 @@ const SEEDS: [u64; 2] = [1, 2];
 fn exact(shape: RigShape) -> (f64, f64, bool) {
     let params = MatchParams {
         include_uncertain: true,
+        // Exact lines: no detector pushed them.
+        list_push_px: 0.0,
         ..MatchParams::default()
     };
     let mut pooled = Pooled::default();

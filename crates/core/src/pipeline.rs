@@ -572,6 +572,8 @@ struct Observations<'a> {
     crowding: [Option<crate::segment::Crowding>; 3],
     /// Per view, each list segment's index among the rectified ones (built when first asked).
     rect_index: [Option<Vec<u32>>; 3],
+    /// `MatchParams::list_push_px`.
+    list_push_px: f64,
 }
 
 impl<'a> Observations<'a> {
@@ -579,6 +581,7 @@ impl<'a> Observations<'a> {
         rect: [&'a [RectSegment]; 3],
         lines: &'a mut [Vec<LineObservation>],
         lists: &'a [SegmentList; 3],
+        list_push_px: f64,
     ) -> Self {
         let crowded = std::array::from_fn(|v| vec![false; lines[v].len()]);
         Observations {
@@ -588,6 +591,7 @@ impl<'a> Observations<'a> {
             crowded,
             crowding: [None, None, None],
             rect_index: [None, None, None],
+            list_push_px,
         }
     }
 
@@ -617,6 +621,7 @@ impl<'a> Observations<'a> {
 
     fn add_crowding(&mut self, triplets: &[[u32; 3]]) {
         let rect = self.rect;
+        let model = CrowdingModel::lists(self.list_push_px);
         for (v, (view, list)) in self.lines.iter_mut().zip(self.lists).enumerate() {
             let mut asked: Vec<usize> = Vec::new();
             for t in triplets {
@@ -632,14 +637,31 @@ impl<'a> Observations<'a> {
                 continue;
             }
             let queries: Vec<usize> = asked.iter().map(|&i| rect[v][i].index as usize).collect();
-            let distances = self.crowding[v]
-                .get_or_insert_with(|| crate::segment::Crowding::new(&list.segments))
-                .distances(&list.segments, &queries, CrowdingModel::LISTS);
-            for (&i, distance) in asked.iter().zip(distances) {
+            let index = self.crowding[v]
+                .get_or_insert_with(|| crate::segment::Crowding::new(&list.segments));
+            let distances = index.distances(&list.segments, &queries, model);
+            // Contrast is known only for an oriented list; without it no push is undone.
+            let opposite = if list.oriented && model.repulsion.is_some() {
+                index.opposite_neighbours(&list.segments, &queries)
+            } else {
+                vec![None; queries.len()]
+            };
+            for ((&i, distance), opposite) in asked.iter().zip(distances).zip(opposite) {
                 let o = &mut view[i];
-                o.noise = o
-                    .noise
-                    .crowded(distance, (o.end - o.start).norm(), CrowdingModel::LISTS);
+                let (noise, correction) = o.noise.crowded_and_corrected(
+                    distance,
+                    opposite,
+                    (o.end - o.start).norm(),
+                    model,
+                );
+                o.noise = noise;
+                // Measured in the list's pixels, applied to the undistorted line: a move of
+                // tenths of a pixel, which the lens does not turn measurably. Matching went
+                // on the lines as given, within tolerances of pixels.
+                if let Some(correction) = correction {
+                    o.start += correction.start;
+                    o.end += correction.end;
+                }
             }
         }
     }
@@ -1044,7 +1066,7 @@ fn validate_and_reconstruct(
     } = *request;
     let mut fits: Vec<Option<Fit>> = vec![None; hypotheses.len()];
     let mut alive: Vec<bool> = vec![true; hypotheses.len()];
-    let mut observations = Observations::new(views.segments, observed, lists);
+    let mut observations = Observations::new(views.segments, observed, lists, params.list_push_px);
     checkpoint.before("validate")?;
     let t = Instant::now();
     let ranking = if params.validate {

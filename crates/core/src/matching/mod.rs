@@ -64,6 +64,11 @@ pub struct MatchParams {
     /// precise it is (`LineNoise::from_endpoint_sigma`), pixels. Extracted segments carry
     /// their own, measured from their edge points.
     pub line_noise_px: f64,
+    /// How hard a neighbour of opposite contrast pushes the lines of a list that does not
+    /// state its noise, at full strength, pixels: the matcher moves them back
+    /// (`segment::Repulsion`; the default is OpenCV LSD's, measured). 0 for lists whose
+    /// detector does not push (exact synthetic lines, or one that models its neighbours).
+    pub list_push_px: f64,
     /// 3D segments whose direction σ exceeds this are dropped, degrees.
     pub max_direction_sigma_deg: f64,
     /// The accuracy a 3D segment must meet, at `gate_confidence`, to be in the answer by
@@ -95,6 +100,7 @@ impl Default for MatchParams {
             neighbour_radius_px: 8.0,
             max_residual_px: 1.5,
             line_noise_px: 0.3,
+            list_push_px: crate::segment::CrowdingModel::LSD_PUSH_PX,
             max_direction_sigma_deg: 180.0,
             gate_direction_deg: 5.0,
             gate_position_m: 0.02,
@@ -104,6 +110,10 @@ impl Default for MatchParams {
         }
     }
 }
+
+/// Largest `list_push_px`: a push is at most a quarter of the distance anyway, and five
+/// times LSD's is no detector's.
+pub const MAX_LIST_PUSH_PX: f64 = 5.0;
 
 /// A parameter out of its domain; `field` is the schema's `MatchOptions` field name.
 pub use crate::params::{ParamError, ParamErrors};
@@ -193,6 +203,12 @@ impl MatchParams {
                 self.line_noise_px,
                 self.line_noise_px > 0.0,
                 "a finite number greater than 0",
+            ),
+            rule(
+                "list_push_px",
+                self.list_push_px,
+                (0.0..=MAX_LIST_PUSH_PX).contains(&self.list_push_px),
+                "a finite number in [0, 5]",
             ),
             rule(
                 "max_direction_sigma_deg",
@@ -307,5 +323,34 @@ mod tests {
         assert_eq!(fields, ["tolerance_px", "min_gradient", "gate_confidence"]);
         assert_eq!(e.field(), "tolerance_px");
         assert!(MatchParams::default().check().is_ok());
+    }
+
+    #[test]
+    fn a_list_push_is_off_at_zero_and_bounded() {
+        for push in [0.0, MAX_LIST_PUSH_PX] {
+            let params = MatchParams {
+                list_push_px: push,
+                ..MatchParams::default()
+            };
+            assert!(params.check().is_ok(), "{push}");
+        }
+        for push in [-0.1, MAX_LIST_PUSH_PX + 0.1, f64::NAN, f64::INFINITY] {
+            let params = MatchParams {
+                list_push_px: push,
+                ..MatchParams::default()
+            };
+            assert_eq!(
+                params.check().unwrap_err().field(),
+                "list_push_px",
+                "{push}"
+            );
+        }
+        assert!(crate::segment::CrowdingModel::lists(0.0)
+            .repulsion
+            .is_none());
+        assert_eq!(
+            crate::segment::CrowdingModel::lists(MatchParams::default().list_push_px),
+            crate::segment::CrowdingModel::LISTS
+        );
     }
 }

@@ -639,14 +639,14 @@ impl<'a> Observations<'a> {
             let queries: Vec<usize> = asked.iter().map(|&i| rect[v][i].index as usize).collect();
             let index = self.crowding[v]
                 .get_or_insert_with(|| crate::segment::Crowding::new(&list.segments));
-            let distances = index.distances(&list.segments, &queries, model);
             // Contrast is known only for an oriented list; without it no push is undone.
-            let opposite = if list.oriented && model.repulsion.is_some() {
-                index.opposite_neighbours(&list.segments, &queries)
+            let nearest = if list.oriented && model.repulsion.is_some() {
+                index.distances_and_opposites(&list.segments, &queries, model)
             } else {
-                vec![None; queries.len()]
+                let distances = index.distances(&list.segments, &queries, model);
+                distances.into_iter().map(|d| (d, None)).collect()
             };
-            for ((&i, distance), opposite) in asked.iter().zip(distances).zip(opposite) {
+            for (&i, (distance, opposite)) in asked.iter().zip(nearest) {
                 let o = &mut view[i];
                 let (noise, correction) = o.noise.crowded_and_corrected(
                     distance,

@@ -488,31 +488,9 @@ impl Crowding {
         queries: &[usize],
         model: CrowdingModel,
     ) -> Vec<f64> {
-        let radius = CROWDING_RADIUS_PX;
         queries
             .iter()
-            .map(|&i| {
-                let s = &segments[i];
-                let mut best = f64::INFINITY;
-                let len = self.shapes[i].as_ref().map_or(0.0, |sh| sh.len);
-                self.for_each_near(i, radius, 0.0, |j, along, across| {
-                    if along > 0.0 && along < len && across > COLLINEAR_PX {
-                        // A weaker neighbour pulls less: as if it were farther.
-                        let pull = match (s.gradient, segments[j].gradient) {
-                            (Some(mine), Some(theirs)) if mine > 0.0 => {
-                                (theirs / mine).clamp(1e-3, 1.0)
-                            }
-                            _ => 1.0,
-                        };
-                        best = best.min(model.equivalent_distance(across, pull));
-                    }
-                });
-                if best <= radius {
-                    best
-                } else {
-                    f64::INFINITY
-                }
-            })
+            .map(|&i| self.nearest(segments, i, model, false).0)
             .collect()
     }
 
@@ -526,40 +504,81 @@ impl Crowding {
     ) -> Vec<Option<Opposite>> {
         queries
             .iter()
-            .map(|&i| {
-                let sh = self.shapes[i].as_ref()?;
-                let normal = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
-                let mut best: Option<Opposite> = None;
-                self.for_each_near(i, CROWDING_RADIUS_PX, 0.0, |j, along, across| {
-                    let Some(other) = &self.shapes[j] else {
-                        return;
-                    };
-                    if !(along > 0.0 && along < sh.len && across > COLLINEAR_PX)
-                        || other.dir.dot(&sh.dir) >= 0.0
-                        || best.is_some_and(|b| b.distance_px <= across)
-                    {
-                        return;
-                    }
-                    let side = (other.mid - sh.start).dot(&normal).signum();
-                    let (a, b) = (
-                        (segments[j].start - sh.start).dot(&sh.dir),
-                        (segments[j].end - sh.start).dot(&sh.dir),
-                    );
-                    let (from, to) = (a.min(b).clamp(0.0, sh.len), a.max(b).clamp(0.0, sh.len));
-                    let pull = match (segments[i].gradient, segments[j].gradient) {
-                        (Some(mine), Some(theirs)) if mine > 0.0 && theirs >= 0.0 => theirs / mine,
-                        _ => 1.0,
-                    };
-                    best = Some(Opposite {
-                        distance_px: across,
-                        toward: normal * side,
-                        pull,
-                        alongside: (from / sh.len, to / sh.len),
-                    });
-                });
-                best
-            })
+            .map(|&i| self.nearest(segments, i, CrowdingModel::LISTS, true).1)
             .collect()
+    }
+
+    /// [`Crowding::distances`] and [`Crowding::opposite_neighbours`] together, in one walk
+    /// of the grid per query.
+    pub fn distances_and_opposites(
+        &self,
+        segments: &[Segment2],
+        queries: &[usize],
+        model: CrowdingModel,
+    ) -> Vec<(f64, Option<Opposite>)> {
+        queries
+            .iter()
+            .map(|&i| self.nearest(segments, i, model, true))
+            .collect()
+    }
+
+    /// Segment `i`'s crowding distance under `model` and (if `opposite`) its nearest
+    /// neighbour of opposite contrast.
+    fn nearest(
+        &self,
+        segments: &[Segment2],
+        i: usize,
+        model: CrowdingModel,
+        opposite: bool,
+    ) -> (f64, Option<Opposite>) {
+        let Some(sh) = &self.shapes[i] else {
+            return (f64::INFINITY, None);
+        };
+        let s = &segments[i];
+        let normal = nalgebra::Vector2::new(-sh.dir.y, sh.dir.x);
+        let mut best = f64::INFINITY;
+        let mut best_opposite: Option<Opposite> = None;
+        self.for_each_near(i, CROWDING_RADIUS_PX, 0.0, |j, along, across| {
+            if !(along > 0.0 && along < sh.len && across > COLLINEAR_PX) {
+                return;
+            }
+            let theirs = segments[j].gradient;
+            // A weaker neighbour pulls less: as if it were farther.
+            let pull = match (s.gradient, theirs) {
+                (Some(mine), Some(theirs)) if mine > 0.0 => (theirs / mine).clamp(1e-3, 1.0),
+                _ => 1.0,
+            };
+            best = best.min(model.equivalent_distance(across, pull));
+            let Some(other) = self.shapes[j].as_ref().filter(|_| opposite) else {
+                return;
+            };
+            if other.dir.dot(&sh.dir) >= 0.0
+                || best_opposite.is_some_and(|b| b.distance_px <= across)
+            {
+                return;
+            }
+            let side = (other.mid - sh.start).dot(&normal).signum();
+            let (a, b) = (
+                (segments[j].start - sh.start).dot(&sh.dir),
+                (segments[j].end - sh.start).dot(&sh.dir),
+            );
+            let (from, to) = (a.min(b).clamp(0.0, sh.len), a.max(b).clamp(0.0, sh.len));
+            best_opposite = Some(Opposite {
+                distance_px: across,
+                toward: normal * side,
+                pull: match (s.gradient, theirs) {
+                    (Some(mine), Some(theirs)) if mine > 0.0 && theirs >= 0.0 => theirs / mine,
+                    _ => 1.0,
+                },
+                alongside: (from / sh.len, to / sh.len),
+            });
+        });
+        let distance = if best <= CROWDING_RADIUS_PX {
+            best
+        } else {
+            f64::INFINITY
+        };
+        (distance, best_opposite)
     }
 
     /// The segments within 10° of segment `i`'s line, either way round, that lie alongside
@@ -777,6 +796,37 @@ mod tests {
         // of opposite contrast alongside, segment 1, is 5 px away.
         assert!((found[2].unwrap().distance_px - 5.0).abs() < 1e-12);
         assert!(found[3].is_none());
+    }
+
+    #[test]
+    fn one_walk_finds_what_the_two_queries_find() {
+        let mut rng = trinocular_synth::Rng::new(5);
+        let segments: Vec<Segment2> = (0..300)
+            .map(|_| {
+                let (x, y) = (rng.range(0.0, 200.0), rng.range(0.0, 200.0));
+                let angle = if rng.range(0.0, 1.0) < 0.5 {
+                    0.0
+                } else {
+                    std::f64::consts::PI
+                };
+                let angle = angle + rng.range(-0.1, 0.1);
+                let len = rng.range(5.0, 60.0);
+                let mut s = seg((x, y), (x + len * angle.cos(), y + len * angle.sin()));
+                s.gradient = Some(rng.range(5.0, 40.0));
+                s
+            })
+            .collect();
+        let index = Crowding::new(&segments);
+        let all: Vec<usize> = (0..segments.len()).collect();
+        let model = CrowdingModel::LISTS;
+        let together = index.distances_and_opposites(&segments, &all, model);
+        let apart: Vec<_> = index
+            .distances(&segments, &all, model)
+            .into_iter()
+            .zip(index.opposite_neighbours(&segments, &all))
+            .collect();
+        assert_eq!(together, apart);
+        assert!(together.iter().filter(|(_, o)| o.is_some()).count() > 30);
     }
 
     #[test]

@@ -18,10 +18,9 @@ use trinocular::extract::Extraction;
 use trinocular::geometry::Rig;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, MatchOutput, Options};
-use trinocular::segment::Segment3;
 use trinocular::synth::{
-    error_classes, observe, render_triplet, rig_centre, score_capture, Defects, Observation,
-    Pooled, Pose, RenderParams, RigSpec, Scene, STANDARD_RIG_POSITION,
+    observe, render_triplet, rig_centre, Defects, Observation, Pooled, Pose, RenderParams, RigSpec,
+    Scene, STANDARD_RIG_POSITION,
 };
 
 /// One rig variant: image size, focal length scale, baseline scale.
@@ -185,30 +184,13 @@ fn main() {
             )
             .expect("match");
             let out = &matched.output;
-            let segments: Vec<Segment3> = out.segments();
-            let s = score_capture(&segments, &obs, &rig);
+            let s = pooled.add_capture(&out.segments(), &obs, &rig);
             if wrong {
                 let extracted = matched.extracted.as_ref().expect("images in");
                 list_wrong(variant.name, seed, &rig, &obs, out, extracted, &s.matches);
             }
-            pooled.add(&s);
-            pooled.add_classes(&error_classes(
-                &segments,
-                &s.matches,
-                &obs.ground_truth,
-                rig_centre(&rig),
-            ));
         }
-        table.push(format!(
-            "| {} | {} | {:.1}% | {} / {} / {} | {:.1}% |",
-            variant.name,
-            pooled.segments,
-            100.0 * pooled.error(),
-            pooled.classes.direction_only,
-            pooled.classes.near,
-            pooled.classes.far,
-            100.0 * pooled.completeness(),
-        ));
+        table.push(format!("| {} | {} |", variant.name, pooled.cells()));
     }
     for line in table {
         println!("{line}");

@@ -11,8 +11,7 @@ use trinocular::extract::Params;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
-    error_classes, render_triplet, rig_centre, score_capture, shaped_capture, with_exposure,
-    Defects, Pooled, RenderParams, RigShape,
+    render_triplet, shaped_capture, with_exposure, Defects, Pooled, RenderParams, RigShape,
 };
 
 fn main() {
@@ -67,27 +66,14 @@ fn main() {
                 .expect("match")
                 .output
             };
-            let segments = out.segments();
-            let s = score_capture(&segments, &obs, &rig);
-            pooled.add(&s);
-            pooled.add_classes(&error_classes(
-                &segments,
-                &s.matches,
-                &obs.ground_truth,
-                rig_centre(&rig),
-            ));
+            pooled.add_capture(&out.segments(), &obs, &rig);
             per_pair = out.stats.per_pair_rectification;
             angle = out.stats.epipolar_angle_deg;
         }
         println!(
-            "| {} | {} | {:.1}% | {} / {} / {} | {:.1}% | {per_pair} | {angle:.0}° |",
+            "| {} | {} | {per_pair} | {angle:.0}° |",
             shape.name(),
-            pooled.segments,
-            100.0 * pooled.error(),
-            pooled.classes.direction_only,
-            pooled.classes.near,
-            pooled.classes.far,
-            100.0 * pooled.completeness(),
+            pooled.cells()
         );
     }
 }

@@ -572,8 +572,8 @@ struct Observations<'a> {
     crowding: [Option<crate::segment::Crowding>; 3],
     /// Per view, each list segment's index among the rectified ones (built when first asked).
     rect_index: [Option<Vec<u32>>; 3],
-    /// `MatchParams::list_push_px`.
-    list_push_px: f64,
+    /// The lists' crowding model, with `MatchParams::list_push_px`.
+    crowding_model: CrowdingModel,
 }
 
 impl<'a> Observations<'a> {
@@ -591,7 +591,7 @@ impl<'a> Observations<'a> {
             crowded,
             crowding: [None, None, None],
             rect_index: [None, None, None],
-            list_push_px,
+            crowding_model: CrowdingModel::lists(list_push_px),
         }
     }
 
@@ -621,7 +621,7 @@ impl<'a> Observations<'a> {
 
     fn add_crowding(&mut self, triplets: &[[u32; 3]]) {
         let rect = self.rect;
-        let model = CrowdingModel::lists(self.list_push_px);
+        let model = self.crowding_model;
         for (v, (view, list)) in self.lines.iter_mut().zip(self.lists).enumerate() {
             let mut asked: Vec<usize> = Vec::new();
             for t in triplets {

@@ -320,7 +320,7 @@ pub fn crowding(segments: &[Segment2], model: CrowdingModel) -> Vec<f64> {
     Crowding::new(segments).distances(segments, &all, model)
 }
 
-/// A segment's nearest neighbour of opposite contrast ([`Crowding::opposite_neighbours`]).
+/// A segment's nearest neighbour of opposite contrast ([`Crowding::distances_and_opposites`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Opposite {
     /// How far across, pixels.
@@ -494,22 +494,10 @@ impl Crowding {
             .collect()
     }
 
-    /// For each segment at `queries`, its nearest neighbour of opposite contrast alongside
-    /// (within [`CROWDING_RADIUS_PX`] across, its midpoint projecting onto the segment): the
-    /// one whose push ([`Repulsion`]) it feels. Meaningful for oriented segments only.
-    pub fn opposite_neighbours(
-        &self,
-        segments: &[Segment2],
-        queries: &[usize],
-    ) -> Vec<Option<Opposite>> {
-        queries
-            .iter()
-            .map(|&i| self.nearest(segments, i, CrowdingModel::LISTS, true).1)
-            .collect()
-    }
-
-    /// [`Crowding::distances`] and [`Crowding::opposite_neighbours`] together, in one walk
-    /// of the grid per query.
+    /// For each segment at `queries`, [`Crowding::distances`]'s distance and, found in the
+    /// same walk of the grid, its nearest neighbour of opposite contrast alongside (within
+    /// [`CROWDING_RADIUS_PX`] across, its midpoint projecting onto the segment): the one whose
+    /// push ([`Repulsion`]) it feels. Meaningful for oriented segments only.
     pub fn distances_and_opposites(
         &self,
         segments: &[Segment2],
@@ -780,7 +768,11 @@ mod tests {
             seg((100.0, 20.0), (0.0, 20.0)), // opposite but beyond reach
         ];
         let index = Crowding::new(&segments);
-        let found = index.opposite_neighbours(&segments, &[0, 1, 2, 3]);
+        let found: Vec<Option<Opposite>> = index
+            .distances_and_opposites(&segments, &[0, 1, 2, 3], CrowdingModel::LISTS)
+            .into_iter()
+            .map(|(_, o)| o)
+            .collect();
         let o = found[0].expect("segment 0 has an opposite neighbour");
         assert!((o.distance_px - 3.0).abs() < 1e-12, "{o:?}");
         assert!(
@@ -799,7 +791,7 @@ mod tests {
     }
 
     #[test]
-    fn one_walk_finds_what_the_two_queries_find() {
+    fn the_walk_for_opposites_finds_the_crowding_distance_too() {
         let mut rng = trinocular_synth::Rng::new(5);
         let segments: Vec<Segment2> = (0..300)
             .map(|_| {
@@ -820,12 +812,8 @@ mod tests {
         let all: Vec<usize> = (0..segments.len()).collect();
         let model = CrowdingModel::LISTS;
         let together = index.distances_and_opposites(&segments, &all, model);
-        let apart: Vec<_> = index
-            .distances(&segments, &all, model)
-            .into_iter()
-            .zip(index.opposite_neighbours(&segments, &all))
-            .collect();
-        assert_eq!(together, apart);
+        let distances: Vec<f64> = together.iter().map(|(d, _)| *d).collect();
+        assert_eq!(distances, index.distances(&segments, &all, model));
         assert!(together.iter().filter(|(_, o)| o.is_some()).count() > 30);
     }
 

@@ -167,6 +167,27 @@ pub fn score_capture(segments: &[Segment3], observation: &Observation, rig: &Rig
     )
 }
 
+impl Pooled {
+    /// Scores one capture's answer ([`score_capture`]) and adds it, with the classes of its
+    /// wrong segments; returns the capture's own score.
+    pub fn add_capture(
+        &mut self,
+        segments: &[Segment3],
+        observation: &Observation,
+        rig: &Rig,
+    ) -> Score {
+        let s = score_capture(segments, observation, rig);
+        self.add(&s);
+        self.add_classes(&error_classes(
+            segments,
+            &s.matches,
+            &observation.ground_truth,
+            rig_centre(rig),
+        ));
+        s
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -275,6 +275,19 @@ impl Pooled {
     pub fn completeness(&self) -> f64 {
         self.covered_m / self.eligible_m
     }
+
+    /// The rig tables' cells: `segments | error | dir / near / far | completeness`.
+    pub fn cells(&self) -> String {
+        format!(
+            "{} | {:.1}% | {} / {} / {} | {:.1}%",
+            self.segments,
+            100.0 * self.error(),
+            self.classes.direction_only,
+            self.classes.near,
+            self.classes.far,
+            100.0 * self.completeness(),
+        )
+    }
 }
 
 /// Classifies the segments that `matches` (from [`score`]) says are wrong.

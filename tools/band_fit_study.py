@@ -2,7 +2,7 @@
 the extractor's line through its edge points? A study on the rendered rooms, not a product
 stage (docs/ACCURACY.md, "Tried and dropped: the line fitted to the grey levels").
 
-    BAND=2 SHADING=0|1 ROOMS=office,lab CAPS=00,01,... python tools/band_fit_study.py
+    [BAND=2] [SHADING=0|1] [ROOMS=office,lab] [CAPS=00,01,...,11] python tools/band_fit_study.py
 
 Run from the repository root with a Python that has numpy, scipy and pillow, after `cargo build
 --release`; `../shared` must hold the rooms. For every extracted segment (12 px and longer)
@@ -27,8 +27,8 @@ from eval_rooms import request_for
 SH = os.environ.get("SHARED", "../shared")
 R = float(os.environ.get("BAND", "2"))
 SHADING = os.environ.get("SHADING", "0") == "1"
-rooms = os.environ.get("ROOMS", "office").split(",")
-caps = os.environ.get("CAPS", "00,03,06,09").split(",")
+rooms = os.environ.get("ROOMS", "office,lab").split(",")
+caps = os.environ.get("CAPS", ",".join(f"{k:02}" for k in range(12))).split(",")
 rows = []
 for room in rooms:
     data = os.path.join(SH, "data", room)

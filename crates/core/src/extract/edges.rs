@@ -318,13 +318,26 @@ pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
         while let Some(j) = stack.pop() {
             let q = &map.points[j];
             let (x, y) = (q.x as usize, q.y as usize);
-            for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-                for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                    if let Some(k) = map.at(nx, ny) {
-                        if !keep[k as usize] {
-                            keep[k as usize] = true;
-                            stack.push(k as usize);
-                        }
+            let mut visit = |k: u32| {
+                if k != NO_POINT && !keep[k as usize] {
+                    keep[k as usize] = true;
+                    stack.push(k as usize);
+                }
+            };
+            if x >= 1 && y >= 1 && x + 1 < w && y + 1 < h {
+                // Suppression leaves the border without points, so every point has its eight
+                // neighbours in the image: read them at fixed offsets, without clamping.
+                let at = y * w + x;
+                for k in [at - w - 1, at - w, at - w + 1, at - 1, at + 1] {
+                    visit(map.index[k]);
+                }
+                for k in [at + w - 1, at + w, at + w + 1] {
+                    visit(map.index[k]);
+                }
+            } else {
+                for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                    for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                        visit(map.index[ny * w + nx]);
                     }
                 }
             }
@@ -473,8 +486,49 @@ mod tests {
         map
     }
 
+    /// Hysteresis as first written, every neighbour read through the clamped ranges: the
+    /// reference for the fixed offsets of [`hysteresis`].
+    fn reference_hysteresis(mut map: EdgeMap, high: f32) -> EdgeMap {
+        let (w, h) = (map.width, map.height);
+        let mut keep = vec![false; map.points.len()];
+        let mut stack = Vec::new();
+        for i in 0..map.points.len() {
+            if map.points[i].magnitude < high || keep[i] {
+                continue;
+            }
+            keep[i] = true;
+            stack.push(i);
+            while let Some(j) = stack.pop() {
+                let (x, y) = (map.points[j].x as usize, map.points[j].y as usize);
+                for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                    for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                        if let Some(k) = map.at(nx, ny) {
+                            if !keep[k as usize] {
+                                keep[k as usize] = true;
+                                stack.push(k as usize);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        let kept: Vec<EdgePoint> = map
+            .points
+            .iter()
+            .zip(&keep)
+            .filter(|(_, &k)| k)
+            .map(|(p, _)| *p)
+            .collect();
+        map.index.fill(NO_POINT);
+        for (i, p) in kept.iter().enumerate() {
+            map.index[pixel_of(p, w)] = i as u32;
+        }
+        map.points = kept;
+        map
+    }
+
     #[test]
-    fn the_block_wise_suppression_finds_the_reference_points_exactly() {
+    fn the_block_wise_suppression_and_hysteresis_find_the_reference_points_exactly() {
         // Noise quantised to whole grey levels (so that neighbours tie and plateaus occur),
         // widths on and off the block size, thresholds from everything to almost nothing.
         let mut state = 0x2545_f491_4f6c_dd1du64;
@@ -484,6 +538,7 @@ mod tests {
             state ^= state << 17;
             state
         };
+        let mut selective = false;
         for (w, h) in [
             (3, 3),
             (5, 4),
@@ -513,9 +568,22 @@ mod tests {
                     if w > 20 && low == 2.0 {
                         assert!(reference.points.len() > w, "the noise gives points");
                     }
+                    // Seeds from none to all: above every point, the points' 90th percentile,
+                    // `low`.
+                    let mut magnitudes: Vec<f32> =
+                        reference.points.iter().map(|p| p.magnitude).collect();
+                    magnitudes.sort_by(f32::total_cmp);
+                    let p90 = magnitudes.get(magnitudes.len() * 9 / 10).copied();
+                    for high in [Some(f32::MAX), p90, Some(low)].into_iter().flatten() {
+                        let kept = reference_hysteresis(reference.clone(), high);
+                        assert_eq!(hysteresis(reference.clone(), high), kept, "{w}x{h} {high}");
+                        selective |=
+                            !kept.points.is_empty() && kept.points.len() < reference.points.len();
+                    }
                 }
             }
         }
+        assert!(selective, "some case keeps some points and drops others");
     }
 
     #[test]

@@ -191,13 +191,17 @@ impl CrowdingModel {
     ///
     /// `push_px` scales that push (`MatchOptions.list_push_px`, default [`Self::LSD_PUSH_PX`]);
     /// 0 corrects nothing, and the crowding noise is the extractor's at 1 px.
-    pub fn lists(push_px: f64) -> CrowdingModel {
+    pub const fn lists(push_px: f64) -> CrowdingModel {
         CrowdingModel {
-            repulsion: (push_px > 0.0).then_some(Repulsion {
-                peak_px: push_px,
-                spread_px: LSD_PUSH_SPREAD_PX,
-                residual_share: LSD_PUSH_RESIDUAL_SHARE,
-            }),
+            repulsion: if push_px > 0.0 {
+                Some(Repulsion {
+                    peak_px: push_px,
+                    spread_px: LSD_PUSH_SPREAD_PX,
+                    residual_share: LSD_PUSH_RESIDUAL_SHARE,
+                })
+            } else {
+                None
+            },
             ..Self::AT_UNIT_SMOOTHING
         }
     }
@@ -205,14 +209,7 @@ impl CrowdingModel {
     /// The push of an opposite-contrast neighbour at full strength on OpenCV LSD's lines.
     pub const LSD_PUSH_PX: f64 = 1.63;
     /// The lists' model as it is by default.
-    pub const LISTS: CrowdingModel = CrowdingModel {
-        repulsion: Some(Repulsion {
-            peak_px: Self::LSD_PUSH_PX,
-            spread_px: LSD_PUSH_SPREAD_PX,
-            residual_share: LSD_PUSH_RESIDUAL_SHARE,
-        }),
-        ..Self::AT_UNIT_SMOOTHING
-    };
+    pub const LISTS: CrowdingModel = Self::lists(Self::LSD_PUSH_PX);
 
     /// For edges located after Gaussian smoothing by `smoothing_sigma_px`: the spread scales
     /// with the total blur, the peak stays (a neighbour close enough still pulls as hard). After 0.5 px of smoothing, neighbours within 2–3 px shift
@@ -530,12 +527,13 @@ impl Crowding {
             if !(along > 0.0 && along < sh.len && across > COLLINEAR_PX) {
                 return;
             }
-            let theirs = segments[j].gradient;
-            // A weaker neighbour pulls less: as if it were farther.
-            let pull = match (s.gradient, theirs) {
-                (Some(mine), Some(theirs)) if mine > 0.0 => (theirs / mine).clamp(1e-3, 1.0),
-                _ => 1.0,
+            // The neighbour's gradient over the segment's, where both are known.
+            let ratio = match (s.gradient, segments[j].gradient) {
+                (Some(mine), Some(theirs)) if mine > 0.0 => Some(theirs / mine),
+                _ => None,
             };
+            // A weaker neighbour pulls less: as if it were farther.
+            let pull = ratio.map_or(1.0, |r| r.clamp(1e-3, 1.0));
             best = best.min(model.equivalent_distance(across, pull));
             let Some(other) = self.shapes[j].as_ref().filter(|_| opposite) else {
                 return;
@@ -554,10 +552,7 @@ impl Crowding {
             best_opposite = Some(Opposite {
                 distance_px: across,
                 toward: normal * side,
-                pull: match (s.gradient, theirs) {
-                    (Some(mine), Some(theirs)) if mine > 0.0 && theirs >= 0.0 => theirs / mine,
-                    _ => 1.0,
-                },
+                pull: ratio.filter(|r| *r >= 0.0).unwrap_or(1.0),
                 alongside: (from / sh.len, to / sh.len),
             });
         });

@@ -328,10 +328,16 @@ pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
                 // Suppression leaves the border without points, so every point has its eight
                 // neighbours in the image: read them at fixed offsets, without clamping.
                 let at = y * w + x;
-                for k in [at - w - 1, at - w, at - w + 1, at - 1, at + 1] {
-                    visit(map.index[k]);
-                }
-                for k in [at + w - 1, at + w, at + w + 1] {
+                for k in [
+                    at - w - 1,
+                    at - w,
+                    at - w + 1,
+                    at - 1,
+                    at + 1,
+                    at + w - 1,
+                    at + w,
+                    at + w + 1,
+                ] {
                     visit(map.index[k]);
                 }
             } else {

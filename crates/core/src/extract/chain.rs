@@ -49,27 +49,25 @@ fn best_neighbours(map: &EdgeMap, p: usize) -> (u32, u32) {
     let (tu, tv) = (-a.gv, a.gu);
     let (x, y) = (a.x as usize, a.y as usize);
     let (mut ahead, mut behind) = ((NONE, f32::INFINITY), (NONE, f32::INFINITY));
-    let (x0, x1) = (x.saturating_sub(1), (x + 1).min(map.width - 1));
-    for ny in y.saturating_sub(1)..=(y + 1).min(map.height - 1) {
-        let row = &map.index[ny * map.width + x0..=ny * map.width + x1];
-        for &q in row {
-            if q == NONE || q as usize == p {
-                continue;
-            }
-            let b = &map.points[q as usize];
-            if a.gu * b.gu + a.gv * b.gv <= 0.0 {
-                continue;
-            }
-            let (du, dv) = (b.u - a.u, b.v - a.v);
-            let along = du * tu + dv * tv;
-            let d2 = du * du + dv * dv;
-            if along > 0.0 && d2 < ahead.1 {
-                ahead = (q, d2);
-            } else if along < 0.0 && d2 < behind.1 {
-                behind = (q, d2);
-            }
+    let consider = |q: u32| {
+        if q == NONE {
+            return;
         }
-    }
+        let b = &map.points[q as usize];
+        if a.gu * b.gu + a.gv * b.gv <= 0.0 {
+            return;
+        }
+        let (du, dv) = (b.u - a.u, b.v - a.v);
+        let along = du * tu + dv * tv;
+        let d2 = du * du + dv * dv;
+        if along > 0.0 && d2 < ahead.1 {
+            ahead = (q, d2);
+        } else if along < 0.0 && d2 < behind.1 {
+            behind = (q, d2);
+        }
+    };
+    // In row-major order, which breaks ties between equally near neighbours.
+    map.for_each_neighbour(x, y, consider);
     (ahead.0, behind.0)
 }
 

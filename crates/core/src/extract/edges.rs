@@ -42,6 +42,38 @@ pub struct EdgeMap {
 }
 
 impl EdgeMap {
+    /// Calls `visit` with the index entry (a point, or [`NO_POINT`]) of each of the eight
+    /// pixels about `(x, y)` that lie in the image, in row-major order.
+    #[inline(always)]
+    pub fn for_each_neighbour(&self, x: usize, y: usize, mut visit: impl FnMut(u32)) {
+        let (w, h) = (self.width, self.height);
+        if x >= 1 && y >= 1 && x + 1 < w && y + 1 < h {
+            // Suppression leaves the border without points, so every point has its eight
+            // neighbours in the image: read them at fixed offsets, without clamping.
+            let at = y * w + x;
+            for k in [
+                at - w - 1,
+                at - w,
+                at - w + 1,
+                at - 1,
+                at + 1,
+                at + w - 1,
+                at + w,
+                at + w + 1,
+            ] {
+                visit(self.index[k]);
+            }
+        } else {
+            for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                    if (nx, ny) != (x, y) {
+                        visit(self.index[ny * w + nx]);
+                    }
+                }
+            }
+        }
+    }
+
     /// The point at pixel `(x, y)`, if any.
     #[inline]
     pub fn at(&self, x: usize, y: usize) -> Option<u32> {
@@ -256,11 +288,24 @@ pub fn non_maximum_suppression(gradient: &Gradient, low_gradient: f32) -> EdgeMa
 /// keeping three rows of gradient instead of three image-sized arrays: the same points, with
 /// far less memory traffic.
 pub fn edge_points(smoothed: &[f32], width: usize, height: usize, low_gradient: f32) -> EdgeMap {
+    edge_points_and_background(smoothed, width, height, low_gradient).0
+}
+
+/// [`edge_points`], and [`gradient::background_magnitude`] of the same image from the
+/// magnitudes the pass computes anyway (the same sample, so the same value to the bit),
+/// instead of a second pass of its own over the image.
+pub fn edge_points_and_background(
+    smoothed: &[f32],
+    width: usize,
+    height: usize,
+    low_gradient: f32,
+) -> (EdgeMap, f32) {
     let (w, h) = (width, height);
     let mut map = empty_map(w, h);
     if w < 3 || h < 3 || smoothed.len() != w * h {
-        return map;
+        return (map, 0.0);
     }
+    let mut background = gradient::BackgroundHistogram::new();
     let low = low_gradient.max(f32::MIN_POSITIVE);
     // Ring of three rows: gradient row y lives in slot y % 3; row 0 and h-1 stay zero.
     let mut gu = vec![0.0f32; 3 * w];
@@ -288,6 +333,9 @@ pub fn edge_points(smoothed: &[f32], width: usize, height: usize, low_gradient: 
     for y in 1..h - 1 {
         fill(y + 1, &mut gu, &mut gv, &mut mag);
         let slot = |k: usize| (k % 3) * w..(k % 3 + 1) * w;
+        if gradient::BackgroundHistogram::samples_row(y) {
+            background.add_row(&mag[slot(y)]);
+        }
         suppress_row(
             &mut map,
             y,
@@ -299,14 +347,14 @@ pub fn edge_points(smoothed: &[f32], width: usize, height: usize, low_gradient: 
             low,
         );
     }
-    map
+    (map, background.median())
 }
 
 /// Step 3: keeps the points connected (8-connectivity) to a point of at least `high_gradient`.
 /// Consumes the map: the kept points are compacted in place and its index updated, so no
 /// second image-sized buffer is needed.
 pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
-    let (w, h) = (map.width, map.height);
+    let w = map.width;
     let mut keep = vec![false; map.points.len()];
     let mut stack: Vec<usize> = Vec::new();
     for i in 0..map.points.len() {
@@ -318,35 +366,13 @@ pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
         while let Some(j) = stack.pop() {
             let q = &map.points[j];
             let (x, y) = (q.x as usize, q.y as usize);
-            let mut visit = |k: u32| {
+            let visit = |k: u32| {
                 if k != NO_POINT && !keep[k as usize] {
                     keep[k as usize] = true;
                     stack.push(k as usize);
                 }
             };
-            if x >= 1 && y >= 1 && x + 1 < w && y + 1 < h {
-                // Suppression leaves the border without points, so every point has its eight
-                // neighbours in the image: read them at fixed offsets, without clamping.
-                let at = y * w + x;
-                for k in [
-                    at - w - 1,
-                    at - w,
-                    at - w + 1,
-                    at - 1,
-                    at + 1,
-                    at + w - 1,
-                    at + w,
-                    at + w + 1,
-                ] {
-                    visit(map.index[k]);
-                }
-            } else {
-                for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-                    for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                        visit(map.index[ny * w + nx]);
-                    }
-                }
-            }
+            map.for_each_neighbour(x, y, visit);
         }
     }
     let mut kept = 0usize;
@@ -376,7 +402,7 @@ pub fn pixel_of(p: &EdgePoint, width: usize) -> usize {
 
 #[cfg(test)]
 mod tests {
-    use super::super::gradient::{gradient, smooth};
+    use super::super::gradient::{background_magnitude, gradient, smooth, BackgroundHistogram};
     use super::super::GreyImage;
     use super::*;
 
@@ -566,10 +592,22 @@ mod tests {
                         reference,
                         "{w}x{h} low {low}"
                     );
+                    let (fused, background) = edge_points_and_background(&smoothed, w, h, low);
+                    assert_eq!(fused, reference, "fused, {w}x{h}");
+                    // The background's median of the full gradient's magnitudes, every
+                    // fourth pixel of every fourth row from (1, 1).
+                    let mut sample = BackgroundHistogram::new();
+                    for y in (1..h - 1).step_by(4) {
+                        for x in (1..w - 1).step_by(4) {
+                            sample.add(g.magnitude[y * w + x]);
+                        }
+                    }
+                    let expected = sample.median().to_bits();
+                    assert_eq!(background.to_bits(), expected, "in the pass, {w}x{h}");
                     assert_eq!(
-                        edge_points(&smoothed, w, h, low),
-                        reference,
-                        "fused, {w}x{h}"
+                        background_magnitude(&smoothed, w, h).to_bits(),
+                        expected,
+                        "on its own, {w}x{h}"
                     );
                     if w > 20 && low == 2.0 {
                         assert!(reference.points.len() > w, "the noise gives points");

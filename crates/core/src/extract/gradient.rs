@@ -36,6 +36,16 @@ pub fn gaussian_kernel(sigma_px: f64) -> Vec<f32> {
     weights.iter().map(|w| (w / sum) as f32).collect()
 }
 
+/// [`smooth`], borrowing the image itself where the kernel is a single tap (no smoothing, as
+/// the rooms' renders choose): the same pixels without a copy of the whole image.
+pub fn smoothed(image: &GreyImage, sigma_px: f64) -> std::borrow::Cow<'_, [f32]> {
+    if gaussian_kernel(sigma_px).len() == 1 {
+        std::borrow::Cow::Borrowed(image.pixels())
+    } else {
+        std::borrow::Cow::Owned(smooth(image, sigma_px))
+    }
+}
+
 /// Separable Gaussian blur with replicated borders.
 pub fn smooth(image: &GreyImage, sigma_px: f64) -> Vec<f32> {
     #[cfg(target_arch = "x86_64")]
@@ -108,13 +118,7 @@ pub fn gradient_row(
     let row = &smoothed[y * width..(y + 1) * width];
     let below = &smoothed[(y + 1) * width..(y + 2) * width];
     for x in 1..width - 1 {
-        let u = (above[x + 1] - above[x - 1])
-            + 2.0 * (row[x + 1] - row[x - 1])
-            + (below[x + 1] - below[x - 1]);
-        let v = (below[x - 1] - above[x - 1])
-            + 2.0 * (below[x] - above[x])
-            + (below[x + 1] - above[x + 1]);
-        let (u, v) = (u * 0.125, v * 0.125);
+        let (u, v) = sobel(above, row, below, x);
         gu[x] = u;
         gv[x] = v;
         magnitude[x] = (u * u + v * v).sqrt();
@@ -123,6 +127,19 @@ pub fn gradient_row(
         out[0] = 0.0;
         out[width - 1] = 0.0;
     }
+}
+
+/// The Sobel gradient at column `x` (1 ≤ x < width − 1) of the row `row` between `above` and
+/// `below`, divided by 8. Every gradient of the extraction is this arithmetic in this order,
+/// so a magnitude computed twice is the same to the bit.
+#[inline(always)]
+fn sobel(above: &[f32], row: &[f32], below: &[f32], x: usize) -> (f32, f32) {
+    let u = (above[x + 1] - above[x - 1])
+        + 2.0 * (row[x + 1] - row[x - 1])
+        + (below[x + 1] - below[x - 1]);
+    let v =
+        (below[x - 1] - above[x - 1]) + 2.0 * (below[x] - above[x]) + (below[x + 1] - above[x + 1]);
+    (u * 0.125, v * 0.125)
 }
 
 /// Sobel gradient of a `width` x `height` image, divided by 8 so a ramp of slope 1 grey level
@@ -164,10 +181,8 @@ pub fn gradient_at(
     if x == 0 || y == 0 || x + 1 >= width || y + 1 >= height {
         return (0.0, 0.0);
     }
-    let s = |dx: usize, dy: usize| smoothed[(y + dy - 1) * width + x + dx - 1];
-    let u = (s(2, 0) - s(0, 0)) + 2.0 * (s(2, 1) - s(0, 1)) + (s(2, 2) - s(0, 2));
-    let v = (s(0, 2) - s(0, 0)) + 2.0 * (s(1, 2) - s(1, 0)) + (s(2, 2) - s(2, 0));
-    (u * 0.125, v * 0.125)
+    let rows = |k: usize| &smoothed[(y + k - 1) * width..(y + k) * width];
+    sobel(rows(0), rows(1), rows(2), x)
 }
 
 /// Grid step of [`background_magnitude`]'s sample, pixels: one pixel in sixteen is plenty
@@ -191,31 +206,102 @@ pub fn background_magnitude(smoothed: &[f32], width: usize, height: usize) -> f3
     if width < 3 || height < 3 || smoothed.len() != width * height {
         return 0.0;
     }
-    let mut histogram = vec![0u32; BACKGROUND_BINS];
-    let mut count = 0u32;
+    let mut histogram = BackgroundHistogram::new();
     for y in (1..height - 1).step_by(BACKGROUND_STEP) {
+        let above = &smoothed[(y - 1) * width..y * width];
+        let row = &smoothed[y * width..(y + 1) * width];
+        let below = &smoothed[(y + 1) * width..(y + 2) * width];
         for x in (1..width - 1).step_by(BACKGROUND_STEP) {
-            let (u, v) = gradient_at(smoothed, width, height, x, y);
-            let bin = ((u * u + v * v).sqrt() * BACKGROUND_BINS_PER_LEVEL) as usize;
-            histogram[bin.min(BACKGROUND_BINS - 1)] += 1;
-            count += 1;
+            let (u, v) = sobel(above, row, below, x);
+            histogram.add((u * u + v * v).sqrt());
         }
     }
-    let half = count.div_ceil(2);
-    let mut seen = 0u32;
-    for (bin, &n) in histogram.iter().enumerate() {
-        seen += n;
-        if seen >= half {
-            // The bin's centre: the median to within 1/32 grey level per pixel.
-            return (bin as f32 + 0.5) / BACKGROUND_BINS_PER_LEVEL;
+    histogram.median()
+}
+
+/// The sample of [`background_magnitude`] as a histogram, so that a pass that computes the
+/// gradient anyway (`edges::edge_points`) can fill it from the magnitudes it already has, at
+/// the same pixels ([`BackgroundHistogram::samples_row`], [`BackgroundHistogram::add_row`]),
+/// to the same median.
+pub struct BackgroundHistogram {
+    bins: Vec<u32>,
+    count: u32,
+}
+
+impl BackgroundHistogram {
+    pub fn new() -> BackgroundHistogram {
+        BackgroundHistogram {
+            bins: vec![0; BACKGROUND_BINS],
+            count: 0,
         }
     }
-    0.0
+
+    #[inline]
+    pub fn add(&mut self, magnitude: f32) {
+        let bin = (magnitude * BACKGROUND_BINS_PER_LEVEL) as usize;
+        self.bins[bin.min(BACKGROUND_BINS - 1)] += 1;
+        self.count += 1;
+    }
+
+    /// Whether row `y` (1 ≤ y < height − 1) is one [`background_magnitude`] samples.
+    #[inline]
+    pub fn samples_row(y: usize) -> bool {
+        (y - 1).is_multiple_of(BACKGROUND_STEP)
+    }
+
+    /// Adds the sampled pixels of one row's gradient magnitudes (`width` long, as
+    /// [`gradient_row`] writes them).
+    pub fn add_row(&mut self, magnitude: &[f32]) {
+        let width = magnitude.len();
+        if width < 3 {
+            return;
+        }
+        for &m in magnitude[1..width - 1].iter().step_by(BACKGROUND_STEP) {
+            self.add(m);
+        }
+    }
+
+    /// The median, to within one bin (its centre); 0 when nothing was added.
+    pub fn median(&self) -> f32 {
+        if self.count == 0 {
+            return 0.0;
+        }
+        let half = self.count.div_ceil(2);
+        let mut seen = 0u32;
+        for (bin, &n) in self.bins.iter().enumerate() {
+            seen += n;
+            if seen >= half {
+                // The bin's centre: the median to within 1/32 grey level per pixel.
+                return (bin as f32 + 0.5) / BACKGROUND_BINS_PER_LEVEL;
+            }
+        }
+        0.0
+    }
+}
+
+impl Default for BackgroundHistogram {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_smoothing_borrows_the_image_and_any_other_is_the_blur() {
+        let img = GreyImage::new(5, 4, (0..20).map(|i| (i * 7 % 11) as f32).collect()).unwrap();
+        for sigma in [0.0, -1.0, f64::NAN] {
+            let view = smoothed(&img, sigma);
+            assert!(matches!(view, std::borrow::Cow::Borrowed(_)), "σ {sigma}");
+            assert_eq!(&*view, &smooth(&img, sigma)[..]);
+        }
+        let blurred = smoothed(&img, 0.8);
+        assert!(matches!(blurred, std::borrow::Cow::Owned(_)));
+        assert_eq!(&*blurred, &smooth(&img, 0.8)[..]);
+        assert_ne!(&*blurred, img.pixels());
+    }
 
     #[test]
     fn kernel_is_normalised_and_symmetric() {

@@ -634,13 +634,13 @@ pub fn extract_until(
         .smoothing_sigma_px
         .unwrap_or_else(|| scale::choose(image, params.gradient_high).smoothing_sigma_px);
     stats.smoothing_sigma_px = smoothing;
-    let smoothed = gradient::smooth(image, smoothing);
+    let smoothed = gradient::smoothed(image, smoothing);
     stats.smooth_ms = ms(t);
 
     checkpoint.before("extract")?;
     let t = Instant::now();
-    let background = gradient::background_magnitude(&smoothed, w, h);
-    let candidates = edges::edge_points(&smoothed, w, h, params.gradient_low as f32);
+    let (candidates, background) =
+        edges::edge_points_and_background(&smoothed, w, h, params.gradient_low as f32);
     checkpoint.before("extract")?;
     let map = edges::hysteresis(candidates, params.gradient_high as f32);
     stats.edges_ms = ms(t);

@@ -979,9 +979,13 @@ fn working_memory_is_reserved_before_the_work_so_rss_keeps_to_its_bound() {
         );
         // Eight at once, each 3 × 1 Mpx (117 MB estimated): one runs at a time; the others are
         // refused as a full pool is, and succeed when retried.
+        // All eight made before any is sent, so that they arrive together (see
+        // `burst_of_largest_requests`).
+        let requests: Vec<pb::MatchRequest> =
+            (0..8u64).map(|seed| noise_request(1024, seed)).collect();
         let mut handles = Vec::new();
-        for seed in 0..8u64 {
-            let (send, request) = (send.clone(), noise_request(1024, seed));
+        for request in requests {
+            let send = send.clone();
             handles.push(tokio::spawn(async move {
                 let mut refused = 0;
                 loop {
@@ -1054,10 +1058,13 @@ fn burst_of_largest_requests(server: &common::ServerProcess, side: u32, n: u64) 
         format!("http://{}/v1/match", server.http_addr),
         format!("http://{}", server.grpc_addr),
     );
+    // Every request made before any is sent: building one (27 MB of noise) takes longer than
+    // the server takes to answer one on a fast machine, and a burst built as it goes would
+    // arrive one at a time.
+    let requests: Vec<pb::MatchRequest> = (0..n).map(|seed| noise_request(side, seed)).collect();
     runtime().block_on(async move {
         let mut handles = Vec::new();
-        for seed in 0..n {
-            let request = noise_request(side, seed);
+        for (seed, request) in (0..n).zip(requests) {
             let (http_url, grpc_url) = (http_url.clone(), grpc_url.clone());
             handles.push(tokio::spawn(async move {
                 let mut grpc = grpc_connect(grpc_url)

@@ -12,7 +12,7 @@
 
 use nalgebra::{Point2, Vector2};
 
-use super::gradient::gradient_at;
+use super::gradient::sobel;
 
 /// How far an end may move, pixels: a chain can stop up to ~5 px short of a sharp corner whose
 /// pixels the other side's chain took.
@@ -45,8 +45,12 @@ fn sample(g: &Smoothed, p: Point2<f64>) -> Option<Vector2<f64>> {
     }
     let (fx, fy) = (p.x - x, p.y - y);
     let (x, y) = (x as usize, y as usize);
+    // The four pixels' gradients from the four rows they share (all inside the frame, where
+    // `gradient_at` would compute the same).
+    let row = |k: usize| &g.pixels[(y + k - 1) * g.width..(y + k) * g.width];
+    let rows = [row(0), row(1), row(2), row(3)];
     let at = |dx: usize, dy: usize| {
-        let (u, v) = gradient_at(g.pixels, g.width, g.height, x + dx, y + dy);
+        let (u, v) = sobel(rows[dy], rows[dy + 1], rows[dy + 2], x + dx);
         Vector2::new(f64::from(u), f64::from(v))
     };
     let top = at(0, 0) * (1.0 - fx) + at(1, 0) * fx;
@@ -170,6 +174,46 @@ mod tests {
     use super::super::gradient::smooth;
     use super::super::GreyImage;
     use super::*;
+
+    #[test]
+    fn a_sample_is_the_bilinear_mix_of_the_four_pixels_gradients_to_the_bit() {
+        use super::super::gradient::gradient_at;
+        let (w, h) = (23usize, 17usize);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let pixels: Vec<f32> = (0..w * h).map(|_| (next() % 200) as f32 * 0.37).collect();
+        let g = Smoothed {
+            pixels: &pixels,
+            width: w,
+            height: h,
+        };
+        let mut inside = 0;
+        for _ in 0..500 {
+            let p = Point2::new(
+                (next() % 10_000) as f64 / 10_000.0 * w as f64,
+                (next() % 10_000) as f64 / 10_000.0 * h as f64,
+            );
+            let Some(got) = sample(&g, p) else {
+                continue;
+            };
+            inside += 1;
+            let (x, y) = (p.x.floor(), p.y.floor());
+            let (fx, fy) = (p.x - x, p.y - y);
+            let at = |dx: usize, dy: usize| {
+                let (u, v) = gradient_at(&pixels, w, h, x as usize + dx, y as usize + dy);
+                Vector2::new(f64::from(u), f64::from(v))
+            };
+            let top = at(0, 0) * (1.0 - fx) + at(1, 0) * fx;
+            let bottom = at(0, 1) * (1.0 - fx) + at(1, 1) * fx;
+            assert_eq!(got, top * (1.0 - fy) + bottom * fy, "at {p}");
+        }
+        assert!(inside > 300, "{inside} samples inside");
+    }
 
     /// A bright rectangle [10.3, 30.6] x [8.5, 40.2] (area-sampled) on a dark background.
     fn rectangle() -> GreyImage {

@@ -133,7 +133,7 @@ pub fn gradient_row(
 /// `below`, divided by 8. Every gradient of the extraction is this arithmetic in this order,
 /// so a magnitude computed twice is the same to the bit.
 #[inline(always)]
-fn sobel(above: &[f32], row: &[f32], below: &[f32], x: usize) -> (f32, f32) {
+pub(crate) fn sobel(above: &[f32], row: &[f32], below: &[f32], x: usize) -> (f32, f32) {
     let u = (above[x + 1] - above[x - 1])
         + 2.0 * (row[x + 1] - row[x - 1])
         + (below[x + 1] - below[x - 1]);

@@ -563,13 +563,8 @@ mod tests {
     fn the_block_wise_suppression_and_hysteresis_find_the_reference_points_exactly() {
         // Noise quantised to whole grey levels (so that neighbours tie and plateaus occur),
         // widths on and off the block size, thresholds from everything to almost nothing.
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = trinocular_synth::Rng::new(0x2545_f491_4f6c_dd1d);
+        let mut next = move || rng.next_u64();
         let mut selective = false;
         for (w, h) in [
             (3, 3),

@@ -179,13 +179,8 @@ mod tests {
     fn a_sample_is_the_bilinear_mix_of_the_four_pixels_gradients_to_the_bit() {
         use super::super::gradient::gradient_at;
         let (w, h) = (23usize, 17usize);
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = trinocular_synth::Rng::new(0x9e37_79b9_7f4a_7c15);
+        let mut next = move || rng.next_u64();
         let pixels: Vec<f32> = (0..w * h).map(|_| (next() % 200) as f32 * 0.37).collect();
         let g = Smoothed {
             pixels: &pixels,

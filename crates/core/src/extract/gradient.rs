@@ -170,7 +170,9 @@ pub fn gradient(smoothed: &[f32], width: usize, height: usize) -> Gradient {
     g
 }
 
-/// The gradient at pixel `(x, y)` alone (zero on the one-pixel frame and outside).
+/// The gradient at pixel `(x, y)` alone (zero on the one-pixel frame and outside): the
+/// reference the tests hold the row-wise and sampled gradients to.
+#[cfg(test)]
 pub fn gradient_at(
     smoothed: &[f32],
     width: usize,
@@ -207,16 +209,22 @@ pub fn background_magnitude(smoothed: &[f32], width: usize, height: usize) -> f3
         return 0.0;
     }
     let mut histogram = BackgroundHistogram::new();
-    for y in (1..height - 1).step_by(BACKGROUND_STEP) {
+    for y in sampled(height) {
         let above = &smoothed[(y - 1) * width..y * width];
         let row = &smoothed[y * width..(y + 1) * width];
         let below = &smoothed[(y + 1) * width..(y + 2) * width];
-        for x in (1..width - 1).step_by(BACKGROUND_STEP) {
+        for x in sampled(width) {
             let (u, v) = sobel(above, row, below, x);
             histogram.add((u * u + v * v).sqrt());
         }
     }
     histogram.median()
+}
+
+/// The rows (or columns) of an image `len` pixels high (or wide) that the background samples:
+/// every [`BACKGROUND_STEP`]th from the first inside the frame.
+fn sampled(len: usize) -> std::iter::StepBy<std::ops::Range<usize>> {
+    (1..len.saturating_sub(1)).step_by(BACKGROUND_STEP)
 }
 
 /// The sample of [`background_magnitude`] as a histogram, so that a pass that computes the
@@ -252,12 +260,8 @@ impl BackgroundHistogram {
     /// Adds the sampled pixels of one row's gradient magnitudes (`width` long, as
     /// [`gradient_row`] writes them).
     pub fn add_row(&mut self, magnitude: &[f32]) {
-        let width = magnitude.len();
-        if width < 3 {
-            return;
-        }
-        for &m in magnitude[1..width - 1].iter().step_by(BACKGROUND_STEP) {
-            self.add(m);
+        for x in sampled(magnitude.len()) {
+            self.add(magnitude[x]);
         }
     }
 

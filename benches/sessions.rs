@@ -1,7 +1,8 @@
 //! Session benchmarks (criterion, release), through the service layer in process (no
 //! transport), one compute thread:
 //! - `sessions/{match,add_capture}/{segments,images}/{embedded,memory}`: one capture of the
-//!   panoramic room — its segment lists (realistic defects), or its three rendered 512×512
+//!   panoramic room — its segment lists (`Defects::noisy`, as these figures were first
+//!   measured), or its three rendered 512×512
 //!   PNGs — matched (the peer), and added to a session that holds 12 captures (replaced by a
 //!   fresh 12-capture session every 4 additions), on the durable embedded store (redb, fsync
 //!   per capture) and in memory. The two alternate, each timed in turn;
@@ -32,7 +33,7 @@ struct Fixture {
 }
 
 fn fixture() -> Fixture {
-    let (scene, rig, captures) = panoramic_session(1, 12, &Defects::realistic());
+    let (scene, rig, captures) = panoramic_session(1, 12, &Defects::noisy());
     let (pose, _) = &captures[3];
     let placed = RigSpec::non_collinear(1).build(pose).expect("preset rig");
     let images = render_triplet(&scene, &placed, &RenderParams::default(), 1)

@@ -3,7 +3,11 @@
 //!
 //!     cargo run --release --example accuracy [-- SEEDS [param=value ...]]
 //!
-//! e.g. `-- 5 include_uncertain=1` for every segment, not only those that meet the gate.
+//! e.g. `-- 5 include_uncertain=1` for every segment, not only those that meet the gate;
+//! `defects.FIELD=value` changes one field of the realistic defects (`synth::Defects`), e.g.
+//! `-- 5 defects.disturbed_share=0` for lists without the measured tail; `wrong` lists the
+//! realistic lists' wrong 3D segments (class, whether the match was right, the image
+//! segments' edges and lengths).
 //!
 //! Two views of the same output, pooled over the seeds:
 //! - *match*: the paper's criterion — a 3D segment is wrong when its image segments are not
@@ -20,12 +24,13 @@ use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
-    eligible_intervals, eligible_intervals_with, match_labels, rig_centre, score, score_labelled,
-    standard_capture, Defects,
+    eligible_intervals, eligible_intervals_with, error_classes, match_labels, rig_centre, score,
+    score_labelled, standard_capture, Defects,
 };
 
 #[derive(Default)]
 struct Pool {
+    classes: trinocular::synth::ErrorClasses,
     n: usize,
     wrong: usize,
     eligible_m: f64,
@@ -54,6 +59,8 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(5);
     let mut params = MatchParams::default();
+    let mut realistic = Defects::realistic();
+    let wrong = std::env::args().any(|a| a == "wrong");
     for (key, value) in std::env::args().skip(2).filter_map(|a| {
         let (k, v) = a.split_once('=')?;
         Some((k.to_string(), v.parse::<f64>().ok()?))
@@ -68,14 +75,28 @@ fn main() {
             "include_uncertain" => params.include_uncertain = value != 0.0,
             "gate_confidence" => params.gate_confidence = value,
             "neighbour_radius_px" => params.neighbour_radius_px = value,
+            "defects.endpoint_noise_px" => realistic.endpoint_noise_px = value,
+            "defects.disturbed_share" => realistic.disturbed_share = value,
+            "defects.disturbed_view_prob" => realistic.disturbed_view_prob = value,
+            "defects.disturbed_noise_px" => realistic.disturbed_noise_px = value,
+            "defects.end_noise_px" => realistic.end_noise_px = value,
+            "defects.end_shortfall_px" => realistic.end_shortfall_px = value,
+            "defects.fragment_prob" => realistic.fragment_prob = value,
+            "defects.miss_prob" => realistic.miss_prob = value,
+            "defects.faint_share" => realistic.faint_share = value,
+            "defects.faint_miss_prob" => realistic.faint_miss_prob = value,
+            "defects.clutter_fraction" => realistic.clutter_fraction = value,
+            "defects.states_noise" => realistic.states_noise = value != 0.0,
+            "list_push_px" => params.list_push_px = value,
             other => panic!("unknown parameter {other}"),
         }
     }
     let configs = [
         ("clean", Defects::clean(), false),
-        ("realistic", Defects::realistic(), false),
+        ("realistic", realistic, false),
+        ("noisy", Defects::noisy(), false),
         ("clean, collinear", Defects::clean(), true),
-        ("realistic, collinear", Defects::realistic(), true),
+        ("realistic, collinear", realistic, true),
     ];
     println!("{seeds} seeds; {params:?}");
     for (name, defects, collinear) in configs {
@@ -104,18 +125,60 @@ fn main() {
             let truth = &obs.ground_truth;
             matched.add(&score_labelled(&segs, &labels, truth, &elig));
             matched_c10.add(&score_labelled(&segs, &labels, truth, &elig_c10));
-            strict.add(&score(&segs, truth, &elig, rig_centre(&rig)));
+            let strict_score = score(&segs, truth, &elig, rig_centre(&rig));
+            if wrong && name == "realistic" {
+                for (k, r) in out.segments_3d.iter().enumerate() {
+                    if strict_score.matches[k].is_some() {
+                        continue;
+                    }
+                    let t = &out.triplets[r.triplet as usize];
+                    let views: Vec<String> = (0..3)
+                        .map(|v| {
+                            let s = &obs.lists[v].segments[t.segments[v] as usize];
+                            format!(
+                                "{:?} {:.0}px",
+                                obs.truth[v][t.segments[v] as usize],
+                                (s.end - s.start).norm()
+                            )
+                        })
+                        .collect();
+                    let class =
+                        error_classes(&[r.segment], &[None], &obs.ground_truth, rig_centre(&rig));
+                    let class = if class.far > 0 {
+                        "far"
+                    } else if class.near > 0 {
+                        "near"
+                    } else {
+                        "dir"
+                    };
+                    println!(
+                        "seed {seed}: wrong ({class}) {:.3} m, match label {:?}, dir σ {:.2}°, pos σ {:.3} m, views {views:?}",
+                        r.segment.length(),
+                        labels[k],
+                        r.direction_sigma_deg,
+                        r.position_sigma_m,
+                    );
+                }
+            }
+            let c = error_classes(&segs, &strict_score.matches, truth, rig_centre(&rig));
+            strict.classes.direction_only += c.direction_only;
+            strict.classes.near += c.near;
+            strict.classes.far += c.far;
+            strict.add(&strict_score);
             strict_c10.add(&score(&segs, truth, &elig_c10, rig_centre(&rig)));
             ms.push(out.stats.total_ms);
         }
         ms.sort_by(f64::total_cmp);
         println!(
-            "{name:21} n {:5} | match: {} (c10 {:.4}) | 3D: {} (c10 {:.4}) | median {:.2} ms",
+            "{name:21} n {:5} | match: {} (c10 {:.4}) | 3D: {} (c10 {:.4}; dir / near / far {} / {} / {}) | median {:.2} ms",
             matched.n,
             matched.show(),
             matched_c10.covered_m / matched_c10.eligible_m.max(1e-12),
             strict.show(),
             strict_c10.covered_m / strict_c10.eligible_m.max(1e-12),
+            strict.classes.direction_only,
+            strict.classes.near,
+            strict.classes.far,
             ms[ms.len() / 2],
         );
     }

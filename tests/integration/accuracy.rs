@@ -6,8 +6,8 @@ use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, MatchOutput, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
-    eligible_intervals_with, match_labels, rig_centre, score, score_labelled, standard_capture,
-    Defects, Observation, Score,
+    eligible_intervals, eligible_intervals_with, error_classes, match_labels, rig_centre, score,
+    score_labelled, standard_capture, Defects, Observation, Pooled as Pool, Score,
 };
 
 const SEEDS: [u64; 2] = [1, 2];
@@ -19,10 +19,11 @@ pub(crate) const EXACT_MAX_ERROR: f64 = 0.015;
 const EXACT_MIN_COMPLETENESS: f64 = 0.80;
 /// Exact lists, exact 3D: the median endpoint error, millimetres.
 const EXACT_MAX_MEDIAN_MM: f64 = 1.0;
-/// Lists with realistic defects (noise, breaks, clutter): the matcher's correspondences
-/// stay an order of magnitude better than chance while it finds most of them.
-const REALISTIC_MAX_MATCH_ERROR: f64 = 0.10;
-const REALISTIC_MIN_MATCH_COMPLETENESS: f64 = 0.55;
+/// Lists with noise well past a good extractor's (`Defects::noisy`: half a pixel at every
+/// endpoint, breaks, clutter): the matcher's correspondences stay an order of magnitude
+/// better than chance while it finds most of them.
+const NOISY_MAX_MATCH_ERROR: f64 = 0.10;
+const NOISY_MIN_MATCH_COMPLETENESS: f64 = 0.55;
 /// A collinear rig cannot match what lies along its baseline: a wider error bound and a third
 /// of the completeness.
 const COLLINEAR_MAX_ERROR: f64 = 0.08;
@@ -110,16 +111,64 @@ fn clean_input_is_matched_almost_perfectly() {
 }
 
 #[test]
-fn realistic_input_keeps_wrong_matches_rare() {
-    let (p, _) = run(&Defects::realistic(), false);
-    report("realistic", &p);
+fn noisy_input_keeps_wrong_matches_rare() {
+    let (p, _) = run(&Defects::noisy(), false);
+    report("noisy", &p);
     assert!(
-        p.matched.error_rate.unwrap() <= REALISTIC_MAX_MATCH_ERROR,
+        p.matched.error_rate.unwrap() <= NOISY_MAX_MATCH_ERROR,
         "match error rate"
     );
     assert!(
-        p.matched.completeness.unwrap() >= REALISTIC_MIN_MATCH_COMPLETENESS,
+        p.matched.completeness.unwrap() >= NOISY_MIN_MATCH_COMPLETENESS,
         "match completeness"
+    );
+}
+
+/// Issue 12's goals for LSD lists, on the synthetic room with LSD's measured defects
+/// (`Defects::realistic`), the default answer (the accuracy gate on), five seeds.
+const LSD_GOAL_MAX_ERROR: f64 = 0.03;
+const LSD_GOAL_MIN_COMPLETENESS: f64 = 0.60;
+const GOAL_MAX_FAR_SHARE: f64 = 0.005;
+
+#[test]
+#[ignore = "issue 12's goal is missed on the synthetic room with LSD's measured defects \
+            (6.1% wrong, 25.8% complete, 2 of 98 far; exact lists reach 51%): \
+            docs/ACCURACY.md, run with --ignored to see it fail"]
+fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
+    let mut pooled = Pool::default();
+    for seed in 1..=5 {
+        let (_, rig, obs) = standard_capture(seed, Defects::realistic(), false);
+        let out = pipeline::run(
+            &rig,
+            Input::lists(&obs.lists),
+            &Options::with(MatchParams::default()),
+        )
+        .map(|m| m.output)
+        .expect("valid input");
+        let segs: Vec<Segment3> = out.segments();
+        let s = score(
+            &segs,
+            &obs.ground_truth,
+            &eligible_intervals(&obs),
+            rig_centre(&rig),
+        );
+        pooled.add_classes(&error_classes(
+            &segs,
+            &s.matches,
+            &obs.ground_truth,
+            rig_centre(&rig),
+        ));
+        pooled.add(&s);
+    }
+    println!("realistic lists, default answer: {}", pooled.cells());
+    assert!(pooled.error() <= LSD_GOAL_MAX_ERROR, "3D error");
+    assert!(
+        pooled.completeness() >= LSD_GOAL_MIN_COMPLETENESS,
+        "completeness"
+    );
+    assert!(
+        pooled.classes.far as f64 <= GOAL_MAX_FAR_SHARE * pooled.segments as f64,
+        "near no edge"
     );
 }
 
@@ -146,7 +195,7 @@ fn collinear_rig_matches_all_but_segments_parallel_to_its_baseline() {
 
 #[test]
 fn output_does_not_depend_on_the_number_of_threads() {
-    let (_, rig, obs) = standard_capture(3, Defects::realistic(), false);
+    let (_, rig, obs) = standard_capture(3, Defects::noisy(), false);
     let params = MatchParams::default();
     let on = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()

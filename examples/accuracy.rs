@@ -25,32 +25,17 @@ use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
     eligible_intervals, eligible_intervals_with, error_classes, match_labels, rig_centre, score,
-    score_labelled, standard_capture, Defects,
+    score_labelled, standard_capture, Defects, Pooled,
 };
 
-#[derive(Default)]
-struct Pool {
-    classes: trinocular::synth::ErrorClasses,
-    n: usize,
-    wrong: usize,
-    eligible_m: f64,
-    covered_m: f64,
-}
-
-impl Pool {
-    fn add(&mut self, s: &trinocular::synth::Score) {
-        self.n += s.n_segments;
-        self.wrong += s.n_segments - s.n_correct;
-        self.eligible_m += s.eligible_length_m;
-        self.covered_m += s.covered_length_m;
-    }
-    fn show(&self) -> String {
-        format!(
-            "error {:.4} compl {:.4}",
-            self.wrong as f64 / self.n.max(1) as f64,
-            self.covered_m / self.eligible_m.max(1e-12)
-        )
-    }
+/// `error … compl …` of a pool: the share of its segments that are wrong (0 for none) and of
+/// its eligible length covered.
+fn show(p: &Pooled) -> String {
+    format!(
+        "error {:.4} compl {:.4}",
+        (p.segments - p.correct) as f64 / p.segments.max(1) as f64,
+        p.covered_m / p.eligible_m.max(1e-12)
+    )
 }
 
 fn main() {
@@ -101,10 +86,10 @@ fn main() {
     println!("{seeds} seeds; {params:?}");
     for (name, defects, collinear) in configs {
         let (mut matched, mut matched_c10, mut strict, mut strict_c10) = (
-            Pool::default(),
-            Pool::default(),
-            Pool::default(),
-            Pool::default(),
+            Pooled::default(),
+            Pooled::default(),
+            Pooled::default(),
+            Pooled::default(),
         );
         let mut ms = Vec::new();
         for seed in 1..=seeds {
@@ -160,10 +145,12 @@ fn main() {
                     );
                 }
             }
-            let c = error_classes(&segs, &strict_score.matches, truth, rig_centre(&rig));
-            strict.classes.direction_only += c.direction_only;
-            strict.classes.near += c.near;
-            strict.classes.far += c.far;
+            strict.add_classes(&error_classes(
+                &segs,
+                &strict_score.matches,
+                truth,
+                rig_centre(&rig),
+            ));
             strict.add(&strict_score);
             strict_c10.add(&score(&segs, truth, &elig_c10, rig_centre(&rig)));
             ms.push(out.stats.total_ms);
@@ -171,10 +158,10 @@ fn main() {
         ms.sort_by(f64::total_cmp);
         println!(
             "{name:21} n {:5} | match: {} (c10 {:.4}) | 3D: {} (c10 {:.4}; dir / near / far {} / {} / {}) | median {:.2} ms",
-            matched.n,
-            matched.show(),
+            matched.segments,
+            show(&matched),
             matched_c10.covered_m / matched_c10.eligible_m.max(1e-12),
-            strict.show(),
+            show(&strict),
             strict_c10.covered_m / strict_c10.eligible_m.max(1e-12),
             strict.classes.direction_only,
             strict.classes.near,

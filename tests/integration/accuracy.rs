@@ -2,6 +2,7 @@
 //! regression-guarded here, slightly below what was measured so noise in unrelated changes
 //! does not flap them. `cargo run --release --example accuracy` prints the full table.
 
+use trinocular::geometry::Rig;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, MatchOutput, Options};
 use trinocular::segment::Segment3;
@@ -48,6 +49,24 @@ fn pool(scores: &[Score]) -> Score {
     total
 }
 
+/// The standard room of `seed` seen with `defects`, and its lists matched with `params`.
+fn matched_room(
+    seed: u64,
+    defects: &Defects,
+    collinear: bool,
+    params: &MatchParams,
+) -> (Rig, Observation, MatchOutput) {
+    let (_, rig, obs) = standard_capture(seed, *defects, collinear);
+    let out = pipeline::run(
+        &rig,
+        Input::lists(&obs.lists),
+        &Options::with(params.clone()),
+    )
+    .map(|m| m.output)
+    .expect("valid input");
+    (rig, obs, out)
+}
+
 /// Every match, precise or not: these guard the matcher, not the accuracy gate (which
 /// `tests/integration/images.rs` and the accuracy example measure).
 fn run(defects: &Defects, collinear: bool) -> (Pooled, Vec<(Observation, MatchOutput)>) {
@@ -57,14 +76,7 @@ fn run(defects: &Defects, collinear: bool) -> (Pooled, Vec<(Observation, MatchOu
     };
     let (mut strict, mut matched, mut runs) = (Vec::new(), Vec::new(), Vec::new());
     for seed in SEEDS {
-        let (_, rig, obs) = standard_capture(seed, *defects, collinear);
-        let out = pipeline::run(
-            &rig,
-            Input::lists(&obs.lists),
-            &Options::with(params.clone()),
-        )
-        .map(|m| m.output)
-        .expect("valid input");
+        let (rig, obs, out) = matched_room(seed, defects, collinear, &params);
         let segs: Vec<Segment3> = out.segments();
         // Eligible: visible in all three views, >= 20 px and >= 10 grey levels in each.
         let eligible = eligible_intervals_with(&obs, 20.0, Some(10.0));
@@ -137,14 +149,8 @@ const GOAL_MAX_FAR_SHARE: f64 = 0.005;
 fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
     let mut pooled = Pool::default();
     for seed in 1..=5 {
-        let (_, rig, obs) = standard_capture(seed, Defects::realistic(), false);
-        let out = pipeline::run(
-            &rig,
-            Input::lists(&obs.lists),
-            &Options::with(MatchParams::default()),
-        )
-        .map(|m| m.output)
-        .expect("valid input");
+        let (rig, obs, out) =
+            matched_room(seed, &Defects::realistic(), false, &MatchParams::default());
         let segs: Vec<Segment3> = out.segments();
         let s = score(
             &segs,
@@ -227,19 +233,12 @@ fn output_does_not_depend_on_the_number_of_threads() {
 #[test]
 fn a_miscalibrated_rig_widens_the_noise_instead_of_losing_its_matches() {
     use nalgebra::Matrix3;
-    use trinocular::geometry::{Camera, Rig};
-    let (_, rig, obs) = standard_capture(1, Defects::clean(), false);
+    use trinocular::geometry::Camera;
     let everything = MatchParams {
         include_uncertain: true,
         ..MatchParams::default()
     };
-    let exact = pipeline::run(
-        &rig,
-        Input::lists(&obs.lists),
-        &Options::with(everything.clone()),
-    )
-    .map(|m| m.output)
-    .expect("valid input");
+    let (rig, obs, exact) = matched_room(1, &Defects::clean(), false, &everything);
     assert_eq!(
         exact.stats.noise_scale, 1.0,
         "an exact rig needs no wider noise"

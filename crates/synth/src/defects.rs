@@ -511,10 +511,10 @@ fn apply_defects(
             let (Some(mut p), Some(mut q)) = (camera.project(&from), camera.project(&to)) else {
                 continue;
             };
-            let noisy = defects.endpoint_noise_px > 0.0
+            let moves_ends = defects.endpoint_noise_px > 0.0
                 || defects.end_noise_px > 0.0
                 || defects.end_shortfall_px > 0.0;
-            if noisy {
+            if moves_ends {
                 let t = (q - p).try_normalize(1e-12).unwrap_or_else(Vector2::x);
                 let n = Vector2::new(-t.y, t.x);
                 let across_sigma =

@@ -5,7 +5,7 @@
 use trinocular::geometry::Rig;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, MatchOutput, Options};
-use trinocular::segment::Segment3;
+use trinocular::segment::{Segment3, SegmentList};
 use trinocular::synth::{
     eligible_intervals, eligible_intervals_with, error_classes, match_labels, rig_centre, score,
     score_labelled, standard_capture, Defects, Observation, Pooled as Pool, Score,
@@ -49,6 +49,17 @@ fn pool(scores: &[Score]) -> Score {
     total
 }
 
+/// Segment lists matched by `rig` with `params` (the tests' lists are always valid input).
+pub(crate) fn matched_lists(
+    rig: &Rig,
+    lists: &[SegmentList; 3],
+    params: &MatchParams,
+) -> MatchOutput {
+    pipeline::run(rig, Input::lists(lists), &Options::with(params.clone()))
+        .map(|m| m.output)
+        .expect("valid input")
+}
+
 /// The standard room of `seed` seen with `defects`, and its lists matched with `params`.
 fn matched_room(
     seed: u64,
@@ -57,13 +68,7 @@ fn matched_room(
     params: &MatchParams,
 ) -> (Rig, Observation, MatchOutput) {
     let (_, rig, obs) = standard_capture(seed, *defects, collinear);
-    let out = pipeline::run(
-        &rig,
-        Input::lists(&obs.lists),
-        &Options::with(params.clone()),
-    )
-    .map(|m| m.output)
-    .expect("valid input");
+    let out = matched_lists(&rig, &obs.lists, params);
     (rig, obs, out)
 }
 
@@ -208,15 +213,7 @@ fn output_does_not_depend_on_the_number_of_threads() {
             .num_threads(threads)
             .build()
             .expect("pool");
-        pool.install(|| {
-            pipeline::run(
-                &rig,
-                Input::lists(&obs.lists),
-                &Options::with(params.clone()),
-            )
-            .map(|m| m.output)
-            .expect("valid")
-        })
+        pool.install(|| matched_lists(&rig, &obs.lists, &params))
     };
     let (one, two, four) = (on(1), on(2), on(4));
     assert!(!one.triplets.is_empty());
@@ -255,13 +252,7 @@ fn a_miscalibrated_rig_widens_the_noise_instead_of_losing_its_matches() {
     )
     .expect("valid camera");
     let off_rig = Rig::new([cams[0].clone(), cams[1].clone(), off]).expect("valid rig");
-    let shifted = pipeline::run(
-        &off_rig,
-        Input::lists(&obs.lists),
-        &Options::with(everything.clone()),
-    )
-    .map(|m| m.output)
-    .expect("valid input");
+    let shifted = matched_lists(&off_rig, &obs.lists, &everything);
     println!(
         "exact: {} segments; third camera 0.7 px off: {} segments, noise scale {:.2}, {} inconsistent",
         exact.segments_3d.len(),

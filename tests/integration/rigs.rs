@@ -12,7 +12,7 @@ use trinocular::synth::{
     with_exposure, Defects, Pooled, RenderParams, RigShape,
 };
 
-use crate::accuracy::{COLLINEAR_MIN_COMPLETENESS, EXACT_MAX_ERROR};
+use crate::accuracy::{matched_lists, COLLINEAR_MIN_COMPLETENESS, EXACT_MAX_ERROR};
 
 const SEEDS: [u64; 2] = [1, 2];
 
@@ -29,13 +29,7 @@ fn exact(shape: RigShape) -> (f64, f64, bool) {
     let mut per_pair = false;
     for seed in SEEDS {
         let (_, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
-        let out = pipeline::run(
-            &rig,
-            Input::lists(&obs.lists),
-            &Options::with(params.clone()),
-        )
-        .map(|m| m.output)
-        .expect("valid input");
+        let out = matched_lists(&rig, &obs.lists, &params);
         per_pair = out.stats.per_pair_rectification;
         let segs: Vec<Segment3> = out.segments();
         let e = eligible_intervals_with(&obs, 20.0, Some(10.0));

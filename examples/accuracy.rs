@@ -3,13 +3,16 @@
 //!
 //!     cargo run --release --example accuracy [-- SEEDS [param=value ...]]
 //!
+//! Each seed's room is seen as the shared rendered rooms are scored: from a turntable of
+//! `poses` captures (default 12) around the room's centre (`synth::turntable_captures`);
+//! `poses=1` is the one capture facing the bookshelf that the figures used until 2026-11-29.
 //! e.g. `-- 5 include_uncertain=1` for every segment, not only those that meet the gate;
 //! `defects.FIELD=value` changes one field of the realistic defects (`synth::Defects`), e.g.
-//! `-- 5 defects.disturbed_share=0` for lists without the measured tail; `wrong` lists the
-//! realistic lists' wrong 3D segments (class, whether the match was right, the image
-//! segments' edges and lengths).
+//! `-- 5 defects.disturbed_share=0 defects.crowded_share=0` for lists without the measured
+//! tail; `wrong` lists the realistic lists' wrong 3D segments (class, whether the match was
+//! right, the image segments' edges and lengths).
 //!
-//! Two views of the same output, pooled over the seeds:
+//! Two views of the same output, pooled over the seeds and poses:
 //! - *match*: the paper's criterion — a 3D segment is wrong when its image segments are not
 //!   images of one ground-truth edge; completeness is the eligible length its right segments
 //!   cover;
@@ -25,7 +28,7 @@ use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::Segment3;
 use trinocular::synth::{
     eligible_intervals, eligible_intervals_with, error_classes, match_labels, rig_centre, score,
-    score_labelled, standard_capture, Defects, Pooled,
+    score_labelled, turntable_captures, Defects, Pooled,
 };
 
 /// `error … compl …` of a pool: the share of its segments that are wrong (0 for none) and of
@@ -45,6 +48,7 @@ fn main() {
         .unwrap_or(5);
     let mut params = MatchParams::default();
     let mut realistic = Defects::realistic();
+    let mut poses = 12usize;
     let wrong = std::env::args().any(|a| a == "wrong");
     for (key, value) in std::env::args().skip(2).filter_map(|a| {
         let (k, v) = a.split_once('=')?;
@@ -61,6 +65,8 @@ fn main() {
             "gate_confidence" => params.gate_confidence = value,
             "neighbour_radius_px" => params.neighbour_radius_px = value,
             "defects.endpoint_noise_px" => realistic.endpoint_noise_px = value,
+            "defects.crowded_share" => realistic.crowded_share = value,
+            "defects.crowded_view_prob" => realistic.crowded_view_prob = value,
             "defects.disturbed_share" => realistic.disturbed_share = value,
             "defects.disturbed_view_prob" => realistic.disturbed_view_prob = value,
             "defects.disturbed_noise_px" => realistic.disturbed_noise_px = value,
@@ -73,6 +79,7 @@ fn main() {
             "defects.clutter_fraction" => realistic.clutter_fraction = value,
             "defects.states_noise" => realistic.states_noise = value != 0.0,
             "list_push_px" => params.list_push_px = value,
+            "poses" => poses = value.max(1.0) as usize,
             other => panic!("unknown parameter {other}"),
         }
     }
@@ -83,7 +90,7 @@ fn main() {
         ("clean, collinear", Defects::clean(), true),
         ("realistic, collinear", realistic, true),
     ];
-    println!("{seeds} seeds; {params:?}");
+    println!("{seeds} seeds x {poses} poses; {params:?}");
     for (name, defects, collinear) in configs {
         let (mut matched, mut matched_c10, mut strict, mut strict_c10) = (
             Pooled::default(),
@@ -92,8 +99,13 @@ fn main() {
             Pooled::default(),
         );
         let mut ms = Vec::new();
-        for seed in 1..=seeds {
-            let (_, rig, obs) = standard_capture(seed, defects, collinear);
+        let captures = (1..=seeds).flat_map(|seed| {
+            turntable_captures(seed, poses, &defects, collinear)
+                .into_iter()
+                .enumerate()
+                .map(move |(k, (rig, obs))| (seed, k, rig, obs))
+        });
+        for (seed, pose, rig, obs) in captures {
             let out = pipeline::run(
                 &rig,
                 Input::lists(&obs.lists),
@@ -137,7 +149,7 @@ fn main() {
                         "dir"
                     };
                     println!(
-                        "seed {seed}: wrong ({class}) {:.3} m, match label {:?}, dir σ {:.2}°, pos σ {:.3} m, views {views:?}",
+                        "seed {seed} pose {pose}: wrong ({class}) {:.3} m, match label {:?}, dir σ {:.2}°, pos σ {:.3} m, views {views:?}",
                         r.segment.length(),
                         labels[k],
                         r.direction_sigma_deg,

@@ -16,8 +16,10 @@ along the line; the nearest if several). Prints, pooled over both rooms:
   |offset|), and per segment its line's shift and turn (the mean and half difference of its
   ends' offsets): the synthetic lists' `endpoint_noise_px` and tail;
 - whether the tail belongs to edges or to views: the share of (edge, view) with an end more
-  than 0.4 px off, and the same share in another view of an edge given one
-  (`disturbed_share`, `disturbed_view_prob`);
+  than 0.4 px off, and the same share in another view of an edge given one, where no other
+  true edge runs alongside within 3 px (`disturbed_share`, `disturbed_view_prob`) and where
+  one does (`crowded_share`, `crowded_view_prob`); and per segment, the tail's share with and
+  without another true edge (or another listed segment) alongside;
 - where a segment ends within 6 px of its piece's end, how far past (positive) or short of
   it: `end_noise_px` (robust sigma) and `end_shortfall_px` (the median);
 - per piece, how many segments lie along it: the share in two or more (`fragment_prob`) and
@@ -48,6 +50,8 @@ MIN_SEGMENT_PX = 8.0
 MIN_CONTRAST = 4.0
 # An end farther than this across its true line is in the offsets' tail.
 TAIL_PX = 0.4
+# A parallel line this close beside a segment may pull its fit (the matcher's crowding reach).
+NEIGHBOUR_PX = 3.0
 
 
 def project(P, X):
@@ -68,6 +72,30 @@ def pieces_of(vis, E, P, cam):
                 continue
             out.append((a, b, e["i"]))
     return out
+
+
+def beside(s, others, reach):
+    """Whether one of `others` (rows u1 v1 u2 v2) runs alongside segment `s`: parallel within
+    ANGLE_DEG, overlapping it along its line, and over the overlap within `reach` px of s's
+    line and not on it (> 0.05 px)."""
+    p, q = s[:2], s[2:]
+    L = np.linalg.norm(q - p)
+    t = (q - p) / L
+    n = np.array([-t[1], t[0]])
+    cos_tol = np.cos(np.radians(ANGLE_DEG))
+    for o in others:
+        a, b = o[:2], o[2:]
+        lo = np.linalg.norm(b - a)
+        if lo < 1e-9 or np.allclose(o, s) or abs(t @ (b - a)) / lo < cos_tol:
+            continue
+        ta, tb = t @ (a - p), t @ (b - p)
+        s0, s1 = max(min(ta, tb), 0.0), min(max(ta, tb), L)
+        if s0 >= s1:
+            continue
+        across = [abs(n @ (a + (b - a) * ((x - ta) / (tb - ta)) - p)) for x in (s0, s1)]
+        if 0.05 <= max(across) <= reach:
+            return True
+    return False
 
 
 def lists_for(cdir, source, binary, work):
@@ -96,8 +124,12 @@ def main():
     shift_turn = []  # per segment: the mean of its two ends' offsets and half their difference
     per_piece = []
     tails = []  # per edge found in all three views: the largest |end offset| in each
+    tail_crowded = []  # and whether a true edge runs beside it there
     views_covering = []  # per eligible edge of a capture: in how many views a segment lies along it
     n_assigned = n_clutter = 0
+    # per assigned segment: (end off by more than TAIL_PX, a listed parallel neighbour beside
+    # it, a true edge piece beside its own)
+    crowded = []
     cos_tol = np.cos(np.radians(ANGLE_DEG))
     for room in a.rooms.split(","):
         data = os.path.join(a.shared, "data", room)
@@ -109,6 +141,7 @@ def main():
             lists = lists_for(cdir, a.input, a.bin, work)
             covered = [set(), set(), set()]
             worst = [dict(), dict(), dict()]
+            crowd = [dict(), dict(), dict()]
             for cam, segs in enumerate(lists):
                 P = np.asarray(calib["cameras"][cam]["P"], float)
                 pieces = pieces_of(vis, E, P, cam)
@@ -141,11 +174,16 @@ def main():
                         continue
                     n_assigned += 1
                     _, k, dp, dq, tp, tq, L = best
+                    crowded.append((max(abs(dp), abs(dq)) > TAIL_PX,
+                                    beside(s, segs, NEIGHBOUR_PX),
+                                    beside(s, [np.concatenate([a_, b_]) for a_, b_, e_ in pieces
+                                               if e_ != pieces[k][2]], NEIGHBOUR_PX)))
                     counts[k] += 1
                     across += [dp, dq]
                     shift_turn.append((0.5 * (dp + dq), 0.5 * (dq - dp)))
                     edge = pieces[k][2]
                     worst[cam][edge] = max(worst[cam].get(edge, 0.0), abs(dp), abs(dq))
+                    crowd[cam][edge] = crowd[cam].get(edge, False) or crowded[-1][2]
                     lo, hi = min(tp, tq), max(tp, tq)
                     if abs(lo) <= END_NEAR_PX:
                         along.append(-lo)  # past the piece's start: positive
@@ -159,6 +197,7 @@ def main():
                     views_covering.append(sum(e["i"] in covered[c] for c in range(3)))
                     if all(e["i"] in worst[c] for c in range(3)):
                         tails.append([worst[c][e["i"]] for c in range(3)])
+                        tail_crowded.append([crowd[c][e["i"]] for c in range(3)])
     across, along, per_piece = np.asarray(across), np.asarray(along), np.asarray(per_piece)
 
     def robust(x):
@@ -188,6 +227,22 @@ def main():
                      if a_ != b and tl[i, a_]])
     print(f"an end off by more than {TAIL_PX} px, per edge and view: {base:.3f}; in another view "
           f"of the same edge, given one: {given:.3f} ({len(tl)} edges found in all three)")
+    tc = np.asarray(tail_crowded, bool)
+    free = [(i, a_, b) for i in range(len(tl)) for a_ in range(3) for b in range(3)
+            if a_ != b and not tc[i, a_] and not tc[i, b]]
+    both = [(i, a_, b) for i in range(len(tl)) for a_ in range(3) for b in range(3)
+            if a_ != b and tc[i, a_] and tc[i, b]]
+    print(f"  the same where no true edge runs beside either view: per view "
+          f"{tl[~tc].mean():.3f}, given one {np.mean([tl[i, b] for i, a_, b in free if tl[i, a_]]):.3f}; "
+          f"beside one: per view {tl[tc].mean():.3f}, given one where both are "
+          f"{np.mean([tl[i, b] for i, a_, b in both if tl[i, a_]]):.3f} "
+          f"({np.mean(tc):.3f} of the views)")
+    cr = np.asarray(crowded, bool)
+    for name, col in (("a listed parallel segment", 1), ("another true edge", 2)):
+        w = cr[:, col]
+        print(f"an end off by more than {TAIL_PX} px, per segment: with {name} within "
+              f"{NEIGHBOUR_PX:.0f} px ({np.mean(w):.3f} of them) {np.mean(cr[w, 0]):.3f}, "
+              f"without {np.mean(cr[~w, 0]):.3f}")
     print(f"segments along no visible piece (clutter): {n_clutter / max(n_assigned, 1):.3f} "
           f"of those along one")
 

@@ -149,6 +149,35 @@ pub fn panoramic_session(
     (scene, rig, captures)
 }
 
+/// The standard room seen as the shared rendered rooms are scored: the rig of
+/// [`standard_capture`] (non-collinear or collinear) at its standard place, turned about the
+/// vertical through its origin to `poses` yaws evenly spaced over a full turn, so that every
+/// wall is seen, not only the bookshelf's. Each capture's rig maps room points, as in
+/// [`standard_capture`], which is the first capture here (yaw 0, same seed); capture `k` is
+/// observed with seed `seed + k`.
+pub fn turntable_captures(
+    seed: u64,
+    poses: usize,
+    defects: &Defects,
+    collinear: bool,
+) -> Vec<(Rig, Observation)> {
+    let scene = Scene::room(seed);
+    let spec = if collinear {
+        RigSpec::collinear(seed)
+    } else {
+        RigSpec::non_collinear(seed)
+    };
+    (0..poses)
+        .map(|k| {
+            let yaw = std::f64::consts::TAU * k as f64 / poses.max(1) as f64;
+            let pose = Pose::from_position_yaw(Point3::from(STANDARD_RIG_POSITION), yaw);
+            let rig = spec.build(&pose).expect("a turned preset rig stays valid");
+            let observation = observe(&scene, &rig, defects, seed + k as u64);
+            (rig, observation)
+        })
+        .collect()
+}
+
 /// The centroid of a rig's optical centres: the `rig_centre` of [`score()`].
 pub fn rig_centre(rig: &Rig) -> Point3<f64> {
     let c = rig.cameras();

@@ -10,7 +10,8 @@
 //! `defects.FIELD=value` changes one field of the realistic defects (`synth::Defects`), e.g.
 //! `-- 5 defects.disturbed_share=0 defects.crowded_share=0` for lists without the measured
 //! tail; `wrong` lists the realistic lists' wrong 3D segments (class, whether the match was
-//! right, the image segments' edges and lengths).
+//! right, and per view the image segment's edge, its length, how far its ends lie off that
+//! edge's image and the nearest listed parallel segment beside it).
 //!
 //! Two views of the same output, pooled over the seeds and poses:
 //! - *match*: the paper's criterion — a 3D segment is wrong when its image segments are not
@@ -25,7 +26,7 @@
 
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
-use trinocular::segment::Segment3;
+use trinocular::segment::{Segment2, Segment3};
 use trinocular::synth::{
     eligible_intervals, eligible_intervals_with, error_classes, match_labels, rig_centre, score,
     score_labelled, turntable_captures, Defects, Pooled,
@@ -39,6 +40,37 @@ fn show(p: &Pooled) -> String {
         (p.segments - p.correct) as f64 / p.segments.max(1) as f64,
         p.covered_m / p.eligible_m.max(1e-12)
     )
+}
+
+/// How far a listed segment's ends lie across its true edge's image, the larger, pixels.
+fn ends_off_px(rig: &trinocular::geometry::Rig, view: usize, edge: &Segment3, s: &Segment2) -> f64 {
+    let cam = rig.camera(view);
+    let (Some(a), Some(b)) = (cam.project(&edge.start), cam.project(&edge.end)) else {
+        return f64::NAN;
+    };
+    let u = (b - a).normalize();
+    let across = |p: nalgebra::Point2<f64>| u.perp(&(p - a)).abs();
+    across(s.start).max(across(s.end))
+}
+
+/// The nearest other segment of the list parallel to segment `i` (within 4°) and alongside it
+/// within 8 px, its distance across `i`'s line at `i`'s middle, pixels.
+fn nearest_parallel_px(list: &[Segment2], i: usize) -> Option<f64> {
+    let s = &list[i];
+    let d = (s.end - s.start).normalize();
+    let mid = nalgebra::center(&s.start, &s.end);
+    list.iter()
+        .enumerate()
+        .filter(|&(j, o)| {
+            j != i && (o.end - o.start).normalize().perp(&d).abs() < 4f64.to_radians().sin()
+        })
+        .filter_map(|(_, o)| {
+            let e = (o.end - o.start).normalize();
+            let across = e.perp(&(mid - o.start)).abs();
+            let along = (mid - o.start).dot(&e);
+            (along >= 0.0 && along <= (o.end - o.start).norm() && across < 8.0).then_some(across)
+        })
+        .min_by(f64::total_cmp)
 }
 
 fn main() {
@@ -131,11 +163,17 @@ fn main() {
                     let t = &out.triplets[r.triplet as usize];
                     let views: Vec<String> = (0..3)
                         .map(|v| {
-                            let s = &obs.lists[v].segments[t.segments[v] as usize];
+                            let i = t.segments[v] as usize;
+                            let s = &obs.lists[v].segments[i];
+                            let off = obs.truth[v][i]
+                                .map(|e| ends_off_px(&rig, v, &obs.ground_truth[e], s));
                             format!(
-                                "{:?} {:.0}px",
-                                obs.truth[v][t.segments[v] as usize],
-                                (s.end - s.start).norm()
+                                "{:?} {:.0}px off {} nb {}",
+                                obs.truth[v][i],
+                                (s.end - s.start).norm(),
+                                off.map_or("-".into(), |o| format!("{o:.2}")),
+                                nearest_parallel_px(&obs.lists[v].segments, i)
+                                    .map_or("-".into(), |d| format!("{d:.1}")),
                             )
                         })
                         .collect();

@@ -180,7 +180,7 @@ def main():
                                                if e_ != pieces[k][2]], NEIGHBOUR_PX)))
                     counts[k] += 1
                     across += [dp, dq]
-                    shift_turn.append((0.5 * (dp + dq), 0.5 * (dq - dp)))
+                    shift_turn.append((0.5 * (dp + dq), 0.5 * (dq - dp), length))
                     edge = pieces[k][2]
                     worst[cam][edge] = max(worst[cam].get(edge, 0.0), abs(dp), abs(dq))
                     crowd[cam][edge] = crowd[cam].get(edge, False) or crowded[-1][2]
@@ -214,6 +214,12 @@ def main():
     print(f"per segment, the line's shift (mean of its ends' offsets): robust sigma "
           f"{robust(st[:, 0]):.3f} px; its turn (half their difference): {robust(st[:, 1]):.3f} px "
           f"(independent ends give both {robust(across) / np.sqrt(2):.3f})")
+    for lo, hi in ((8, 20), (20, 40), (40, 80), (80, 160), (160, 1e9)):
+        b = st[(st[:, 2] >= lo) & (st[:, 2] < hi)]
+        if len(b) >= 20:
+            print(f"  {lo:.0f}-{hi:.0f} px ({len(b)}): shift robust sigma {robust(b[:, 0]):.3f} px, "
+                  f"90th pct |shift| {np.percentile(np.abs(b[:, 0]), 90):.3f}; turn {robust(b[:, 1]):.3f} px, "
+                  f"90th pct |turn| {np.percentile(np.abs(b[:, 1]), 90):.3f}")
     print(f"along the line, ends within {END_NEAR_PX:.0f} px of the piece's end ({len(along)}): "
           f"robust sigma {robust(along):.3f} px, median {np.median(along):+.3f} px (positive: past it)")
     print(f"pieces with none: {np.mean(per_piece == 0):.3f}; "

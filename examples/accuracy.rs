@@ -93,6 +93,7 @@ fn main() {
             "max_residual_px" => params.max_residual_px = value,
             "angle_tolerance_deg" => params.angle_tolerance_deg = value,
             "gradient_ratio_max" => params.gradient_ratio_max = value,
+            "depth_blind_gradient_ratio_max" => params.depth_blind_gradient_ratio_max = value,
             "min_length_px" => params.min_length_px = value,
             "include_uncertain" => params.include_uncertain = value != 0.0,
             "gate_confidence" => params.gate_confidence = value,

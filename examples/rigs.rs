@@ -3,6 +3,7 @@
 //! rendered images in, pooled over seeds.
 //!
 //!     cargo run --release --example rigs [-- SEEDS] [lists] [all] [third-gain=G]
+//!         [neighbour-radius=R]
 //!
 //! `third-gain=G` scales the third camera's image (signal and noise) by G, as a camera with an
 //! exposure of its own would see the scene (docs/RIGS.md, "Cameras with their own exposure").
@@ -26,6 +27,13 @@ fn main() {
     let third_gain: f32 = std::env::args()
         .find_map(|a| a.strip_prefix("third-gain=").and_then(|g| g.parse().ok()))
         .unwrap_or(1.0);
+    // `neighbour-radius=R`: validation's vertex radius (`MatchParams::neighbour_radius_px`).
+    let neighbour_radius_px: f64 = std::env::args()
+        .find_map(|a| {
+            a.strip_prefix("neighbour-radius=")
+                .and_then(|r| r.parse().ok())
+        })
+        .unwrap_or(MatchParams::default().neighbour_radius_px);
     println!(
         "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );
@@ -39,6 +47,7 @@ fn main() {
                     include_uncertain: true,
                     // Exact lines: no detector pushed them.
                     list_push_px: 0.0,
+                    neighbour_radius_px,
                     ..MatchParams::default()
                 };
                 pipeline::run(
@@ -57,6 +66,7 @@ fn main() {
                     &Options {
                         params: MatchParams {
                             include_uncertain: all,
+                            neighbour_radius_px,
                             ..MatchParams::default()
                         },
                         extract: Params::default(),

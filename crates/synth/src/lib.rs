@@ -138,10 +138,9 @@ pub fn panoramic_session(
     let rig = spec
         .build(&Pose::identity())
         .expect("preset rigs are valid for every seed");
-    let captures = (0..poses)
-        .map(|k| {
-            let yaw = std::f64::consts::TAU * k as f64 / poses.max(1) as f64;
-            let pose = Pose::from_position_yaw(Point3::from(STANDARD_RIG_POSITION), yaw);
+    let captures = turntable_poses(poses)
+        .enumerate()
+        .map(|(k, pose)| {
             let placed = spec.build(&pose).expect("a turned preset rig stays valid");
             (pose, observe(&scene, &placed, defects, seed + k as u64))
         })
@@ -167,15 +166,23 @@ pub fn turntable_captures(
     } else {
         RigSpec::non_collinear(seed)
     };
-    (0..poses)
-        .map(|k| {
-            let yaw = std::f64::consts::TAU * k as f64 / poses.max(1) as f64;
-            let pose = Pose::from_position_yaw(Point3::from(STANDARD_RIG_POSITION), yaw);
+    turntable_poses(poses)
+        .enumerate()
+        .map(|(k, pose)| {
             let rig = spec.build(&pose).expect("a turned preset rig stays valid");
             let observation = observe(&scene, &rig, defects, seed + k as u64);
             (rig, observation)
         })
         .collect()
+}
+
+/// `poses` poses of the rig at [`STANDARD_RIG_POSITION`], its yaw evenly spaced over a full
+/// turn from 0.
+fn turntable_poses(poses: usize) -> impl Iterator<Item = Pose> {
+    (0..poses).map(move |k| {
+        let yaw = std::f64::consts::TAU * k as f64 / poses.max(1) as f64;
+        Pose::from_position_yaw(Point3::from(STANDARD_RIG_POSITION), yaw)
+    })
 }
 
 /// The centroid of a rig's optical centres: the `rig_centre` of [`score()`].

@@ -148,12 +148,9 @@ const LSD_GOAL_MAX_ERROR: f64 = 0.03;
 const LSD_GOAL_MIN_COMPLETENESS: f64 = 0.60;
 const GOAL_MAX_FAR_SHARE: f64 = 0.005;
 
-#[test]
-#[ignore = "issue 12's goal is missed on the synthetic room with LSD's measured defects \
-            (5 seeds x 12 poses: 3.9% wrong, 25.1% complete, 3 of 637 far; exact lists \
-            reach 52%): docs/ACCURACY.md, run with --ignored to see it fail"]
-fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
-    // Scored as the shared rooms are: a turntable of 12 captures around the room, pooled.
+/// The realistic lists of five seeds' turntables (12 captures each, scored as the shared
+/// rooms are), the default answer, pooled.
+fn realistic_turntables() -> Pool {
     let mut pooled = Pool::default();
     for seed in 1..=5 {
         for (rig, obs) in turntable_captures(seed, 12, &Defects::realistic(), false) {
@@ -161,6 +158,15 @@ fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
             pooled.add_capture(&out.segments(), &obs, &rig);
         }
     }
+    pooled
+}
+
+#[test]
+#[ignore = "issue 12's goal is missed on the synthetic room with LSD's measured defects \
+            (5 seeds x 12 poses: 3.9% wrong, 25.1% complete, 3 of 637 far; exact lists \
+            reach 52%): docs/ACCURACY.md, run with --ignored to see it fail"]
+fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
+    let pooled = realistic_turntables();
     println!("realistic lists, default answer: {}", pooled.cells());
     assert!(pooled.error() <= LSD_GOAL_MAX_ERROR, "3D error");
     assert!(
@@ -170,6 +176,22 @@ fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
     assert!(
         pooled.classes.far as f64 <= GOAL_MAX_FAR_SHARE * pooled.segments as f64,
         "near no edge"
+    );
+}
+
+/// The part of issue 12's goals the synthetic room meets with LSD's defects: segments near no
+/// true edge (3 of 637 when written), which are wrong correspondences, not imprecision.
+#[test]
+fn realistic_lists_place_few_segments_near_no_edge() {
+    let pooled = realistic_turntables();
+    println!("realistic lists, default answer: {}", pooled.cells());
+    // A share of a few hundred segments, not of an answer emptied by some regression.
+    assert!(pooled.segments >= 300, "{} segments", pooled.segments);
+    assert!(
+        pooled.classes.far as f64 <= GOAL_MAX_FAR_SHARE * pooled.segments as f64,
+        "{} of {} near no edge",
+        pooled.classes.far,
+        pooled.segments
     );
 }
 

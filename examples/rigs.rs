@@ -3,7 +3,7 @@
 //! rendered images in, pooled over seeds.
 //!
 //!     cargo run --release --example rigs [-- SEEDS] [lists] [all] [third-gain=G]
-//!         [neighbour-radius=R]
+//!         [neighbour-radius=R] [min-length=L]
 //!
 //! `third-gain=G` scales the third camera's image (signal and noise) by G, as a camera with an
 //! exposure of its own would see the scene (docs/RIGS.md, "Cameras with their own exposure").
@@ -34,6 +34,10 @@ fn main() {
                 .and_then(|r| r.parse().ok())
         })
         .unwrap_or(MatchParams::default().neighbour_radius_px);
+    // `min-length=L`: the shortest segment matched (`MatchParams::min_length_px`).
+    let min_length_px: f64 = std::env::args()
+        .find_map(|a| a.strip_prefix("min-length=").and_then(|r| r.parse().ok()))
+        .unwrap_or(MatchParams::default().min_length_px);
     println!(
         "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );
@@ -48,6 +52,7 @@ fn main() {
                     // Exact lines: no detector pushed them.
                     list_push_px: 0.0,
                     neighbour_radius_px,
+                    min_length_px,
                     ..MatchParams::default()
                 };
                 pipeline::run(
@@ -67,6 +72,7 @@ fn main() {
                         params: MatchParams {
                             include_uncertain: all,
                             neighbour_radius_px,
+                            min_length_px,
                             ..MatchParams::default()
                         },
                         extract: Params::default(),

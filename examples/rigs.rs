@@ -3,7 +3,7 @@
 //! rendered images in, pooled over seeds.
 //!
 //!     cargo run --release --example rigs [-- SEEDS] [lists] [all] [third-gain=G]
-//!         [neighbour-radius=R] [min-length=L]
+//!         [neighbour-radius=R] [min-length=L] [min-segment=S]
 //!
 //! `third-gain=G` scales the third camera's image (signal and noise) by G, as a camera with an
 //! exposure of its own would see the scene (docs/RIGS.md, "Cameras with their own exposure").
@@ -38,6 +38,10 @@ fn main() {
     let min_length_px: f64 = std::env::args()
         .find_map(|a| a.strip_prefix("min-length=").and_then(|r| r.parse().ok()))
         .unwrap_or(MatchParams::default().min_length_px);
+    // `min-segment=S`: the shortest segment extraction reports (`extract::Params`).
+    let min_segment_px: f64 = std::env::args()
+        .find_map(|a| a.strip_prefix("min-segment=").and_then(|r| r.parse().ok()))
+        .unwrap_or(Params::default().min_segment_px);
     println!(
         "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );
@@ -75,7 +79,10 @@ fn main() {
                             min_length_px,
                             ..MatchParams::default()
                         },
-                        extract: Params::default(),
+                        extract: Params {
+                            min_segment_px,
+                            ..Params::default()
+                        },
                         ..Options::default()
                     },
                 )

@@ -3,7 +3,7 @@
 //! rendered images in, pooled over seeds.
 //!
 //!     cargo run --release --example rigs [-- SEEDS] [lists] [all] [third-gain=G]
-//!         [neighbour-radius=R] [min-length=L] [min-segment=S]
+//!         [neighbour-radius=R] [min-length=L] [min-segment=S] [gradient-ratio=G]
 //!
 //! `third-gain=G` scales the third camera's image (signal and noise) by G, as a camera with an
 //! exposure of its own would see the scene (docs/RIGS.md, "Cameras with their own exposure").
@@ -38,6 +38,13 @@ fn main() {
     let min_length_px: f64 = std::env::args()
         .find_map(|a| a.strip_prefix("min-length=").and_then(|r| r.parse().ok()))
         .unwrap_or(MatchParams::default().min_length_px);
+    // `gradient-ratio=G`: the largest ratio of a triplet's gradients (`gradient_ratio_max`).
+    let gradient_ratio_max: f64 = std::env::args()
+        .find_map(|a| {
+            a.strip_prefix("gradient-ratio=")
+                .and_then(|r| r.parse().ok())
+        })
+        .unwrap_or(MatchParams::default().gradient_ratio_max);
     // `min-segment=S`: the shortest segment extraction reports (`extract::Params`).
     let min_segment_px: f64 = std::env::args()
         .find_map(|a| a.strip_prefix("min-segment=").and_then(|r| r.parse().ok()))
@@ -57,6 +64,7 @@ fn main() {
                     list_push_px: 0.0,
                     neighbour_radius_px,
                     min_length_px,
+                    gradient_ratio_max,
                     ..MatchParams::default()
                 };
                 pipeline::run(
@@ -77,6 +85,7 @@ fn main() {
                             include_uncertain: all,
                             neighbour_radius_px,
                             min_length_px,
+                            gradient_ratio_max,
                             ..MatchParams::default()
                         },
                         extract: Params {

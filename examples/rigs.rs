@@ -15,6 +15,11 @@ use trinocular::synth::{
     render_triplet, shaped_capture, with_exposure, Defects, Pooled, RenderParams, RigShape,
 };
 
+/// The value of the command-line argument `PREFIXvalue`, if one is given and parses.
+fn option<T: std::str::FromStr>(prefix: &str) -> Option<T> {
+    std::env::args().find_map(|a| a.strip_prefix(prefix).and_then(|v| v.parse().ok()))
+}
+
 fn main() {
     let seeds: u64 = std::env::args()
         .nth(1)
@@ -24,31 +29,14 @@ fn main() {
     let lists = std::env::args().any(|a| a == "lists");
     // `all`: every match of the images, not only what meets the accuracy gate.
     let all = std::env::args().any(|a| a == "all");
-    let third_gain: f32 = std::env::args()
-        .find_map(|a| a.strip_prefix("third-gain=").and_then(|g| g.parse().ok()))
-        .unwrap_or(1.0);
-    // `neighbour-radius=R`: validation's vertex radius (`MatchParams::neighbour_radius_px`).
-    let neighbour_radius_px: f64 = std::env::args()
-        .find_map(|a| {
-            a.strip_prefix("neighbour-radius=")
-                .and_then(|r| r.parse().ok())
-        })
-        .unwrap_or(MatchParams::default().neighbour_radius_px);
-    // `min-length=L`: the shortest segment matched (`MatchParams::min_length_px`).
-    let min_length_px: f64 = std::env::args()
-        .find_map(|a| a.strip_prefix("min-length=").and_then(|r| r.parse().ok()))
-        .unwrap_or(MatchParams::default().min_length_px);
-    // `gradient-ratio=G`: the largest ratio of a triplet's gradients (`gradient_ratio_max`).
-    let gradient_ratio_max: f64 = std::env::args()
-        .find_map(|a| {
-            a.strip_prefix("gradient-ratio=")
-                .and_then(|r| r.parse().ok())
-        })
-        .unwrap_or(MatchParams::default().gradient_ratio_max);
-    // `min-segment=S`: the shortest segment extraction reports (`extract::Params`).
-    let min_segment_px: f64 = std::env::args()
-        .find_map(|a| a.strip_prefix("min-segment=").and_then(|r| r.parse().ok()))
-        .unwrap_or(Params::default().min_segment_px);
+    let third_gain: f32 = option("third-gain=").unwrap_or(1.0);
+    let defaults = MatchParams::default();
+    // Validation's vertex radius, the shortest segment matched, the largest ratio of a
+    // triplet's gradients (`MatchParams`), the shortest segment extraction reports.
+    let neighbour_radius_px = option("neighbour-radius=").unwrap_or(defaults.neighbour_radius_px);
+    let min_length_px = option("min-length=").unwrap_or(defaults.min_length_px);
+    let gradient_ratio_max = option("gradient-ratio=").unwrap_or(defaults.gradient_ratio_max);
+    let min_segment_px = option("min-segment=").unwrap_or(Params::default().min_segment_px);
     println!(
         "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );

@@ -13,14 +13,16 @@
 //! the edge's and its own projections: what docs/RIGS.md's analysis of the facing triangle's
 //! wrong segments was read from.
 
+#[path = "common/wrong.rs"]
+mod wrong;
+
 use nalgebra::Point3;
-use trinocular::extract::Extraction;
 use trinocular::geometry::Rig;
 use trinocular::matching::MatchParams;
-use trinocular::pipeline::{self, Input, MatchOutput, Options};
+use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
-    observe, render_triplet, rig_centre, Defects, Observation, Pooled, Pose, RenderParams, RigSpec,
-    Scene, STANDARD_RIG_POSITION,
+    observe, render_triplet, Defects, Pooled, Pose, RenderParams, RigSpec, Scene,
+    STANDARD_RIG_POSITION,
 };
 
 /// One rig variant: image size, focal length scale, baseline scale.
@@ -82,80 +84,6 @@ fn rig_of(variant: &Variant, seed: u64) -> Rig {
     spec.build(&pose).expect("the scaled rigs are valid")
 }
 
-/// Distance of `p` from the segment `a`–`b`.
-fn to_segment(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
-    let ab = b - a;
-    let t = ((p - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0);
-    (a + ab * t - p).norm()
-}
-
-fn list_wrong(
-    name: &str,
-    seed: u64,
-    rig: &Rig,
-    obs: &Observation,
-    out: &MatchOutput,
-    extracted: &[Extraction; 3],
-    matches: &[Option<usize>],
-) {
-    let centre = rig_centre(rig);
-    for (r, m) in out.segments_3d.iter().zip(matches) {
-        if m.is_some() {
-            continue;
-        }
-        let seg = r.segment;
-        let mid = nalgebra::center(&seg.start, &seg.end);
-        let u = (seg.end - seg.start).normalize();
-        let Some((distances, angle, edge)) = obs
-            .ground_truth
-            .iter()
-            .map(|g| {
-                let d = [&seg.start, &mid, &seg.end].map(|p| to_segment(p, &g.start, &g.end));
-                let cos = u.dot(&(g.end - g.start).normalize()).abs().min(1.0);
-                (d, cos.acos().to_degrees(), *g)
-            })
-            .min_by(|a, b| a.0.iter().sum::<f64>().total_cmp(&b.0.iter().sum()))
-        else {
-            continue;
-        };
-        let tolerance = 0.02f64.max(0.01 * (mid - centre).norm());
-        println!(
-            "{name}, seed {seed}: {:.3} m long at {:.2} m; start / mid / end {:.3} / {:.3} / {:.3} m from the nearest edge (tolerance {tolerance:.3}), {angle:.1}°; direction σ {:.2}°{}",
-            seg.length(),
-            (mid - centre).norm(),
-            distances[0],
-            distances[1],
-            distances[2],
-            r.direction_sigma_deg,
-            if r.uncertain { ", uncertain" } else { "" },
-        );
-        println!(
-            "    3D {:.3?} → {:.3?}; edge {:.3?} → {:.3?}",
-            seg.start.coords.as_slice(),
-            seg.end.coords.as_slice(),
-            edge.start.coords.as_slice(),
-            edge.end.coords.as_slice()
-        );
-        let triplet = &out.triplets[r.triplet as usize];
-        for (v, view) in extracted.iter().enumerate() {
-            let s = &view.segments.segments[triplet.segments[v] as usize];
-            let project = |p: &Point3<f64>| rig.camera(v).project(p).map(|q| (q.x, q.y));
-            println!(
-                "    view {}: image segment ({:.1}, {:.1}) → ({:.1}, {:.1}); edge {:.1?} → {:.1?}; 3D {:.1?} → {:.1?}",
-                v + 1,
-                s.start.x,
-                s.start.y,
-                s.end.x,
-                s.end.y,
-                project(&edge.start),
-                project(&edge.end),
-                project(&seg.start),
-                project(&seg.end),
-            );
-        }
-    }
-}
-
 fn main() {
     let seeds: u64 = std::env::args()
         .nth(1)
@@ -187,7 +115,7 @@ fn main() {
             let s = pooled.add_capture(&out.segments(), &obs, &rig);
             if wrong {
                 let extracted = matched.extracted.as_ref().expect("images in");
-                list_wrong(variant.name, seed, &rig, &obs, out, extracted, &s.matches);
+                wrong::list_wrong(variant.name, seed, &rig, &obs, out, extracted, &s.matches);
             }
         }
         table.push(format!("| {} | {} |", variant.name, pooled.cells()));

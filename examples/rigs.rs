@@ -2,17 +2,24 @@
 //! completeness (strict scorer, as `tests/integration/rigs.rs`) of the default answer,
 //! rendered images in, pooled over seeds.
 //!
-//!     cargo run --release --example rigs [-- SEEDS] [lists] [all] [third-gain=G]
+//!     cargo run --release --example rigs [-- SEEDS] [lists] [all] [wrong] [third-gain=G]
 //!         [neighbour-radius=R] [min-length=L] [min-segment=S] [gradient-ratio=G]
+//!         [only=NAME]
+//!
+//! `wrong` lists every wrong 3D segment of the images' answers as the `resolutions` example
+//! does; `only=NAME` runs the shapes whose name starts with NAME (`only=third`).
 //!
 //! `third-gain=G` scales the third camera's image (signal and noise) by G, as a camera with an
 //! exposure of its own would see the scene (docs/RIGS.md, "Cameras with their own exposure").
+
+#[path = "common/wrong.rs"]
+mod wrong;
 
 use trinocular::extract::Params;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
-    render_triplet, shaped_capture, with_exposure, Defects, Pooled, RenderParams, RigShape,
+    self, render_triplet, shaped_capture, with_exposure, Defects, Pooled, RenderParams, RigShape,
 };
 
 /// The value of the command-line argument `PREFIXvalue`, if one is given and parses.
@@ -29,6 +36,8 @@ fn main() {
     let lists = std::env::args().any(|a| a == "lists");
     // `all`: every match of the images, not only what meets the accuracy gate.
     let all = std::env::args().any(|a| a == "all");
+    let list_wrong = std::env::args().any(|a| a == "wrong");
+    let only: Option<String> = option("only=");
     let third_gain: f32 = option("third-gain=").unwrap_or(1.0);
     let defaults = MatchParams::default();
     // Validation's vertex radius, the shortest segment matched, the largest ratio of a
@@ -41,6 +50,12 @@ fn main() {
         "| rig | segments | 3D error | dir / near / far | completeness | per-pair | epipolar angle |\n|---|---|---|---|---|---|---|"
     );
     for shape in RigShape::ALL {
+        if only
+            .as_ref()
+            .is_some_and(|o| !shape.name().starts_with(o.as_str()))
+        {
+            continue;
+        }
         let mut pooled = Pooled::default();
         let (mut per_pair, mut angle) = (false, 0.0);
         for seed in 1..=seeds {
@@ -65,7 +80,7 @@ fn main() {
             } else {
                 let mut images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
                 images[2] = with_exposure(&images[2], third_gain);
-                pipeline::run(
+                let matched = pipeline::run(
                     &rig,
                     Input::Images([&images[0], &images[1], &images[2]]),
                     &Options {
@@ -83,8 +98,22 @@ fn main() {
                         ..Options::default()
                     },
                 )
-                .expect("match")
-                .output
+                .expect("match");
+                if list_wrong {
+                    let score = synth::score_capture(&matched.output.segments(), &obs, &rig);
+                    let extracted = matched.extracted.as_ref().expect("images in");
+                    let out = &matched.output;
+                    wrong::list_wrong(
+                        shape.name(),
+                        seed,
+                        &rig,
+                        &obs,
+                        out,
+                        extracted,
+                        &score.matches,
+                    );
+                }
+                matched.output
             };
             pooled.add_capture(&out.segments(), &obs, &rig);
             per_pair = out.stats.per_pair_rectification;

@@ -18,7 +18,7 @@ use crate::params::{check_all, Rule};
 pub use predict::{
     predict, predict_in_frames_until, predict_until, Hypothesis, PredictError, Predicted,
 };
-pub use validate::{adjacency, rank, rank_until, select, validate};
+pub use validate::{adjacency, conflict, rank, rank_until, select, validate};
 
 /// Matching parameters. Units are in the names; `Default` gives the documented defaults.
 #[derive(Debug, Clone, PartialEq)]

@@ -94,8 +94,8 @@ pub struct Hypothesis {
     pub frame: u8,
     /// The verifying view could not check the depth (its prediction runs within 15° of the
     /// direction it moves in with the disparity), which the searched view alone then fixes:
-    /// such a triplet's gradients must agree closely ([`super::gain`]). False when a gradient
-    /// is unknown.
+    /// such a triplet's gradients must agree closely where they are known ([`super::gain`]),
+    /// and it never takes a doubtful winner's place (`pipeline`, `yield_to_certain_rivals`).
     pub depth_blind: bool,
 }
 
@@ -639,12 +639,9 @@ impl Search<'_> {
                 [i1, ik, ij]
             };
             // Where the verification cannot check the depth, the three views' gradients must
-            // agree more closely (once the views' gains are known: `gain`).
-            let gradients_known = [s1.gradient, sj.gradient, sk.gradient]
-                .iter()
-                .all(|&g| g > 0.0 && g.is_finite());
-            let depth_blind =
-                gradients_known && self.verification_blind_to_depth(pair, p0, d0, q0, q_dir);
+            // agree more closely (once the views' gains are known: `gain`; an unknown
+            // gradient agrees with any).
+            let depth_blind = self.verification_blind_to_depth(pair, p0, d0, q0, q_dir);
             out.push(Hypothesis {
                 segments,
                 residual_px: residual,

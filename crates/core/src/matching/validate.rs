@@ -152,6 +152,12 @@ pub fn select(
     accepted
 }
 
+/// True when `a` and `b` cannot both be accepted: they share a segment and are not fragments
+/// of one line ([`select`]'s rule).
+pub fn conflict(views: &Views, a: &Hypothesis, b: &Hypothesis, params: &MatchParams) -> bool {
+    (0..3).any(|v| a.segments[v] == b.segments[v]) && !fragments(views, a, b, params)
+}
+
 /// True when `a` and `b` are fragments of one line: wherever their segments differ, those
 /// are collinear and disjoint.
 fn fragments(views: &Views, a: &Hypothesis, b: &Hypothesis, params: &MatchParams) -> bool {

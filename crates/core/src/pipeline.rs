@@ -1152,6 +1152,8 @@ fn validate_and_reconstruct(
 /// A doubtful winner gives way to a certain rival that fits better by this much χ² (a
 /// likelihood e^½ ≈ 1.6 times its own or more). 1, 2 and 4 measured (docs/ACCURACY.md).
 const YIELD_CHI2_MARGIN: f64 = 1.0;
+/// Most doubtful winners sharing one of a newcomer's segments for it to stand in for them.
+const MAX_YIELD_RIVALS: usize = 16;
 
 /// Validation ranks by neighbour support, and a winner the accuracy gate then doubts still
 /// holds its three segments against every rival — even one that would be certain. Here the
@@ -1253,16 +1255,25 @@ fn yield_to_certain_rivals(
                 .push(h);
         }
     }
+    // A segment that many doubtful winners share (fragments of one line, or a list built to
+    // pile them up) is a crowd, not a rivalry: a newcomer meeting one does not stand in, and
+    // the pairwise tests stay linear in the winners.
     let rivals_of = |h: usize| {
-        let mut rivals: Vec<usize> = (0..3)
+        let shared: Vec<&Vec<usize>> = (0..3)
             .filter_map(|v| by_segment.get(&(v, hypotheses[h].segments[v])))
+            .collect();
+        if shared.iter().any(|users| users.len() > MAX_YIELD_RIVALS) {
+            return None;
+        }
+        let mut rivals: Vec<usize> = shared
+            .into_iter()
             .flatten()
             .copied()
             .filter(|&d| matching::conflict(views, &hypotheses[h], &hypotheses[d], params))
             .collect();
         rivals.sort_unstable();
         rivals.dedup();
-        rivals
+        Some(rivals)
     };
     let mut replaced = FxHashSet::default();
     let mut winners = Vec::new();
@@ -1270,7 +1281,9 @@ fn yield_to_certain_rivals(
         if quality(&fits[h]) != Some(true) {
             continue;
         }
-        let rivals = rivals_of(h);
+        let Some(rivals) = rivals_of(h) else {
+            continue;
+        };
         if !rivals.is_empty()
             && rivals
                 .iter()

@@ -1089,17 +1089,7 @@ fn validate_and_reconstruct(
 
         checkpoint.before("reconstruct")?;
         let t = Instant::now();
-        let todo: Vec<usize> = kept
-            .iter()
-            .copied()
-            .filter(|&h| fits[h].is_none())
-            .collect();
-        let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
-        let mut estimates = Vec::with_capacity(triplets.len());
-        for chunk in triplets.chunks(RECONSTRUCT_CHUNK) {
-            checkpoint.before("reconstruct")?;
-            estimates.extend(observations.estimates(rig, chunk));
-        }
+        let (todo, estimates) = estimate_unfitted(request, &mut observations, &kept, &fits)?;
         if round == 0 {
             stats.noise_scale = variance_factor(&estimates).sqrt();
         }
@@ -1147,6 +1137,31 @@ fn validate_and_reconstruct(
         .into_iter()
         .filter_map(|h| fits[h].flatten().map(|(est, quality)| (h, est, quality)))
         .collect())
+}
+
+/// The maximum-likelihood lines of those of `which` not fitted yet, in chunks between
+/// questions to the checkpoint: their indices and estimates, in order.
+fn estimate_unfitted(
+    request: &Matching,
+    observations: &mut Observations,
+    which: &[usize],
+    fits: &[Option<Fit>],
+) -> Result<(Vec<usize>, Vec<Option<Line3Estimate>>), Stopped> {
+    let todo: Vec<usize> = which
+        .iter()
+        .copied()
+        .filter(|&h| fits[h].is_none())
+        .collect();
+    let triplets: Vec<[u32; 3]> = todo
+        .iter()
+        .map(|&h| request.hypotheses[h].segments)
+        .collect();
+    let mut estimates = Vec::with_capacity(triplets.len());
+    for chunk in triplets.chunks(RECONSTRUCT_CHUNK) {
+        request.checkpoint.before("reconstruct")?;
+        estimates.extend(observations.estimates(request.rig, chunk));
+    }
+    Ok((todo, estimates))
 }
 
 /// A doubtful winner gives way to a certain rival that fits better by this much χ² (a
@@ -1226,17 +1241,7 @@ fn yield_to_certain_rivals(
         return Ok(());
     }
     checkpoint.before("reconstruct")?;
-    let todo: Vec<usize> = newcomers
-        .iter()
-        .copied()
-        .filter(|&h| fits[h].is_none())
-        .collect();
-    let triplets: Vec<[u32; 3]> = todo.iter().map(|&h| hypotheses[h].segments).collect();
-    let mut estimates = Vec::with_capacity(triplets.len());
-    for chunk in triplets.chunks(RECONSTRUCT_CHUNK) {
-        checkpoint.before("reconstruct")?;
-        estimates.extend(observations.estimates(rig, chunk));
-    }
+    let (todo, estimates) = estimate_unfitted(request, observations, &newcomers, fits)?;
     let factor = stats.noise_scale.powi(2);
     for (&h, est) in todo.iter().zip(estimates) {
         fits[h] = Some(accept(est.map(|e| rescaled(e, factor)), rig, params));

@@ -10,8 +10,10 @@ Checks, failing with exit 1 at the first that does not hold:
   2. one session built through the balancer (its captures spread over the replicas) has the
      same map as the same captures sent to one server;
   3. a replica killed (SIGKILL) while captures stream in through the balancer: every
-     acknowledged capture is in the session, the clients saw only retryable errors
-     (UNAVAILABLE), and captures went on being acknowledged after the kill.
+     acknowledged capture is in the session, the clients saw only transport errors
+     (UNAVAILABLE, or INTERNAL for a stream the proxy reset when its replica died between a
+     response's headers and its trailers), no more captures are stored unacknowledged than
+     calls failed, and captures went on being acknowledged after the kill.
 On a 2-core machine this shows that scale-out is correct, not that it adds throughput.
 """
 import argparse, os, shutil, signal, socket, subprocess, sys, tempfile, threading, time
@@ -157,7 +159,7 @@ http {{
                     if killed.is_set():
                         after_kill.append(r.capture_index)
                 except TrinocularError as e:
-                    errors.append(e.code.name)
+                    errors.append((e.code.name, e.message))
                 k += 1
 
         threads = [threading.Thread(target=stream, args=(i,)) for i in range(3)]
@@ -174,8 +176,17 @@ http {{
         stored = lb.get_session(s.id).captures
         check(len(acked) > 0 and max(acked) < stored and len(set(acked)) == len(acked),
               f"every acknowledged capture kept: {len(acked)} acknowledged, {stored} stored")
-        check(set(errors) <= {"UNAVAILABLE"},
-              f"clients saw only retryable errors: {len(errors)} x {sorted(set(errors)) or 'none'}")
+        # A replica killed after it answered a call's headers but before its trailers leaves
+        # nginx nothing to send but a reset of the stream, which a gRPC client reports as
+        # INTERNAL ("RST_STREAM"): a transport failure, like UNAVAILABLE, not the service's
+        # error — but the capture may have been stored. So: only those two, and no more
+        # captures stored without an acknowledgement than calls that failed.
+        def transport(code, message):
+            return code == "UNAVAILABLE" or (code == "INTERNAL" and "RST_STREAM" in message)
+        unacknowledged = stored - len(acked)
+        check(all(transport(c, m) for c, m in errors) and unacknowledged <= len(errors),
+              f"clients saw only transport errors: {len(errors)} x "
+              f"{sorted(set(errors)) or 'none'}; {unacknowledged} stored unacknowledged")
         check(len(after_kill) > 0, f"captures went on after the kill: {len(after_kill)} acknowledged")
         lb.delete_session(s.id)
         print("scale-out: all checks passed")

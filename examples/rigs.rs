@@ -19,7 +19,7 @@ use trinocular::extract::Params;
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
 use trinocular::synth::{
-    self, render_triplet, shaped_capture, with_exposure, Defects, Pooled, RenderParams, RigShape,
+    render_triplet, shaped_capture, with_exposure, Defects, Pooled, RenderParams, RigShape,
 };
 
 /// The value of the command-line argument `PREFIXvalue`, if one is given and parses.
@@ -60,7 +60,7 @@ fn main() {
         let (mut per_pair, mut angle) = (false, 0.0);
         for seed in 1..=seeds {
             let (scene, rig, obs) = shaped_capture(seed, Defects::clean(), shape);
-            let out = if lists {
+            let (out, extracted) = if lists {
                 let params = MatchParams {
                     include_uncertain: true,
                     // Exact lines: no detector pushed them.
@@ -75,7 +75,7 @@ fn main() {
                     Input::lists(&obs.lists),
                     &Options::with(params.clone()),
                 )
-                .map(|m| m.output)
+                .map(|m| (m.output, None))
                 .expect("match")
             } else {
                 let mut images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
@@ -99,23 +99,13 @@ fn main() {
                     },
                 )
                 .expect("match");
-                if list_wrong {
-                    let score = synth::score_capture(&matched.output.segments(), &obs, &rig);
-                    let extracted = matched.extracted.as_ref().expect("images in");
-                    let out = &matched.output;
-                    wrong::list_wrong(
-                        shape.name(),
-                        seed,
-                        &rig,
-                        &obs,
-                        out,
-                        extracted,
-                        &score.matches,
-                    );
-                }
-                matched.output
+                (matched.output, matched.extracted)
             };
-            pooled.add_capture(&out.segments(), &obs, &rig);
+            let score = pooled.add_capture(&out.segments(), &obs, &rig);
+            if let (true, Some(extracted)) = (list_wrong, &extracted) {
+                let name = shape.name();
+                wrong::list_wrong(name, seed, &rig, &obs, &out, extracted, &score.matches);
+            }
             per_pair = out.stats.per_pair_rectification;
             angle = out.stats.epipolar_angle_deg;
         }

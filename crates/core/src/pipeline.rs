@@ -1196,7 +1196,6 @@ fn yield_to_certain_rivals(
         lists,
         hypotheses,
         params,
-        checkpoint,
         ..
     } = *request;
     let quality = |f: &Option<Fit>| match f {
@@ -1240,7 +1239,6 @@ fn yield_to_certain_rivals(
     if newcomers.is_empty() {
         return Ok(());
     }
-    checkpoint.before("reconstruct")?;
     let (todo, estimates) = estimate_unfitted(request, observations, &newcomers, fits)?;
     let factor = stats.noise_scale.powi(2);
     for (&h, est) in todo.iter().zip(estimates) {

@@ -51,6 +51,7 @@ fn fixture() -> Fixture {
             images,
         })),
         rig_to_world_covariance: Vec::new(),
+        capture_id: String::new(),
     };
     Fixture {
         images,

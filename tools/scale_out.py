@@ -9,14 +9,16 @@ Checks, failing with exit 1 at the first that does not hold:
   1. the load generator through nginx, gRPC and HTTP: every request answered OK;
   2. one session built through the balancer (its captures spread over the replicas) has the
      same map as the same captures sent to one server;
-  3. a replica killed (SIGKILL) while captures stream in through the balancer: every
-     acknowledged capture is in the session, the clients saw only transport errors
-     (UNAVAILABLE, or INTERNAL for a stream the proxy reset when its replica died between a
-     response's headers and its trailers), no more captures are stored unacknowledged than
-     calls failed, and captures went on being acknowledged after the kill.
+  3. a replica killed (SIGKILL) while captures stream in through the balancer, each capture
+     named (capture_id) and sent again under its name after a transport error until it is
+     acknowledged: the clients saw only transport errors (UNAVAILABLE, or INTERNAL for a
+     stream the proxy reset when its replica died between a response's headers and its
+     trailers), every capture is stored exactly once (the session holds as many captures as
+     were acknowledged, each at its own index), and captures went on being acknowledged
+     after the kill.
 On a 2-core machine this shows that scale-out is correct, not that it adds throughput.
 """
-import argparse, os, shutil, signal, socket, subprocess, sys, tempfile, threading, time
+import argparse, os, shutil, signal, socket, subprocess, tempfile, threading, time
 
 import numpy as np
 
@@ -143,9 +145,17 @@ http {{
               f"a session through the balancer has the same map as through one server "
               f"({len(maps[0].segments)} segments)")
 
-        # 3. A replica killed mid-stream.
+        # 3. A replica killed mid-stream. A replica killed after it answered a call's headers
+        # but before its trailers leaves nginx nothing to send but a reset of the stream, which
+        # a gRPC client reports as INTERNAL ("RST_STREAM"): a transport failure, like
+        # UNAVAILABLE, not the service's error — and either way the capture may have been
+        # stored. Each capture is named, so the client sends it again under its name until
+        # it is acknowledged: stored once, whichever replica answers.
+        def transport(code, message):
+            return code == "UNAVAILABLE" or (code == "INTERNAL" and "RST_STREAM" in message)
+
         s = lb.create_session(calibration, name="kill")
-        acked, errors, after_kill = [], [], []
+        acked, errors, after_kill, duplicates, lost = {}, [], [], [], []
         killed = threading.Event()
         stop = threading.Event()
 
@@ -153,14 +163,25 @@ http {{
             c = Client(f"127.0.0.1:{lb_grpc}", timeout=30)
             k = k0
             while not stop.is_set():
-                try:
-                    r = c.add_capture(s.id, yaw_pose(k % 12), images=images)
-                    acked.append(r.capture_index)
+                name = f"stream-{k0}/{k}"
+                for attempt in range(20):
+                    try:
+                        r = c.add_capture(s.id, yaw_pose(k % 12), images=images, capture_id=name)
+                    except TrinocularError as e:
+                        errors.append((e.code.name, e.message))
+                        if not transport(e.code.name, e.message):
+                            break
+                        time.sleep(0.1)
+                        continue
+                    acked[name] = r.capture_index
+                    if r.duplicate:
+                        duplicates.append(name)
                     if killed.is_set():
                         after_kill.append(r.capture_index)
-                except TrinocularError as e:
-                    errors.append((e.code.name, e.message))
-                k += 1
+                    break
+                else:
+                    lost.append(name)
+                k += 3
 
         threads = [threading.Thread(target=stream, args=(i,)) for i in range(3)]
         for t in threads:
@@ -174,19 +195,13 @@ http {{
         for t in threads:
             t.join()
         stored = lb.get_session(s.id).captures
-        check(len(acked) > 0 and max(acked) < stored and len(set(acked)) == len(acked),
-              f"every acknowledged capture kept: {len(acked)} acknowledged, {stored} stored")
-        # A replica killed after it answered a call's headers but before its trailers leaves
-        # nginx nothing to send but a reset of the stream, which a gRPC client reports as
-        # INTERNAL ("RST_STREAM"): a transport failure, like UNAVAILABLE, not the service's
-        # error — but the capture may have been stored. So: only those two, and no more
-        # captures stored without an acknowledgement than calls that failed.
-        def transport(code, message):
-            return code == "UNAVAILABLE" or (code == "INTERNAL" and "RST_STREAM" in message)
-        unacknowledged = stored - len(acked)
-        check(all(transport(c, m) for c, m in errors) and unacknowledged <= len(errors),
+        indices = sorted(acked.values())
+        check(all(transport(c, m) for c, m in errors) and not lost,
               f"clients saw only transport errors: {len(errors)} x "
-              f"{sorted(set(errors)) or 'none'}; {unacknowledged} stored unacknowledged")
+              f"{sorted(set(errors)) or 'none'}; every failed call sent again until "
+              f"acknowledged ({len(duplicates)} of the retries found their capture stored)")
+        check(len(acked) > 0 and indices == list(range(stored)),
+              f"every capture stored exactly once: {len(acked)} acknowledged, {stored} stored")
         check(len(after_kill) > 0, f"captures went on after the kill: {len(after_kill)} acknowledged")
         lb.delete_session(s.id)
         print("scale-out: all checks passed")

@@ -111,10 +111,23 @@ recipe "sessions: add a capture (multipart: pose, image1..3)" 200 \
   -F 'pose=[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]' \
   -F "image1=@$D/img1.png" -F "image2=@$D/img2.png" -F "image3=@$D/img3.png"
 
-recipe "sessions: get" 200 'json:.id == $id and (.captures | tonumber) == 1' "$BASE/v1/sessions/$ID"
+# A capture named by the client (capture_id): if its answer is lost (a timeout, a reset), the
+# same upload sent again is answered with that capture, not stored twice.
+recipe "sessions: add a named capture (multipart: capture_id, pose, image1..3)" 200 \
+  'json:(.captureIndex | tonumber) == 1 and (.duplicate // false) == false' \
+  -X POST "$BASE/v1/sessions/$ID/captures?timeout_ms=5000" \
+  -F 'capture_id=robot-1/0002' -F 'pose=[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]' \
+  -F "image1=@$D/img1.png" -F "image2=@$D/img2.png" -F "image3=@$D/img3.png"
+recipe "sessions: the same named capture again (a retry): answered, not stored" 200 \
+  'json:(.captureIndex | tonumber) == 1 and .duplicate == true and (.map.captures | tonumber) == 2' \
+  -X POST "$BASE/v1/sessions/$ID/captures?timeout_ms=5000" \
+  -F 'capture_id=robot-1/0002' -F 'pose=[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]' \
+  -F "image1=@$D/img1.png" -F "image2=@$D/img2.png" -F "image3=@$D/img3.png"
+
+recipe "sessions: get" 200 'json:.id == $id and (.captures | tonumber) == 2' "$BASE/v1/sessions/$ID"
 recipe "sessions: list" 200 'json:[.sessions[].id] | index($id) != null' "$BASE/v1/sessions"
 recipe "sessions: map (JSON)" 200 \
-  'json:.sessionId == $id and (.segments | length) > 0 and (.poses | length) == 1' \
+  'json:.sessionId == $id and (.segments | length) > 0 and (.poses | length) == 2' \
   "$BASE/v1/sessions/$ID/map?format=json"
 recipe "sessions: map (PNG top view)" 200 png "$BASE/v1/sessions/$ID/map?format=png"
 recipe "sessions: map (PLY)" 200 ply "$BASE/v1/sessions/$ID/map?format=ply&min_observations=1"

@@ -561,6 +561,164 @@ fn captures_upload_as_curl_sends_them() {
     });
 }
 
+/// `capture` for `session`, named `name`.
+fn named(capture: &pb::AddCaptureRequest, session: &str, name: &str) -> pb::AddCaptureRequest {
+    pb::AddCaptureRequest {
+        session_id: session.to_string(),
+        capture_id: name.to_string(),
+        ..capture.clone()
+    }
+}
+
+#[test]
+fn a_capture_sent_again_under_its_name_is_stored_once() {
+    let (calibration, captures) = panorama(3);
+    runtime().block_on(async {
+        let running = start().await;
+        let mut grpc = connect(running.grpc_addr).await;
+        let session = grpc
+            .create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+        let id = session.id.as_str();
+        let captures_held = |grpc: &mut Client| {
+            let mut grpc = grpc.clone();
+            let session_id = id.to_string();
+            async move {
+                grpc.get_session(pb::GetSessionRequest { session_id })
+                    .await
+                    .unwrap()
+                    .into_inner()
+                    .captures
+            }
+        };
+        let first = grpc
+            .add_capture(named(&captures[0], id, "pose-0"))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!((first.capture_index, first.duplicate), (0, false));
+        let unnamed = grpc
+            .add_capture(named(&captures[1], id, ""))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!((unnamed.capture_index, unnamed.duplicate), (1, false));
+
+        // The answer to the first was lost: sent again, it is answered as it was, not stored.
+        let again = grpc
+            .add_capture(named(&captures[0], id, "pose-0"))
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(again.duplicate);
+        assert_eq!(again.capture_index, 0);
+        assert_eq!(again.registration, first.registration);
+        let segments = |a: &pb::AddCaptureResponse| a.r#match.as_ref().unwrap().segments_3d.clone();
+        assert!(!segments(&first).is_empty());
+        assert_eq!(
+            segments(&again),
+            segments(&first),
+            "matched again, the same"
+        );
+        assert_eq!(again.map.map(|m| m.captures), Some(2));
+        assert_eq!(captures_held(&mut grpc).await, 2);
+
+        // The name of a capture the session holds, sent with another capture: refused, and
+        // nothing stored.
+        let refused = grpc
+            .add_capture(named(&captures[2], id, "pose-0"))
+            .await
+            .unwrap_err();
+        assert_eq!(refused.code(), tonic::Code::InvalidArgument);
+        assert!(
+            refused.message().contains("capture_id"),
+            "{}",
+            refused.message()
+        );
+        // A name is a bounded key: 128 bytes at most, and the error does not echo it whole.
+        let long = "x".repeat(100_000);
+        let refused = grpc
+            .add_capture(named(&captures[2], id, &long))
+            .await
+            .unwrap_err();
+        assert_eq!(refused.code(), tonic::Code::InvalidArgument);
+        assert!(
+            refused.message().starts_with("capture_id: "),
+            "{}",
+            refused.message()
+        );
+        assert!(refused.message().len() < 300, "{}", refused.message());
+        assert_eq!(captures_held(&mut grpc).await, 2);
+
+        // Over HTTP, as curl uploads it: the name is a part of its own.
+        let http = reqwest::Client::new();
+        let url = format!("http://{}/v1/sessions/{id}/captures", running.http_addr);
+        let upload = |capture: &pb::AddCaptureRequest, name: &str| {
+            let Some(pb::add_capture_request::Input::Segments(segments)) = &capture.input else {
+                unreachable!("the fixture sends segments")
+            };
+            let pose = capture.rig_to_world.as_ref().unwrap().matrix.clone();
+            reqwest::multipart::Form::new()
+                .text("pose", serde_json::to_string(&pose).unwrap())
+                .text("segments", api::to_json(segments))
+                .text("capture_id", name.to_string())
+        };
+        let reply = http
+            .post(&url)
+            .multipart(upload(&captures[0], "pose-0"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 200);
+        let answer = reply.json_body().await;
+        assert_eq!(answer["duplicate"], true, "{answer}");
+        let reply = http
+            .post(&url)
+            .multipart(upload(&captures[0], "two words"))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 400);
+        assert_eq!(reply.json_body().await["error"]["field"], "capture_id");
+        assert_eq!(captures_held(&mut grpc).await, 2);
+
+        // A capture sent four times at once, as retries may overlap the call they repeat:
+        // stored once, and every call answers with that one.
+        let mut calls = Vec::new();
+        for _ in 0..4 {
+            let mut client = connect(running.grpc_addr).await;
+            let capture = named(&captures[2], id, "pose-2");
+            calls.push(tokio::spawn(async move {
+                client.add_capture(capture).await.unwrap().into_inner()
+            }));
+        }
+        let mut answers = Vec::new();
+        for call in calls {
+            answers.push(call.await.unwrap());
+        }
+        assert_eq!(answers.iter().filter(|a| !a.duplicate).count(), 1);
+        assert!(answers.iter().all(|a| a.capture_index == 2));
+        assert!(answers
+            .iter()
+            .all(|a| a.registration == answers[0].registration));
+        assert_eq!(captures_held(&mut grpc).await, 3);
+
+        // The retries left no trace in the map: the same as the three captures sent once.
+        let map = grpc
+            .get_map(pb::GetMapRequest {
+                session_id: id.to_string(),
+                min_observations: None,
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        same_geometry(&map, &map_of(&mut grpc, &calibration, &captures).await);
+        running.shutdown().await;
+    });
+}
+
 /// Acknowledged capture indices, shared between the streams and whoever watches them.
 type Acked = std::sync::Arc<std::sync::Mutex<Vec<u64>>>;
 
@@ -795,7 +953,33 @@ fn two_replicas_on_one_redis_build_the_same_map_as_one_server() {
         let twice: Vec<_> = captures.iter().chain(&captures).cloned().collect();
         let map_one = map_of_session(&mut one, as_given(&calibration), &twice).await;
         same_geometry(&map_given, &map_one);
-        for session_id in [session.id, given.id] {
+
+        // Each capture sent under its name to both replicas at once, as a retry through the
+        // balancer may race the call it repeats: stored once, both answers that capture.
+        let retried = grpc_a
+            .create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+        for (k, capture) in captures.iter().take(4).enumerate() {
+            let capture = named(capture, &retried.id, &format!("pose-{k}"));
+            let (mut to_a, mut to_b) = (grpc_a.clone(), grpc_b.clone());
+            let (x, y) = tokio::join!(to_a.add_capture(capture.clone()), to_b.add_capture(capture));
+            let (x, y) = (x.unwrap().into_inner(), y.unwrap().into_inner());
+            assert_eq!(x.capture_index, y.capture_index, "capture {k}");
+            assert_ne!(x.duplicate, y.duplicate, "capture {k}: one stored it");
+            assert_eq!(x.registration, y.registration, "capture {k}");
+        }
+        let held = grpc_b
+            .get_session(pb::GetSessionRequest {
+                session_id: retried.id.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .captures;
+        assert_eq!(held, 4, "each named capture stored once");
+        for session_id in [session.id, given.id, retried.id] {
             grpc_a
                 .delete_session(pb::DeleteSessionRequest { session_id })
                 .await

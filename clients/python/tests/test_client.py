@@ -9,6 +9,7 @@ import threading
 import time
 from pathlib import Path
 
+import grpc
 import numpy as np
 import pytest
 
@@ -318,6 +319,41 @@ def test_session_lifecycle(client, demo):
     assert e.value.field == "session_id"
     with pytest.raises(NotFound):
         client.get_map(s.id)
+
+
+def test_a_named_capture_sent_again_is_answered_not_stored(client, demo, monkeypatch):
+    s = client.create_session(demo / "calibration.json", name="retries")
+    first = client.add_capture(s.id, IDENTITY, images=_paths(demo), capture_id="robot-1/0001")
+    again = client.add_capture(s.id, IDENTITY, images=_paths(demo), capture_id="robot-1/0001")
+    assert not first.duplicate and again.duplicate
+    assert again.capture_index == first.capture_index == 0
+    np.testing.assert_array_equal(again.registration["rig_to_world"],
+                                  first.registration["rig_to_world"])
+    assert client.get_session(s.id).captures == 1
+    # The name of a capture the session holds, with another pose: refused, naming it.
+    moved = IDENTITY.copy()
+    moved[0, 3] = 0.1
+    with pytest.raises(InvalidArgument) as e:
+        client.add_capture(s.id, moved, images=_paths(demo), capture_id="robot-1/0001")
+    assert e.value.field == "capture_id", e.value.message
+
+    # With retries, an answer lost in transport is asked for again under the same name.
+    sent, call = [], client._call
+
+    def lossy(name, request, default_field=None):
+        sent.append(request.capture_id)
+        answer = call(name, request, default_field)
+        if len(sent) == 1:
+            raise TrinocularError(grpc.StatusCode.UNAVAILABLE, "connection reset")
+        return answer
+
+    monkeypatch.setattr(client, "_call", lossy)
+    r = client.add_capture(s.id, moved, images=_paths(demo), retries=2)
+    monkeypatch.undo()
+    assert len(sent) == 2 and sent[0] == sent[1] and re.fullmatch(r"[0-9a-f]{32}", sent[0])
+    assert r.duplicate and r.capture_index == 1
+    assert client.get_session(s.id).captures == 2
+    client.delete_session(s.id)
 
 
 def test_poses_as_quaternions_and_rounded_matrices(client, demo):

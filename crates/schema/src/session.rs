@@ -241,6 +241,7 @@ pub fn segment_capture(
             },
         )),
         rig_to_world_covariance: Vec::new(),
+        capture_id: String::new(),
     }
 }
 

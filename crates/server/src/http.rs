@@ -939,7 +939,8 @@ fn map_export(
 
 /// The parts of a `multipart/form-data` upload, for curl: `calibration` and `options` (JSON,
 /// for `/v1/match`), `pose` (JSON, for captures: a `Pose` or its 16 numbers) and
-/// `pose_covariance` (its 36 numbers, row-major 6x6, optional), `pattern`,
+/// `pose_covariance` (its 36 numbers, row-major 6x6, optional) and `capture_id` (text, the
+/// capture's name, optional), `pattern`,
 /// `options` and `pattern_to_rig` (JSON, for `/v1/calibrate`), and either `segments` (a
 /// `SegmentTriplet`, JSON) or `image1`, `image2`, `image3` (image files).
 #[derive(Default)]
@@ -951,6 +952,7 @@ struct Upload {
     pattern_to_rig: Option<pb::Pose>,
     pose: Option<pb::Pose>,
     pose_covariance: Option<Vec<f64>>,
+    capture_id: Option<String>,
     segments: Option<pb::SegmentTriplet>,
     images: [Option<Vec<u8>>; 3],
 }
@@ -992,6 +994,12 @@ impl Upload {
                             .map_err(|e| bad(&name, format!("invalid JSON (36 numbers): {e}")))?,
                     )
                 }
+                "capture_id" => {
+                    upload.capture_id = Some(
+                        String::from_utf8(bytes.to_vec())
+                            .map_err(|_| bad(&name, "is not UTF-8 text".into()))?,
+                    )
+                }
                 "image1" | "image2" | "image3" => {
                     let i = usize::from(name.as_bytes()[5] - b'1');
                     upload.images[i] = Some(bytes.to_vec());
@@ -1000,7 +1008,7 @@ impl Upload {
                     return Err(bad(
                         other,
                         "unknown part: expected calibration, options, pose, pose_covariance, \
-                         pattern, pattern_to_rig, segments or image1..image3"
+                         capture_id, pattern, pattern_to_rig, segments or image1..image3"
                             .into(),
                     ))
                 }
@@ -1015,6 +1023,7 @@ impl Upload {
             "options" => self.options.is_some(),
             "pose" => self.pose.is_some(),
             "pose_covariance" => self.pose_covariance.is_some(),
+            "capture_id" => self.capture_id.is_some(),
             "pattern" => self.pattern.is_some(),
             "pattern_to_rig" => self.pattern_to_rig.is_some(),
             "segments" => self.segments.is_some(),
@@ -1065,8 +1074,8 @@ impl Upload {
     /// The upload as a `MatchRequest`.
     fn match_request(mut self) -> Result<pb::MatchRequest, ServiceError> {
         self.refuse(
-            &["pose", "pose_covariance"],
-            "a match has no pose (captures of a session do)",
+            &["pose", "pose_covariance", "capture_id"],
+            "a match has no pose or capture id (captures of a session do)",
         )?;
         self.refuse(
             &["pattern", "pattern_to_rig"],
@@ -1093,6 +1102,7 @@ impl Upload {
         )?;
         let rig_to_world = self.pose.take();
         let rig_to_world_covariance = self.pose_covariance.take().unwrap_or_default();
+        let capture_id = self.capture_id.take().unwrap_or_default();
         let input = match self.input()? {
             Input::Segments(s) => pb::add_capture_request::Input::Segments(s),
             Input::Images(i) => pb::add_capture_request::Input::Images(i),
@@ -1102,6 +1112,7 @@ impl Upload {
             rig_to_world,
             input: Some(input),
             rig_to_world_covariance,
+            capture_id,
         })
     }
 }
@@ -1132,7 +1143,13 @@ impl Upload {
     /// `options`, `pattern_to_rig`, and the three images.
     fn calibrate_request(mut self) -> Result<pb::CalibrateRequest, ServiceError> {
         self.refuse(
-            &["calibration", "pose", "pose_covariance", "segments"],
+            &[
+                "calibration",
+                "pose",
+                "pose_covariance",
+                "capture_id",
+                "segments",
+            ],
             "a calibration takes pattern, options, pattern_to_rig and image1..image3",
         )?;
         let options = self.options()?;

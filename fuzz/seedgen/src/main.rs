@@ -161,6 +161,7 @@ fn main() {
         gate_position_rel: Some(0.01),
         gate_confidence: Some(0.95),
         include_uncertain: Some(true),
+        list_push_px: Some(1.63),
     };
     let full = pb::MatchRequest {
         calibration: Some(calibration_krt.clone()),
@@ -336,6 +337,7 @@ fn main() {
             &small_lists,
         ))),
         rig_to_world_covariance: Vec::new(),
+        capture_id: "robot-7/capture-0001".into(),
     };
     write("protobuf_body", "capture.pb", &capture.encode_to_vec());
     let session = pb::CreateSessionRequest {

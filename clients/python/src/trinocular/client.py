@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import os
+import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Union
@@ -12,7 +14,7 @@ import grpc
 import numpy as np
 from google.protobuf import json_format
 
-from .errors import from_rpc_error
+from .errors import TrinocularError, from_rpc_error
 from .v1 import trinocular_pb2 as pb
 from .v1 import trinocular_pb2_grpc as pb_grpc
 
@@ -21,6 +23,15 @@ ImageLike = Union[str, os.PathLike, bytes, bytearray, memoryview, np.ndarray, "p
 
 # ---------------------------------------------------------------------------------------------
 # Conversions
+
+
+def _answer_may_be_lost(e: TrinocularError) -> bool:
+    """A failure after which the call may or may not have been done, and a retry may succeed:
+    the connection or the replica went away, the deadline passed, the service was busy, or a
+    proxy reset the stream (a replica killed between a response's headers and its trailers)."""
+    name = e.code.name
+    return name in ("UNAVAILABLE", "DEADLINE_EXCEEDED", "RESOURCE_EXHAUSTED") or (
+        name == "INTERNAL" and "RST_STREAM" in e.message)
 
 
 def _to_dict(msg) -> Dict[str, Any]:
@@ -342,7 +353,9 @@ class CaptureResult:
     and its registration to the map: `status` ("REGISTERED", "EMPTY_MAP",
     "TOO_FEW_IN_COMMON", "DISAGREES_WITH_PRIOR"), `rig_to_world` (4x4, refined, or as given with
     its heading turned by the room's directions), `covariance` (6x6),
-    `inliers`, `rotation_change_deg`, `translation_change_m`."""
+    `inliers`, `rotation_change_deg`, `translation_change_m`. `duplicate`: the capture's
+    name (`capture_id`) was one the session held already — a retry, answered with that
+    capture's index and registration, nothing stored again."""
 
     capture_index: int
     captures: int
@@ -350,6 +363,7 @@ class CaptureResult:
     registration: Optional[Dict[str, Any]] = None
     # What the service accepted with a correction (a near-rigid pose re-orthonormalised).
     warnings: List[str] = field(default_factory=list)
+    duplicate: bool = False
 
 
 @dataclass
@@ -517,14 +531,28 @@ class Client:
 
     def add_capture(self, session_id: str, rig_to_world, images: Optional[Sequence[ImageLike]] = None,
                     segments=None, oriented: bool = False,
-                    rig_to_world_covariance=None) -> CaptureResult:
+                    rig_to_world_covariance=None, capture_id: Optional[str] = None,
+                    retries: int = 0) -> CaptureResult:
         """Adds one capture taken from `rig_to_world` (4x4, the robot's belief: a prior the
         capture is registered from): `images` (three) or `segments` (three lists), not both.
         `rig_to_world_covariance`: 6x6 (rotation about the rig's origin, radians, then
-        translation, metres); None for a wheeled robot's default."""
+        translation, metres); None for a wheeled robot's default.
+
+        `capture_id` names the capture (unique in the session, 1-128 printable ASCII, no
+        spaces): sent again under its name, a capture whose answer was lost is answered, not
+        stored twice (`CaptureResult.duplicate`). `retries`: how many times to send it again
+        after a failure that may have lost the answer (UNAVAILABLE, DEADLINE_EXCEEDED,
+        RESOURCE_EXHAUSTED, a reset stream), with backoff; the capture is then named with a
+        random UUID unless `capture_id` is given. A caller that retries by calling again gives
+        the same `capture_id` itself."""
         if (images is None) == (segments is None):
             raise ValueError("give exactly one of images= or segments=")
-        req = pb.AddCaptureRequest(session_id=session_id, rig_to_world=_pose(rig_to_world))
+        if retries < 0:
+            raise ValueError("retries must be 0 or more")
+        if capture_id is None and retries > 0:
+            capture_id = uuid.uuid4().hex
+        req = pb.AddCaptureRequest(session_id=session_id, rig_to_world=_pose(rig_to_world),
+                                   capture_id=capture_id or "")
         if rig_to_world_covariance is not None:
             c = np.asarray(rig_to_world_covariance, dtype=float).reshape(-1)
             req.rig_to_world_covariance.extend(c.tolist())
@@ -532,7 +560,14 @@ class Client:
             req.images.CopyFrom(_images(list(images)))
         else:
             req.segments.CopyFrom(_segments(segments, oriented))
-        r = self._call("AddCapture", req, "session_id")
+        for attempt in range(retries + 1):
+            try:
+                r = self._call("AddCapture", req, "session_id")
+                break
+            except TrinocularError as e:
+                if attempt == retries or not _answer_may_be_lost(e):
+                    raise
+                time.sleep(min(2.0, 0.2 * 2 ** attempt))
         g = r.registration
         registration = {
             "status": pb.RegistrationStatus.Name(g.status),
@@ -544,7 +579,7 @@ class Client:
         }
         return CaptureResult(capture_index=r.capture_index, captures=r.map.captures,
                              match=MatchResult.from_pb(r.match), registration=registration,
-                             warnings=list(r.warnings))
+                             warnings=list(r.warnings), duplicate=r.duplicate)
 
     def get_map(self, session_id: str, min_observations: Optional[int] = None) -> Map:
         req = pb.GetMapRequest(session_id=session_id)

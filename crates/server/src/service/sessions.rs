@@ -13,7 +13,7 @@ use prost::Message;
 
 use super::auth::{public_id, store_id, Caller};
 use super::clock::Clock;
-use super::store::{SessionInfo, SessionRecord, StoreError};
+use super::store::{Appended, SessionInfo, SessionRecord, StoreError};
 use super::{Service, ServiceError};
 use nalgebra::Matrix6;
 use trinocular_core::checkpoint::Checkpoint;
@@ -72,6 +72,98 @@ fn damaged(index: usize, e: InputError) -> ServiceError {
     ServiceError::Internal {
         detail: format!("stored capture {index}: {e}"),
     }
+}
+
+/// Longest capture name (`AddCaptureRequest.capture_id`), bytes: a UUID is 36.
+const MAX_CAPTURE_ID_BYTES: usize = 128;
+
+/// Capture names are store keys and appear in errors: printable ASCII without spaces.
+fn check_capture_id(name: &str) -> Result<(), ServiceError> {
+    if name.len() > MAX_CAPTURE_ID_BYTES || !name.bytes().all(|b| b.is_ascii_graphic()) {
+        let shown: String = name.chars().take(40).collect();
+        let more = if shown.len() < name.len() { "..." } else { "" };
+        return Err(ServiceError::Input(InputError::new(
+            "capture_id",
+            format!(
+                "{shown:?}{more} is not a capture id (1 to {MAX_CAPTURE_ID_BYTES} printable \
+                 ASCII characters, no spaces)"
+            ),
+        )));
+    }
+    Ok(())
+}
+
+/// SHA-256 of what a named capture was sent with — its pose, the pose's covariance and its
+/// input — so that a retry (the same) is told from another capture under the name. Every
+/// piece is length-prefixed, so no two requests hash alike by moving bytes between pieces;
+/// images, the bulk of a large request, are hashed where they lie.
+fn capture_digest(
+    pose: &pb::Pose,
+    covariance: &[f64],
+    input: Option<&pb::add_capture_request::Input>,
+) -> Vec<u8> {
+    use sha2::{Digest, Sha256};
+    let mut hash = Sha256::new();
+    let mut piece = |bytes: &[u8]| {
+        hash.update((bytes.len() as u64).to_le_bytes());
+        hash.update(bytes);
+    };
+    piece(&pose.encode_to_vec());
+    let covariance: Vec<u8> = covariance.iter().flat_map(|c| c.to_le_bytes()).collect();
+    piece(&covariance);
+    match input {
+        None => piece(b"none"),
+        Some(pb::add_capture_request::Input::Segments(triplet)) => {
+            // One list's encoding at a time: a third of the segments' bytes, transiently.
+            piece(b"segments");
+            for list in &triplet.lists {
+                piece(&list.encode_to_vec());
+            }
+        }
+        Some(pb::add_capture_request::Input::Images(triplet)) => {
+            piece(b"images");
+            for image in &triplet.images {
+                match &image.source {
+                    None => piece(b"none"),
+                    Some(pb::image::Source::Encoded(bytes)) => {
+                        piece(b"encoded");
+                        piece(bytes);
+                    }
+                    Some(pb::image::Source::Raw(raw)) => {
+                        piece(b"raw");
+                        piece(&raw.width.to_le_bytes());
+                        piece(&raw.height.to_le_bytes());
+                        piece(&raw.data);
+                    }
+                }
+            }
+        }
+    }
+    hash.finalize().to_vec()
+}
+
+/// The registration a named capture was first answered with, for a retry of it: refused,
+/// naming `capture_id`, if the retry is not the same capture (another digest).
+fn answered_registration(
+    name: &str,
+    digest: &[u8],
+    index: u64,
+    capture: &[u8],
+) -> Result<pb::Registration, ServiceError> {
+    let stored = pb::StoredCaptureAnswer::decode(capture).map_err(|e| corrupt("capture", e))?;
+    if stored.request_digest != digest {
+        return Err(ServiceError::Input(InputError::new(
+            "capture_id",
+            format!(
+                "{name:?} names capture {index} of this session, which was sent with another \
+                 pose, covariance or input: a retry sends the same capture, and another \
+                 capture needs a name of its own"
+            ),
+        )));
+    }
+    stored.registration.ok_or_else(|| ServiceError::Internal {
+        detail: format!("stored capture {index} is named but holds no registration"),
+    })
 }
 
 /// Session ids are looked up as given; refusing odd ones early keeps them out of store keys
@@ -284,8 +376,13 @@ impl Service {
                 rig_to_world,
                 input,
                 rig_to_world_covariance,
+                capture_id,
             } = request;
             check_id(&session_id)?;
+            let name = (!capture_id.is_empty()).then_some(capture_id);
+            if let Some(name) = &name {
+                check_capture_id(name)?;
+            }
             let session_id = store_id(caller, &session_id);
             let Some(rig_to_world) = rig_to_world else {
                 return Err(ServiceError::Input(InputError::new(
@@ -299,7 +396,13 @@ impl Service {
             let (pose, pose_warning) = pose_from_pb_noting(Some(&rig_to_world), "rig_to_world")?;
             let prior = pose_prior(pose, &rig_to_world_covariance, "rig_to_world_covariance")?;
             let info = self.store.get(&session_id).await?;
-            if info.captures >= MAX_CAPTURES_PER_SESSION {
+            // A retry of a capture the session holds is answered, not stored again (below):
+            // the match is run again, placing is not.
+            let earlier = match &name {
+                Some(name) => self.store.named_capture(&session_id, name).await?,
+                None => None,
+            };
+            if earlier.is_none() && info.captures >= MAX_CAPTURES_PER_SESSION {
                 return Err(ServiceError::Input(InputError::new(
                     "session_id",
                     format!(
@@ -325,14 +428,37 @@ impl Service {
                 Some(pb::add_capture_request::Input::Segments(triplet)) => Some(triplet.clone()),
                 _ => None,
             };
-            let match_request = capture_match_request(calibration, Some(options), input);
-            let (everything, ()) = self
-                .run_match(move || Ok(match_request), |_| (), timeout)
-                .await?;
-            let captures = self.store.captures(&session_id).await?;
+            // A named capture's digest is taken on the pool, with the match's decoding: an
+            // image triplet is megabytes.
+            let digest = Arc::new(std::sync::Mutex::new(Vec::new()));
+            let digest_of_input = name.as_ref().map(|_| {
+                let digest = Arc::clone(&digest);
+                let pose = rig_to_world.clone();
+                let covariance = rig_to_world_covariance.clone();
+                move |input: Option<&pb::add_capture_request::Input>| {
+                    *digest.lock().unwrap_or_else(|p| p.into_inner()) =
+                        capture_digest(&pose, &covariance, input);
+                }
+            });
+            let read = move || {
+                if let Some(digest_of_input) = digest_of_input {
+                    digest_of_input(input.as_ref());
+                }
+                Ok(capture_match_request(calibration, Some(options), input))
+            };
+            let (everything, ()) = self.run_match(read, |_| (), timeout).await?;
+            let digest = std::mem::take(&mut *digest.lock().unwrap_or_else(|p| p.into_inner()));
+            let already_placed = earlier.is_some();
+            let captures = if already_placed {
+                Vec::new()
+            } else {
+                self.store.captures(&session_id).await?
+            };
             // Placing, and the stored record's encoding, on the pool: the tokio worker only
             // hands over and stores.
             let clock = Arc::clone(&self.clock);
+            let placed_name = name.clone();
+            let placed_digest = digest.clone();
             let job = self.pool.run(move |abandoned| {
                 let stop = || abandoned.is_set();
                 let checkpoint = Checkpoint::new(&stop);
@@ -348,39 +474,82 @@ impl Service {
                     segments: std::array::from_fn(|k| &lists[k].segments[..]),
                     list_noise_px,
                 });
-                let added = place_capture(
-                    &captures,
-                    &everything.segments_3d,
-                    views.as_ref(),
-                    &prior,
-                    checkpoint,
-                )?;
+                let added = if already_placed {
+                    None
+                } else {
+                    Some(place_capture(
+                        &captures,
+                        &everything.segments_3d,
+                        views.as_ref(),
+                        &prior,
+                        checkpoint,
+                    )?)
+                };
                 if asked_extracted {
                     everything.extracted = seen.lists;
                 }
-                let stored =
-                    stored_capture(&everything, &added, &pose, &prior, clock.now_unix_ms());
+                let placed = added.map(|added| {
+                    let mut stored =
+                        stored_capture(&everything, &added, &pose, &prior, clock.now_unix_ms());
+                    if let Some(name) = placed_name {
+                        stored.capture_id = name;
+                        stored.request_digest = placed_digest;
+                    }
+                    (
+                        registration_to_pb(&added.registration),
+                        stored.encode_to_vec(),
+                    )
+                });
                 let response = if asked_uncertain {
                     everything
                 } else {
                     certain_only(&everything)
                 };
-                Ok::<_, ServiceError>((added.registration, stored.encode_to_vec(), response))
+                Ok::<_, ServiceError>((placed, response))
             });
             let left = self
                 .deadline(timeout)
                 .saturating_sub(self.clock.since(started));
-            let (registration, stored, response) = super::within(job, left).await?;
-            let index = self.store.append_capture(&session_id, &stored).await?;
-            self.session_changed(&session_id);
+            let (placed, response) = super::within(job, left).await?;
+            let appended = match (placed, earlier) {
+                (Some((registration, stored)), _) => {
+                    match self
+                        .store
+                        .append_named(&session_id, &stored, name.as_deref())
+                        .await?
+                    {
+                        Appended::New(index) => Ok((index, registration)),
+                        // The same capture, stored meanwhile by another call (the first
+                        // attempt of this retry, still running when it was sent).
+                        Appended::Existing { index, capture } => Err((index, capture)),
+                    }
+                }
+                (None, Some(earlier)) => Err(earlier),
+                (None, None) => {
+                    return Err(ServiceError::Internal {
+                        detail: "a capture neither placed nor stored before".to_string(),
+                    })
+                }
+            };
+            let (capture_index, registration, captures, duplicate) = match appended {
+                Ok((index, registration)) => {
+                    self.session_changed(&session_id);
+                    (index, registration, index + 1, false)
+                }
+                Err((index, capture)) => {
+                    let name = name.as_deref().unwrap_or_default();
+                    let registration = answered_registration(name, &digest, index, &capture)?;
+                    let captures = self.store.get(&session_id).await?.captures;
+                    (index, registration, captures, true)
+                }
+            };
             Ok(pb::AddCaptureResponse {
                 r#match: Some(response),
-                capture_index: index,
-                map: Some(pb::MapSummary {
-                    captures: index + 1,
-                }),
-                registration: Some(registration_to_pb(&registration)),
+                capture_index,
+                map: Some(pb::MapSummary { captures }),
+                registration: Some(registration),
                 warnings: pose_warning.into_iter().collect(),
+                duplicate,
             })
         }
         .await
@@ -611,6 +780,9 @@ fn stored_capture(
         pose_covariance: matrix6_to_vec(&registration.covariance),
         status: status_to_pb(registration.status) as i32,
         edges: edges_to_pb(&added.edges),
+        registration: Some(registration_to_pb(registration)),
+        capture_id: String::new(),
+        request_digest: Vec::new(),
     }
 }
 

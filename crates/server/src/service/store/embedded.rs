@@ -8,6 +8,7 @@
 //! sessions  id          → encoded record (see super::encode_record)
 //! meta      id          → (last_used_unix_ms, captures)
 //! captures  (id, index) → capture bytes
+//! names     id ␁ name   → index of the capture the client named so (see `name_key`)
 //! ```
 //!
 //! Expired sessions are swept lazily, when touched or listed: deterministic, no background task.
@@ -21,12 +22,25 @@ use redb::{Database, ReadableTable, Table, TableDefinition, WriteTransaction};
 
 use super::super::clock::{self, Clock};
 use super::{
-    decode_record, encode_record, ttl_ms, SessionInfo, SessionRecord, SessionStore, StoreError,
+    decode_record, encode_record, ttl_ms, Appended, SessionInfo, SessionRecord, SessionStore,
+    StoreError,
 };
 
 const SESSIONS: TableDefinition<&str, &[u8]> = TableDefinition::new("sessions");
 const META: TableDefinition<&str, (u64, u64)> = TableDefinition::new("meta");
 const CAPTURES: TableDefinition<(&str, u64), &[u8]> = TableDefinition::new("captures");
+const NAMES: TableDefinition<&str, u64> = TableDefinition::new("names");
+
+/// A named capture's key in [`NAMES`]: the session id, U+0001, the name. Session ids hold
+/// letters, digits, '-' and '~' only, all above U+0002, so a session's names are exactly the
+/// keys from `id␁` up to `id␂` ([`names_of`]), whatever other ids begin with this one.
+fn name_key(id: &str, name: &str) -> String {
+    format!("{id}\u{1}{name}")
+}
+
+fn names_of(id: &str) -> std::ops::Range<String> {
+    format!("{id}\u{1}")..format!("{id}\u{2}")
+}
 
 /// The file's name under the data directory.
 pub const FILE_NAME: &str = "trinocular.redb";
@@ -50,6 +64,7 @@ struct Tables<'t> {
     sessions: Table<'t, &'static str, &'static [u8]>,
     meta: Table<'t, &'static str, (u64, u64)>,
     captures: Table<'t, (&'static str, u64), &'static [u8]>,
+    names: Table<'t, &'static str, u64>,
 }
 
 impl EmbeddedStore {
@@ -197,6 +212,10 @@ impl Inner {
         t.captures
             .retain_in((id, 0u64)..=(id, u64::MAX), |_, _| false)
             .map_err(|e| self.fail("remove", e))?;
+        let names = names_of(id);
+        t.names
+            .retain_in(names.start.as_str()..names.end.as_str(), |_, _| false)
+            .map_err(|e| self.fail("remove", e))?;
         Ok(())
     }
 
@@ -212,6 +231,34 @@ impl Inner {
                 ),
             })?;
         decode_record(id, bytes.value())
+    }
+
+    /// The capture stored under `name` (a [`name_key`]) and its index.
+    fn named(
+        &self,
+        t: &Tables,
+        id: &str,
+        name: &str,
+    ) -> Result<Option<(u64, Vec<u8>)>, StoreError> {
+        let Some(index) = t
+            .names
+            .get(name)
+            .map_err(|e| self.fail("read", e))?
+            .map(|g| g.value())
+        else {
+            return Ok(None);
+        };
+        let capture = t
+            .captures
+            .get((id, index))
+            .map_err(|e| self.fail("read", e))?
+            .ok_or_else(|| StoreError::Corrupt {
+                message: format!(
+                    "embedded redb at {}: session {id:?} names capture {index}, which it lacks",
+                    self.path.display()
+                ),
+            })?;
+        Ok(Some((index, capture.value().to_vec())))
     }
 
     /// Marks the session used now, unless it was so recently that the write is not worth it.
@@ -241,6 +288,7 @@ impl<'t> Tables<'t> {
             sessions: txn.open_table(SESSIONS).map_err(open)?,
             meta: txn.open_table(META).map_err(open)?,
             captures: txn.open_table(CAPTURES).map_err(open)?,
+            names: txn.open_table(NAMES).map_err(open)?,
         })
     }
 }
@@ -330,21 +378,59 @@ impl SessionStore for EmbeddedStore {
         .await
     }
 
-    async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
+    async fn append_named(
+        &self,
+        id: &str,
+        capture: &[u8],
+        name: Option<&str>,
+    ) -> Result<Appended, StoreError> {
         let id = id.to_string();
         let capture = capture.to_vec();
+        let name = name.map(|n| name_key(&id, n));
         self.write(move |inner, t, now, changed| {
-            let (_, index) = inner
+            let meta = inner
                 .live(t, &id, now, changed)?
                 .ok_or_else(|| not_found(&id))?;
+            if let Some(name) = &name {
+                if let Some(found) = inner.named(t, &id, name)? {
+                    inner.touch(t, &id, meta, now, changed)?;
+                    return Ok(Appended::Existing {
+                        index: found.0,
+                        capture: found.1,
+                    });
+                }
+            }
+            let index = meta.1;
             t.captures
                 .insert((id.as_str(), index), capture.as_slice())
                 .map_err(|e| inner.fail("write", e))?;
             t.meta
                 .insert(id.as_str(), (now, index + 1))
                 .map_err(|e| inner.fail("write", e))?;
+            if let Some(name) = &name {
+                t.names
+                    .insert(name.as_str(), index)
+                    .map_err(|e| inner.fail("write", e))?;
+            }
             *changed = true;
-            Ok(index)
+            Ok(Appended::New(index))
+        })
+        .await
+    }
+
+    async fn named_capture(
+        &self,
+        id: &str,
+        name: &str,
+    ) -> Result<Option<(u64, Vec<u8>)>, StoreError> {
+        let id = id.to_string();
+        let name = name_key(&id, name);
+        self.write(move |inner, t, now, changed| {
+            let meta = inner
+                .live(t, &id, now, changed)?
+                .ok_or_else(|| not_found(&id))?;
+            inner.touch(t, &id, meta, now, changed)?;
+            inner.named(t, &id, &name)
         })
         .await
     }
@@ -421,6 +507,7 @@ pub(crate) mod tests {
     async fn embedded_captures() {
         let (s, dir) = store("captures", Duration::from_secs(3600)).await;
         contract::captures(&s).await;
+        contract::named_captures(&s).await;
         drop(s);
         let _ = std::fs::remove_dir_all(dir);
     }

@@ -2,16 +2,18 @@
 //! (`--store memory`), the load generator's in-process peer and tests; the same contract as
 //! the durable stores, idle expiry included (by the injected clock, see `with_clock`).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use super::super::clock::{self, Clock};
-use super::{ttl_ms, SessionInfo, SessionRecord, SessionStore, StoreError};
+use super::{ttl_ms, Appended, SessionInfo, SessionRecord, SessionStore, StoreError};
 
 struct Session {
     record: SessionRecord,
     captures: Vec<Vec<u8>>,
+    /// The named captures' indices, by name.
+    names: HashMap<String, u64>,
     last_used_unix_ms: u64,
 }
 
@@ -77,6 +79,7 @@ impl SessionStore for MemoryStore {
             Session {
                 record: record.clone(),
                 captures: Vec::new(),
+                names: HashMap::new(),
                 last_used_unix_ms: self.now_unix_ms(),
             },
         );
@@ -101,12 +104,40 @@ impl SessionStore for MemoryStore {
             .ok_or_else(|| not_found(id))
     }
 
-    async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
+    async fn append_named(
+        &self,
+        id: &str,
+        capture: &[u8],
+        name: Option<&str>,
+    ) -> Result<Appended, StoreError> {
         let mut sessions = self.live();
         let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
-        s.captures.push(capture.to_vec());
         s.last_used_unix_ms = self.now_unix_ms();
-        Ok(s.captures.len() as u64 - 1)
+        if let Some(&index) = name.and_then(|n| s.names.get(n)) {
+            return Ok(Appended::Existing {
+                index,
+                capture: s.captures[index as usize].clone(),
+            });
+        }
+        let index = s.captures.len() as u64;
+        s.captures.push(capture.to_vec());
+        if let Some(name) = name {
+            s.names.insert(name.to_string(), index);
+        }
+        Ok(Appended::New(index))
+    }
+
+    async fn named_capture(
+        &self,
+        id: &str,
+        name: &str,
+    ) -> Result<Option<(u64, Vec<u8>)>, StoreError> {
+        let mut sessions = self.live();
+        let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
+        s.last_used_unix_ms = self.now_unix_ms();
+        Ok(s.names
+            .get(name)
+            .map(|&i| (i, s.captures[i as usize].clone())))
     }
 
     async fn captures(&self, id: &str) -> Result<Vec<Vec<u8>>, StoreError> {
@@ -139,6 +170,7 @@ mod tests {
         runtime().block_on(async {
             contract::crud(&MemoryStore::new(Duration::from_secs(60))).await;
             contract::captures(&MemoryStore::new(Duration::from_secs(60))).await;
+            contract::named_captures(&MemoryStore::new(Duration::from_secs(60))).await;
             // An hour's TTL passes in no time on a manual clock.
             let ttl = Duration::from_secs(3600);
             let clock = Arc::new(ManualClock::new(1_700_000_000_000));

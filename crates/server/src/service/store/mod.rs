@@ -63,6 +63,15 @@ pub enum StoreError {
     AlreadyExists { id: String },
 }
 
+/// What [`SessionStore::append_named`] did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Appended {
+    /// Stored, at this index.
+    New(u64),
+    /// The session held a capture of that name already: this one, at that index.
+    Existing { index: u64, capture: Vec<u8> },
+}
+
 /// Session storage, shared by the service as `Arc<dyn SessionStore>`.
 #[async_trait::async_trait]
 pub trait SessionStore: Send + Sync {
@@ -76,7 +85,28 @@ pub trait SessionStore: Send + Sync {
     async fn delete(&self, id: &str) -> Result<(), StoreError>;
     /// Appends a capture in one atomic step and returns its index (0, 1, 2, ...); refreshes
     /// the TTL. Concurrent appends (from any replica) each get their own index.
-    async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError>;
+    async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
+        match self.append_named(id, capture, None).await? {
+            Appended::New(index) => Ok(index),
+            Appended::Existing { index, .. } => Ok(index),
+        }
+    }
+    /// [`SessionStore::append_capture`] under the client's `name` for the capture, in the
+    /// same atomic step: when the session already holds a capture of that name (a retry, or
+    /// the same capture sent twice at once to two replicas), nothing is written and that
+    /// capture comes back. Names are the session's: they go with it.
+    async fn append_named(
+        &self,
+        id: &str,
+        capture: &[u8],
+        name: Option<&str>,
+    ) -> Result<Appended, StoreError>;
+    /// The capture the session holds under `name`, with its index; refreshes the TTL.
+    async fn named_capture(
+        &self,
+        id: &str,
+        name: &str,
+    ) -> Result<Option<(u64, Vec<u8>)>, StoreError>;
     /// Every capture, in append order; refreshes the TTL.
     async fn captures(&self, id: &str) -> Result<Vec<Vec<u8>>, StoreError>;
     /// What this store is, for logs: "embedded redb at /path", "redis at redis://host:6379".
@@ -296,6 +326,59 @@ pub(crate) mod contract {
         );
     }
 
+    /// Named captures: a name stores once, a second append under it answers the first;
+    /// names are per session, unnamed appends are unaffected, and delete forgets them.
+    pub async fn named_captures(store: &dyn SessionStore) {
+        let missing = StoreError::NotFound { id: "nope".into() };
+        assert_eq!(
+            store.append_named("nope", b"x", Some("n")).await,
+            Err(missing.clone())
+        );
+        assert_eq!(store.named_capture("nope", "n").await, Err(missing));
+        store.create(&record("n1")).await.unwrap();
+        store.create(&record("n2")).await.unwrap();
+        assert_eq!(store.named_capture("n1", "first").await, Ok(None));
+        assert_eq!(
+            store.append_named("n1", b"one", Some("first")).await,
+            Ok(Appended::New(0))
+        );
+        assert_eq!(store.append_capture("n1", b"unnamed").await, Ok(1));
+        assert_eq!(
+            store.append_named("n1", b"two", Some("second")).await,
+            Ok(Appended::New(2))
+        );
+        // Sent again under a name the session holds: nothing written, the first comes back
+        // (whatever the bytes: comparing them is the caller's business).
+        assert_eq!(
+            store.append_named("n1", b"one again", Some("first")).await,
+            Ok(Appended::Existing {
+                index: 0,
+                capture: b"one".to_vec()
+            })
+        );
+        assert_eq!(
+            store.named_capture("n1", "second").await,
+            Ok(Some((2, b"two".to_vec())))
+        );
+        assert_eq!(store.captures("n1").await.unwrap().len(), 3);
+        // Another session's names are its own.
+        assert_eq!(store.named_capture("n2", "first").await, Ok(None));
+        assert_eq!(
+            store.append_named("n2", b"other", Some("first")).await,
+            Ok(Appended::New(0))
+        );
+        // A session created again under the same id starts without names.
+        store.delete("n1").await.unwrap();
+        store.create(&record("n1")).await.unwrap();
+        assert_eq!(store.named_capture("n1", "first").await, Ok(None));
+        assert_eq!(
+            store.append_named("n1", b"fresh", Some("first")).await,
+            Ok(Appended::New(0))
+        );
+        store.delete("n1").await.unwrap();
+        store.delete("n2").await.unwrap();
+    }
+
     /// With a store whose idle TTL is `ttl`: use keeps a session alive, idleness ends it.
     /// `pass(d)` lets `d` go by on the store's clock: a manual clock's advance, or a real
     /// sleep for a store that keeps time itself.
@@ -306,11 +389,12 @@ pub(crate) mod contract {
     {
         store.create(&record("idle")).await.unwrap();
         store.create(&record("busy")).await.unwrap();
-        store.append_capture("idle", b"x").await.unwrap();
+        store.append_named("idle", b"x", Some("k")).await.unwrap();
         let step = ttl / 3;
-        for _ in 0..5 {
+        for i in 0..5 {
             pass(step).await;
-            store.append_capture("busy", b"y").await.unwrap();
+            let name = format!("b{i}");
+            store.append_named("busy", b"y", Some(&name)).await.unwrap();
         }
         // More than the TTL has passed since "idle" was last used; "busy" was used throughout.
         let gone = StoreError::NotFound { id: "idle".into() };
@@ -326,9 +410,15 @@ pub(crate) mod contract {
             .collect();
         assert_eq!(ids, ["busy"]);
         assert_eq!(store.captures("busy").await.unwrap().len(), 5);
-        // An expired id can be created again, empty.
+        // The names live as long as the captures: the first one's is still known.
+        assert_eq!(
+            store.named_capture("busy", "b0").await,
+            Ok(Some((0, b"y".to_vec())))
+        );
+        // An expired id can be created again, empty, without its names.
         store.create(&record("idle")).await.unwrap();
         assert!(store.captures("idle").await.unwrap().is_empty());
+        assert_eq!(store.named_capture("idle", "k").await, Ok(None));
         store.delete("idle").await.unwrap();
         store.delete("busy").await.unwrap();
     }

@@ -6,6 +6,7 @@
 //! ```text
 //! {prefix}session:{id}            hash: record (super::encode_record), last_used (ms)  PEXPIRE ttl
 //! {prefix}session:{id}:captures   list of capture bytes, in append order            PEXPIRE ttl
+//! {prefix}session:{id}:names      hash: a named capture's name → its index          PEXPIRE ttl
 //! {prefix}sessions                set of ids, for listing; members whose hash expired are
 //!                                 removed when listed
 //! ```
@@ -20,7 +21,8 @@ use redis::aio::{ConnectionManager, ConnectionManagerConfig};
 use redis::{AsyncCommands, RedisError, Script};
 
 use super::{
-    decode_record, encode_record, ttl_ms, SessionInfo, SessionRecord, SessionStore, StoreError,
+    decode_record, encode_record, ttl_ms, Appended, SessionInfo, SessionRecord, SessionStore,
+    StoreError,
 };
 
 /// The key prefix of [`super::open`]; tests use their own.
@@ -32,35 +34,70 @@ const RESPONSE_TIMEOUT: Duration = Duration::from_secs(2);
 /// Longest a call may take, reconnection included: past it, Unavailable.
 const CALL_DEADLINE: Duration = Duration::from_secs(5);
 
-/// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` the set of ids; `ARGV[1]` the
-/// id, `ARGV[2]` the encoded record, `ARGV[3]` the TTL in ms. 1 if created, 0 if the id is taken.
+/// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` the set of ids, `KEYS[4]` its
+/// names; `ARGV[1]` the id, `ARGV[2]` the encoded record, `ARGV[3]` the TTL in ms. 1 if
+/// created, 0 if the id is taken.
 const CREATE: &str = r#"
 if redis.call('EXISTS', KEYS[1]) == 1 then return 0 end
 local t = redis.call('TIME')
 local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
 redis.call('DEL', KEYS[2])
+redis.call('DEL', KEYS[4])
 redis.call('HSET', KEYS[1], 'record', ARGV[2], 'last_used', now)
 redis.call('PEXPIRE', KEYS[1], ARGV[3])
 redis.call('SADD', KEYS[3], ARGV[1])
 return 1
 "#;
 
-/// `KEYS[1]` the session hash, `KEYS[2]` its captures; `ARGV[1]` the capture, `ARGV[2]` the TTL
-/// in ms. The new capture's index (the list's new length - 1), or -1 if there is no session
-/// (then nothing is written).
+/// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` its names; `ARGV[1]` the
+/// capture, `ARGV[2]` the TTL in ms, `ARGV[3]` the capture's name ('' for none).
+/// {0, index, false} when appended (the list's new length - 1); {1, index, capture} when the
+/// session holds a capture of that name already (then nothing is written); {-1, 0, false} if
+/// there is no session (nothing written either).
 const APPEND: &str = r#"
-if redis.call('EXISTS', KEYS[1]) == 0 then return -1 end
+if redis.call('EXISTS', KEYS[1]) == 0 then return {-1, 0, false} end
 local t = redis.call('TIME')
 local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
-local n = redis.call('RPUSH', KEYS[2], ARGV[1])
 redis.call('HSET', KEYS[1], 'last_used', now)
 redis.call('PEXPIRE', KEYS[1], ARGV[2])
 redis.call('PEXPIRE', KEYS[2], ARGV[2])
-return n - 1
+local answer
+if ARGV[3] ~= '' then
+  local known = redis.call('HGET', KEYS[3], ARGV[3])
+  if known then
+    answer = {1, tonumber(known), redis.call('LINDEX', KEYS[2], tonumber(known))}
+  end
+end
+if not answer then
+  local n = redis.call('RPUSH', KEYS[2], ARGV[1])
+  redis.call('PEXPIRE', KEYS[2], ARGV[2])
+  if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], n - 1) end
+  answer = {0, n - 1, false}
+end
+redis.call('PEXPIRE', KEYS[3], ARGV[2])
+return answer
 "#;
 
-/// `KEYS[1]` the session hash, `KEYS[2]` its captures; `ARGV[1]` the TTL in ms. Refreshes the
-/// TTL and returns {record, last_used, number of captures}, or nil if there is no session.
+/// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` its names; `ARGV[1]` the
+/// TTL in ms, `ARGV[2]` a capture's name. Refreshes the TTL and returns as [`APPEND`] does
+/// for a name the session holds, {0, 0, false} for one it does not, {-1, 0, false} if there
+/// is no session.
+const NAMED: &str = r#"
+if redis.call('EXISTS', KEYS[1]) == 0 then return {-1, 0, false} end
+local t = redis.call('TIME')
+local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
+redis.call('HSET', KEYS[1], 'last_used', now)
+redis.call('PEXPIRE', KEYS[1], ARGV[1])
+redis.call('PEXPIRE', KEYS[2], ARGV[1])
+redis.call('PEXPIRE', KEYS[3], ARGV[1])
+local known = redis.call('HGET', KEYS[3], ARGV[2])
+if not known then return {0, 0, false} end
+return {1, tonumber(known), redis.call('LINDEX', KEYS[2], tonumber(known))}
+"#;
+
+/// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` its names; `ARGV[1]` the TTL
+/// in ms. Refreshes the TTL and returns {record, last_used, number of captures}, or nil if
+/// there is no session.
 const GET: &str = r#"
 if redis.call('EXISTS', KEYS[1]) == 0 then return false end
 local t = redis.call('TIME')
@@ -68,6 +105,7 @@ local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
 redis.call('HSET', KEYS[1], 'last_used', now)
 redis.call('PEXPIRE', KEYS[1], ARGV[1])
 redis.call('PEXPIRE', KEYS[2], ARGV[1])
+redis.call('PEXPIRE', KEYS[3], ARGV[1])
 return {redis.call('HGET', KEYS[1], 'record'), now, redis.call('LLEN', KEYS[2])}
 "#;
 
@@ -79,14 +117,17 @@ local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
 redis.call('HSET', KEYS[1], 'last_used', now)
 redis.call('PEXPIRE', KEYS[1], ARGV[1])
 redis.call('PEXPIRE', KEYS[2], ARGV[1])
+redis.call('PEXPIRE', KEYS[3], ARGV[1])
 return redis.call('LRANGE', KEYS[2], 0, -1)
 "#;
 
-/// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` the set of ids; `ARGV[1]` the
-/// id. 1 if the session existed; its captures and set member go either way.
+/// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` the set of ids, `KEYS[4]` its
+/// names; `ARGV[1]` the id. 1 if the session existed; its captures, names and set member go
+/// either way.
 const DELETE: &str = r#"
 local existed = redis.call('DEL', KEYS[1])
 redis.call('DEL', KEYS[2])
+redis.call('DEL', KEYS[4])
 redis.call('SREM', KEYS[3], ARGV[1])
 return existed
 "#;
@@ -110,6 +151,7 @@ pub struct RedisStore {
 struct Scripts {
     create: Script,
     append: Script,
+    named: Script,
     get: Script,
     captures: Script,
     delete: Script,
@@ -150,6 +192,7 @@ impl RedisStore {
             scripts: Scripts {
                 create: Script::new(CREATE),
                 append: Script::new(APPEND),
+                named: Script::new(NAMED),
                 get: Script::new(GET),
                 captures: Script::new(CAPTURES),
                 delete: Script::new(DELETE),
@@ -166,8 +209,22 @@ impl RedisStore {
         format!("{}session:{id}:captures", self.prefix)
     }
 
+    fn names_key(&self, id: &str) -> String {
+        format!("{}session:{id}:names", self.prefix)
+    }
+
     fn sessions_key(&self) -> String {
         format!("{}sessions", self.prefix)
+    }
+
+    /// A name that points past the session's captures: Redis lost a write.
+    fn lost(&self, id: &str, index: u64) -> StoreError {
+        StoreError::Corrupt {
+            message: format!(
+                "redis at {}: session {id:?} names capture {index}, which it lacks",
+                self.url
+            ),
+        }
     }
 
     /// Runs `call` on a handle to the shared connection, within [`CALL_DEADLINE`].
@@ -255,6 +312,7 @@ impl SessionStore for RedisStore {
         invocation
             .key(self.captures_key(id))
             .key(self.sessions_key())
+            .key(self.names_key(id))
             .arg(id)
             .arg(encode_record(record))
             .arg(self.ttl_ms);
@@ -270,7 +328,10 @@ impl SessionStore for RedisStore {
 
     async fn get(&self, id: &str) -> Result<SessionInfo, StoreError> {
         let mut invocation = self.scripts.get.key(self.session_key(id));
-        invocation.key(self.captures_key(id)).arg(self.ttl_ms);
+        invocation
+            .key(self.captures_key(id))
+            .key(self.names_key(id))
+            .arg(self.ttl_ms);
         let found: Option<(Vec<u8>, u64, u64)> = self
             .call(|mut c| async move { invocation.invoke_async(&mut c).await })
             .await?;
@@ -324,6 +385,7 @@ impl SessionStore for RedisStore {
         invocation
             .key(self.captures_key(id))
             .key(self.sessions_key())
+            .key(self.names_key(id))
             .arg(id);
         let existed: i64 = self
             .call(|mut c| async move { invocation.invoke_async(&mut c).await })
@@ -335,21 +397,59 @@ impl SessionStore for RedisStore {
         }
     }
 
-    async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
+    async fn append_named(
+        &self,
+        id: &str,
+        capture: &[u8],
+        name: Option<&str>,
+    ) -> Result<Appended, StoreError> {
         let mut invocation = self.scripts.append.key(self.session_key(id));
         invocation
             .key(self.captures_key(id))
+            .key(self.names_key(id))
             .arg(capture)
-            .arg(self.ttl_ms);
-        let index: i64 = self
+            .arg(self.ttl_ms)
+            .arg(name.unwrap_or(""));
+        let answer: (i64, u64, Option<Vec<u8>>) = self
             .call(|mut c| async move { invocation.invoke_async(&mut c).await })
             .await?;
-        u64::try_from(index).map_err(|_| not_found(id))
+        match answer {
+            (0, index, _) => Ok(Appended::New(index)),
+            (1, index, capture) => Ok(Appended::Existing {
+                index,
+                capture: capture.ok_or_else(|| self.lost(id, index))?,
+            }),
+            _ => Err(not_found(id)),
+        }
+    }
+
+    async fn named_capture(
+        &self,
+        id: &str,
+        name: &str,
+    ) -> Result<Option<(u64, Vec<u8>)>, StoreError> {
+        let mut invocation = self.scripts.named.key(self.session_key(id));
+        invocation
+            .key(self.captures_key(id))
+            .key(self.names_key(id))
+            .arg(self.ttl_ms)
+            .arg(name);
+        let answer: (i64, u64, Option<Vec<u8>>) = self
+            .call(|mut c| async move { invocation.invoke_async(&mut c).await })
+            .await?;
+        match answer {
+            (0, _, _) => Ok(None),
+            (1, index, capture) => Ok(Some((index, capture.ok_or_else(|| self.lost(id, index))?))),
+            _ => Err(not_found(id)),
+        }
     }
 
     async fn captures(&self, id: &str) -> Result<Vec<Vec<u8>>, StoreError> {
         let mut invocation = self.scripts.captures.key(self.session_key(id));
-        invocation.key(self.captures_key(id)).arg(self.ttl_ms);
+        invocation
+            .key(self.captures_key(id))
+            .key(self.names_key(id))
+            .arg(self.ttl_ms);
         let found: Option<Vec<Vec<u8>>> = self
             .call(|mut c| async move { invocation.invoke_async(&mut c).await })
             .await?;
@@ -423,6 +523,7 @@ mod tests {
             return;
         };
         contract::captures(&s).await;
+        contract::named_captures(&s).await;
         let mut c = s.connection.clone();
         let leftover: Vec<String> = c.keys(format!("{}*", s.prefix)).await.unwrap();
         assert!(
@@ -474,6 +575,52 @@ mod tests {
             assert_eq!(&stored[*index as usize], payload, "capture {index}");
         }
         assert_eq!(b.get("shared").await.unwrap().captures, 400);
+        cleanup(&a).await;
+    }
+
+    #[tokio::test]
+    async fn redis_two_replicas_store_a_named_capture_once() {
+        let ttl = Duration::from_secs(3600);
+        let Some(a) = store("redis_two_replicas_store_a_named_capture_once", ttl).await else {
+            return;
+        };
+        let b = RedisStore::open(&url(), &a.prefix, ttl).await.unwrap();
+        a.create(&contract::record("retried")).await.unwrap();
+        let (a, b) = (Arc::new(a), Arc::new(b));
+        // Each capture sent to both replicas at once, as a client's retry may race its first
+        // attempt: one of the two stores it, the other answers with it.
+        let send_all = |s: Arc<RedisStore>, replica: u8| {
+            tokio::spawn(async move {
+                let mut got = Vec::new();
+                for i in 0..100u16 {
+                    let name = format!("capture-{i}");
+                    let payload = format!("{replica}:{i}").into_bytes();
+                    got.push((
+                        i,
+                        s.append_named("retried", &payload, Some(&name))
+                            .await
+                            .unwrap(),
+                    ));
+                }
+                got
+            })
+        };
+        let (ga, gb) = (send_all(Arc::clone(&a), 0), send_all(Arc::clone(&b), 1));
+        let (ga, gb) = (ga.await.unwrap(), gb.await.unwrap());
+        let stored = a.captures("retried").await.unwrap();
+        assert_eq!(stored.len(), 100, "each name stored once");
+        for ((i, x), (j, y)) in ga.iter().zip(&gb) {
+            assert_eq!(i, j);
+            let (index, capture) = match (x, y) {
+                (Appended::New(index), Appended::Existing { index: k, capture })
+                | (Appended::Existing { index: k, capture }, Appended::New(index)) => {
+                    assert_eq!(index, k, "capture {i}: both answers name one index");
+                    (*index, capture.clone())
+                }
+                other => panic!("capture {i}: expected one New and one Existing, got {other:?}"),
+            };
+            assert_eq!(stored[index as usize], capture, "capture {i}");
+        }
         cleanup(&a).await;
     }
 

@@ -13,6 +13,7 @@ of ../shared/data/office; the first capture's is used).
 
 import argparse
 import json
+import re
 import sys
 import urllib.request
 from pathlib import Path
@@ -95,8 +96,14 @@ def main() -> int:
             print(f"session {s.id}")
             for d in caps:
                 pose = json.loads((d / "pose.json").read_text())["rig_to_world"]
-                r = client.add_capture(s.id, pose, images=[d / f"img{i}.png" for i in (1, 2, 3)])
-                print(f"  {d.name}: capture {r.capture_index}, {len(r.match.segments_3d)} 3D segments")
+                # Named by its folder, so that a capture whose answer is lost is sent again
+                # safely: stored once (CaptureResult.duplicate says it was already there).
+                name = re.sub(r"[^!-~]", "_", d.name)[:128]
+                r = client.add_capture(s.id, pose, images=[d / f"img{i}.png" for i in (1, 2, 3)],
+                                       capture_id=name, retries=3)
+                again = " (already stored)" if r.duplicate else ""
+                print(f"  {d.name}: capture {r.capture_index}{again}, "
+                      f"{len(r.match.segments_3d)} 3D segments")
             m = client.get_map(s.id)
             print(m.summary())
             print(save_top_view(client, args.http, s.id, args.out), "->", args.out)

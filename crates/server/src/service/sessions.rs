@@ -142,6 +142,19 @@ fn capture_digest(
     hash.finalize().to_vec()
 }
 
+/// What became of a capture AddCapture placed or found: stored by this call, or found
+/// stored under its name (a retry).
+enum Outcome {
+    Stored {
+        index: u64,
+        registration: pb::Registration,
+    },
+    Found {
+        index: u64,
+        capture: Vec<u8>,
+    },
+}
+
 /// The registration a named capture was first answered with, for a retry of it: refused,
 /// naming `capture_id`, if the retry is not the same capture (another digest).
 fn answered_registration(
@@ -151,6 +164,14 @@ fn answered_registration(
     capture: &[u8],
 ) -> Result<pb::Registration, ServiceError> {
     let stored = pb::StoredCaptureAnswer::decode(capture).map_err(|e| corrupt("capture", e))?;
+    if stored.capture_id != name {
+        return Err(ServiceError::Internal {
+            detail: format!(
+                "the store names capture {index} {name:?}, which holds {:?}",
+                stored.capture_id
+            ),
+        });
+    }
     if stored.request_digest != digest {
         return Err(ServiceError::Input(InputError::new(
             "capture_id",
@@ -468,15 +489,15 @@ impl Service {
                 let seen = given_lists.unwrap_or_else(|| pb::SegmentTriplet {
                     lists: std::mem::take(&mut everything.extracted),
                 });
-                let lists = segment_lists(&seen, usize::MAX).ok();
-                let views = lists.as_ref().map(|lists| Views {
-                    cameras: rig.cameras(),
-                    segments: std::array::from_fn(|k| &lists[k].segments[..]),
-                    list_noise_px,
-                });
                 let added = if already_placed {
                     None
                 } else {
+                    let lists = segment_lists(&seen, usize::MAX).ok();
+                    let views = lists.as_ref().map(|lists| Views {
+                        cameras: rig.cameras(),
+                        segments: std::array::from_fn(|k| &lists[k].segments[..]),
+                        list_noise_px,
+                    });
                     Some(place_capture(
                         &captures,
                         &everything.segments_3d,
@@ -511,32 +532,38 @@ impl Service {
                 .deadline(timeout)
                 .saturating_sub(self.clock.since(started));
             let (placed, response) = super::within(job, left).await?;
-            let appended = match (placed, earlier) {
+            let outcome = match (placed, earlier) {
                 (Some((registration, stored)), _) => {
                     match self
                         .store
                         .append_named(&session_id, &stored, name.as_deref())
                         .await?
                     {
-                        Appended::New(index) => Ok((index, registration)),
+                        Appended::New(index) => Outcome::Stored {
+                            index,
+                            registration,
+                        },
                         // The same capture, stored meanwhile by another call (the first
                         // attempt of this retry, still running when it was sent).
-                        Appended::Existing { index, capture } => Err((index, capture)),
+                        Appended::Existing { index, capture } => Outcome::Found { index, capture },
                     }
                 }
-                (None, Some(earlier)) => Err(earlier),
+                (None, Some((index, capture))) => Outcome::Found { index, capture },
                 (None, None) => {
                     return Err(ServiceError::Internal {
                         detail: "a capture neither placed nor stored before".to_string(),
                     })
                 }
             };
-            let (capture_index, registration, captures, duplicate) = match appended {
-                Ok((index, registration)) => {
+            let (capture_index, registration, captures, duplicate) = match outcome {
+                Outcome::Stored {
+                    index,
+                    registration,
+                } => {
                     self.session_changed(&session_id);
                     (index, registration, index + 1, false)
                 }
-                Err((index, capture)) => {
+                Outcome::Found { index, capture } => {
                     let name = name.as_deref().unwrap_or_default();
                     let registration = answered_registration(name, &digest, index, &capture)?;
                     let captures = self.store.get(&session_id).await?.captures;

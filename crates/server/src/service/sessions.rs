@@ -872,6 +872,107 @@ mod tests {
     use super::*;
     use nalgebra::Isometry3;
 
+    #[test]
+    fn capture_ids_are_short_printable_ascii() {
+        for good in [
+            "a",
+            "robot-7/capture-0001",
+            "0f8fad5b-d9cb-469f-a165-70867728950e",
+        ] {
+            assert!(check_capture_id(good).is_ok(), "{good}");
+        }
+        assert!(check_capture_id(&"x".repeat(MAX_CAPTURE_ID_BYTES)).is_ok());
+        for bad in [
+            "two words",
+            "tab\there",
+            "line\nbreak",
+            "caf\u{e9}",
+            "\u{0}",
+            &"x".repeat(MAX_CAPTURE_ID_BYTES + 1),
+        ] {
+            match check_capture_id(bad) {
+                Err(ServiceError::Input(e)) => {
+                    assert_eq!(e.field, "capture_id");
+                    assert!(e.to_string().len() < 200, "{e}");
+                }
+                other => panic!("{bad:?}: {other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn a_capture_digest_tells_every_part_of_the_capture_apart() {
+        let pose = pose_to_pb(&Isometry3::identity());
+        let image = |bytes: &[u8]| pb::Image {
+            source: Some(pb::image::Source::Encoded(bytes.to_vec())),
+        };
+        let images = |parts: [&[u8]; 3]| {
+            Some(pb::add_capture_request::Input::Images(pb::ImageTriplet {
+                images: parts.map(image).to_vec(),
+            }))
+        };
+        let base = capture_digest(&pose, &[], images([b"ab", b"c", b"d"]).as_ref());
+        assert_eq!(base.len(), 32);
+        assert_eq!(
+            base,
+            capture_digest(&pose, &[], images([b"ab", b"c", b"d"]).as_ref()),
+            "the same capture, the same digest"
+        );
+        // Bytes moved from one image to the next are another capture.
+        assert_ne!(
+            base,
+            capture_digest(&pose, &[], images([b"a", b"bc", b"d"]).as_ref())
+        );
+        let mut moved = pose.clone();
+        moved.matrix[3] = 0.01;
+        assert_ne!(
+            base,
+            capture_digest(&moved, &[], images([b"ab", b"c", b"d"]).as_ref())
+        );
+        assert_ne!(
+            base,
+            capture_digest(&pose, &[1e-4; 36], images([b"ab", b"c", b"d"]).as_ref())
+        );
+        let raw = Some(pb::add_capture_request::Input::Images(pb::ImageTriplet {
+            images: vec![
+                pb::Image {
+                    source: Some(pb::image::Source::Raw(pb::RawImage {
+                        width: 2,
+                        height: 1,
+                        data: b"ab".to_vec(),
+                    })),
+                },
+                image(b"c"),
+                image(b"d"),
+            ],
+        }));
+        assert_ne!(
+            base,
+            capture_digest(&pose, &[], raw.as_ref()),
+            "raw is not encoded"
+        );
+        let lists = |v: f64| {
+            Some(pb::add_capture_request::Input::Segments(
+                pb::SegmentTriplet {
+                    lists: vec![
+                        pb::SegmentList {
+                            segments: vec![pb::Segment {
+                                u1: v,
+                                ..Default::default()
+                            }],
+                            ..Default::default()
+                        };
+                        3
+                    ],
+                },
+            ))
+        };
+        let segments = capture_digest(&pose, &[], lists(1.0).as_ref());
+        assert_ne!(segments, base);
+        assert_ne!(segments, capture_digest(&pose, &[], lists(1.5).as_ref()));
+        assert_ne!(base, capture_digest(&pose, &[], None));
+    }
+
     /// A stored capture with no segments, at the origin, tied by `edges`.
     fn stored(index: usize, edges: &[RelativePose]) -> Vec<u8> {
         let prior = PosePrior::with_default_covariance(Isometry3::identity());

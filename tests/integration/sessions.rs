@@ -704,6 +704,19 @@ fn a_capture_sent_again_under_its_name_is_stored_once() {
             .iter()
             .all(|a| a.registration == answers[0].registration));
         assert_eq!(captures_held(&mut grpc).await, 3);
+        // Operators see how often clients retry.
+        let metrics = http
+            .get(format!("http://{}/metrics", running.http_addr))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        for (outcome, count) in [("stored", 3), ("retried", 5)] {
+            let line = format!("trinocular_captures_total{{outcome=\"{outcome}\"}} {count}");
+            assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");
+        }
 
         // The retries left no trace in the map: the same as the three captures sent once.
         let map = grpc

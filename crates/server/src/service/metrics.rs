@@ -55,6 +55,7 @@ pub struct Metrics {
     malformed: IntGauge,
     rejections: IntCounter,
     stopped: IntCounterVec,
+    captures: IntCounterVec,
 }
 
 impl Metrics {
@@ -110,6 +111,14 @@ impl Metrics {
             ),
             &["stage"],
         )?;
+        let captures = IntCounterVec::new(
+            Opts::new(
+                "trinocular_captures_total",
+                "AddCapture calls answered, by outcome: stored, or retried (a capture the \
+                 session held under its capture_id, answered without storing it again)",
+            ),
+            &["outcome"],
+        )?;
         // What is running: the crate's version, as the usual `build_info` gauge (value 1).
         let build_info = IntGaugeVec::new(
             Opts::new(
@@ -128,6 +137,7 @@ impl Metrics {
             prometheus::process_collector::ProcessCollector::for_self(),
         ))?;
         registry.register(Box::new(stopped.clone()))?;
+        registry.register(Box::new(captures.clone()))?;
         registry.register(Box::new(requests.clone()))?;
         registry.register(Box::new(latency.clone()))?;
         registry.register(Box::new(stages.clone()))?;
@@ -147,7 +157,14 @@ impl Metrics {
             malformed,
             rejections,
             stopped,
+            captures,
         })
+    }
+
+    /// An AddCapture answered: its capture stored now, or a retry of one already stored.
+    pub fn record_capture(&self, retried: bool) {
+        let outcome = if retried { "retried" } else { "stored" };
+        self.captures.with_label_values(&[outcome]).inc();
     }
 
     /// A running job stopped before `stage` because nobody wanted its answer any more.

@@ -570,6 +570,7 @@ impl Service {
                     (index, registration, captures, true)
                 }
             };
+            self.metrics.record_capture(duplicate);
             Ok(pb::AddCaptureResponse {
                 r#match: Some(response),
                 capture_index,

@@ -355,6 +355,36 @@ def test_a_named_capture_sent_again_is_answered_not_stored(client, demo, monkeyp
     client.delete_session(s.id)
 
 
+def test_a_client_with_retries_repeats_only_what_is_safe_to_repeat(server, demo, monkeypatch):
+    with Client(server[0], timeout=60, retries=2) as c:
+        sent, lost, call = [], set(), c._call
+
+        def lossy(name, request, default_field=None):
+            # The first answer of each call is lost on the way back.
+            sent.append(name)
+            if name not in lost and name in ("Match", "CreateSession"):
+                lost.add(name)
+                raise TrinocularError(grpc.StatusCode.UNAVAILABLE, "connection reset")
+            return call(name, request, default_field)
+
+        monkeypatch.setattr(c, "_call", lossy)
+        r = c.match_images(demo / "calibration.json", *_paths(demo))
+        assert len(r.segments_3d) > 0 and sent == ["Match", "Match"]
+        # A second session is not what a lost answer should cost: not repeated.
+        with pytest.raises(TrinocularError):
+            c.create_session(demo / "calibration.json")
+        assert sent[2:] == ["CreateSession"]
+        # Nor is an answer that was not lost.
+        bad = json.loads((demo / "calibration.json").read_text())
+        bad["cameras"][2]["projection"] = [1.0, 2.0, 3.0]
+        for k in ("intrinsics", "rotation", "translation"):
+            bad["cameras"][2].pop(k, None)
+        del sent[:]
+        with pytest.raises(InvalidArgument):
+            c.match_images(bad, *_paths(demo))
+        assert sent == ["Match"]
+
+
 def test_poses_as_quaternions_and_rounded_matrices(client, demo):
     cal = demo / "calibration.json"
     s = client.create_session(cal, name="poses")

@@ -392,16 +392,25 @@ class Client:
     def __init__(self, target: str = "localhost:50051", timeout: Optional[float] = None,
                  max_message_mib: int = 64, channel: Optional[grpc.Channel] = None,
                  api_key: Optional[str] = None, tls: bool = False,
-                 ca_cert: Union[str, Path, bytes, None] = None):
+                 ca_cert: Union[str, Path, bytes, None] = None, retries: int = 0):
         """`api_key`: sent as `authorization: Bearer <key>` on every call, for a service
         started with API keys (its sessions are then this key's own).
+
+        `retries`: how many times a call that is safe to repeat is sent again after a failure
+        that may have lost its answer (UNAVAILABLE, DEADLINE_EXCEEDED, RESOURCE_EXHAUSTED, a
+        reset stream), with backoff: matching, calibration, reading sessions and maps, and
+        AddCapture (named with a UUID for it, unless `capture_id` is given: stored once).
+        CreateSession and DeleteSession are not repeated (a second session; NOT_FOUND).
 
         `tls=True`: the server serves TLS (`--tls-cert`/`--tls-key`) and its certificate is
         trusted by the system; `ca_cert` (a PEM file's path, or its bytes): trust this
         certificate (a private CA or a self-signed server certificate) instead, which implies
         TLS. `target`'s host must be a name the certificate carries."""
+        if retries < 0:
+            raise ValueError("retries must be 0 or more")
         self.target = target
         self.timeout = timeout
+        self.retries = retries
         self._metadata = [("authorization", f"Bearer {api_key}")] if api_key else None
         n = max_message_mib * 1024 * 1024
         options = [("grpc.max_send_message_length", n), ("grpc.max_receive_message_length", n)]
@@ -425,6 +434,19 @@ class Client:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def _call_again(self, name: str, request, default_field: Optional[str] = None,
+                    retries: Optional[int] = None):
+        """`_call`, sent again up to `retries` (default: the client's) times while its answer
+        may have been lost. Only for calls that are safe to repeat."""
+        retries = self.retries if retries is None else retries
+        for attempt in range(retries + 1):
+            try:
+                return self._call(name, request, default_field)
+            except TrinocularError as e:
+                if attempt == retries or not _answer_may_be_lost(e):
+                    raise
+                time.sleep(min(2.0, 0.2 * 2 ** attempt))
+
     def _call(self, name: str, request, default_field: Optional[str] = None):
         try:
             return getattr(self._stub, name)(request, timeout=self.timeout,
@@ -444,7 +466,7 @@ class Client:
         opts = _parse(options, pb.MatchOptions)
         if opts is not None:
             req.options.CopyFrom(opts)
-        return MatchResult.from_pb(self._call("Match", req))
+        return MatchResult.from_pb(self._call_again("Match", req))
 
     def match_segments(self, calibration, lists, options=None, oriented: bool = False) -> MatchResult:
         """Matches three segment lists (each N×4 (u1, v1, u2, v2), N×5 with gradient, N×7
@@ -456,7 +478,7 @@ class Client:
         opts = _parse(options, pb.MatchOptions)
         if opts is not None:
             req.options.CopyFrom(opts)
-        return MatchResult.from_pb(self._call("Match", req))
+        return MatchResult.from_pb(self._call_again("Match", req))
 
     # -- calibration ---------------------------------------------------------------------------
 
@@ -483,7 +505,7 @@ class Client:
             req.options.extract.CopyFrom(ext)
         if camera_names:
             req.camera_names.extend(camera_names)
-        r = self._call("Calibrate", req)
+        r = self._call_again("Calibrate", req)
         return CalibrationResult(
             calibration=_to_dict(r.calibration),
             reports=[_to_dict(x) for x in r.reports],
@@ -501,14 +523,14 @@ class Client:
             if isinstance(f, os.PathLike) or ("\n" not in text and Path(text).is_file()):
                 text = Path(f).read_text()
             texts.append(text)
-        r = self._call("ImportCalibration", pb.ImportCalibrationRequest(format=format, files=texts))
+        r = self._call_again("ImportCalibration", pb.ImportCalibrationRequest(format=format, files=texts))
         return _to_dict(r)
 
     def export_calibration(self, format: str, calibration) -> List[str]:
         """`calibration` written as other tools' files (one, or three for "ros"); the
         extrinsics relative to camera 1."""
         req = pb.ExportCalibrationRequest(format=format, calibration=load_calibration(calibration))
-        return list(self._call("ExportCalibration", req).files)
+        return list(self._call_again("ExportCalibration", req).files)
 
     # -- sessions ------------------------------------------------------------------------------
 
@@ -532,7 +554,7 @@ class Client:
     def add_capture(self, session_id: str, rig_to_world, images: Optional[Sequence[ImageLike]] = None,
                     segments=None, oriented: bool = False,
                     rig_to_world_covariance=None, capture_id: Optional[str] = None,
-                    retries: int = 0) -> CaptureResult:
+                    retries: Optional[int] = None) -> CaptureResult:
         """Adds one capture taken from `rig_to_world` (4x4, the robot's belief: a prior the
         capture is registered from): `images` (three) or `segments` (three lists), not both.
         `rig_to_world_covariance`: 6x6 (rotation about the rig's origin, radians, then
@@ -540,13 +562,14 @@ class Client:
 
         `capture_id` names the capture (unique in the session, 1-128 printable ASCII, no
         spaces): sent again under its name, a capture whose answer was lost is answered, not
-        stored twice (`CaptureResult.duplicate`). `retries`: how many times to send it again
-        after a failure that may have lost the answer (UNAVAILABLE, DEADLINE_EXCEEDED,
-        RESOURCE_EXHAUSTED, a reset stream), with backoff; the capture is then named with a
-        random UUID unless `capture_id` is given. A caller that retries by calling again gives
-        the same `capture_id` itself."""
+        stored twice (`CaptureResult.duplicate`). `retries` (default: the client's): how many
+        times to send it again after a failure that may have lost the answer (UNAVAILABLE,
+        DEADLINE_EXCEEDED, RESOURCE_EXHAUSTED, a reset stream), with backoff; the capture is
+        then named with a random UUID unless `capture_id` is given. A caller that retries by
+        calling again gives the same `capture_id` itself."""
         if (images is None) == (segments is None):
             raise ValueError("give exactly one of images= or segments=")
+        retries = self.retries if retries is None else retries
         if retries < 0:
             raise ValueError("retries must be 0 or more")
         if capture_id is None and retries > 0:
@@ -560,14 +583,7 @@ class Client:
             req.images.CopyFrom(_images(list(images)))
         else:
             req.segments.CopyFrom(_segments(segments, oriented))
-        for attempt in range(retries + 1):
-            try:
-                r = self._call("AddCapture", req, "session_id")
-                break
-            except TrinocularError as e:
-                if attempt == retries or not _answer_may_be_lost(e):
-                    raise
-                time.sleep(min(2.0, 0.2 * 2 ** attempt))
+        r = self._call_again("AddCapture", req, "session_id", retries)
         g = r.registration
         registration = {
             "status": pb.RegistrationStatus.Name(g.status),
@@ -585,17 +601,17 @@ class Client:
         req = pb.GetMapRequest(session_id=session_id)
         if min_observations is not None:
             req.min_observations = int(min_observations)
-        return Map.from_pb(self._call("GetMap", req, "session_id"))
+        return Map.from_pb(self._call_again("GetMap", req, "session_id"))
 
     def get_session(self, session_id: str) -> Session:
-        return Session.from_pb(self._call("GetSession", pb.GetSessionRequest(session_id=session_id),
+        return Session.from_pb(self._call_again("GetSession", pb.GetSessionRequest(session_id=session_id),
                                           "session_id"))
 
     def list_sessions(self) -> List[Session]:
         """Every session of this key (the service answers a page at a time)."""
         sessions, token = [], ""
         while True:
-            r = self._call("ListSessions", pb.ListSessionsRequest(page_size=1000, page_token=token))
+            r = self._call_again("ListSessions", pb.ListSessionsRequest(page_size=1000, page_token=token))
             sessions.extend(Session.from_pb(s) for s in r.sessions)
             if not r.next_page_token:
                 return sessions

@@ -95,6 +95,7 @@ async fn refined_session(
                     refine_poses: Some(refine_poses),
                     ..Default::default()
                 }),
+                session_id: String::new(),
             },
         )
         .await

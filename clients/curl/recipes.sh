@@ -72,6 +72,9 @@ echo 'iVBORw0KGgoAAAANSUhEUgAAAEAAAABACAAAAACPAi4CAAAAKklEQVR42u3MQREAAAwCIPsnM5
   | base64 -d >"$D/blank.png"
 # CreateSession body: a name and the calibration.
 jq -n --slurpfile cal "$D/calibration.json" '{name: "office", calibration: $cal[0]}' >"$D/session.json"
+# The same with an id the client chose, and another session under that id.
+jq '. + {sessionId: "curl-recipes-office"}' "$D/session.json" >"$D/session_named.json"
+jq '. + {sessionId: "curl-recipes-office", name: "another room"}' "$D/session.json" >"$D/session_other.json"
 
 echo "== recipes against $BASE"
 
@@ -134,6 +137,18 @@ recipe "sessions: map (PLY)" 200 ply "$BASE/v1/sessions/$ID/map?format=ply&min_o
 recipe "sessions: delete" 200 'json:. == {}' -X DELETE "$BASE/v1/sessions/$ID"
 recipe "sessions: get after delete: 404 naming session_id" 404 \
   'json:.error.code == "NOT_FOUND" and .error.field == "session_id"' "$BASE/v1/sessions/$ID"
+
+# A session the client names (sessionId): created again as it was (a retry whose answer was
+# lost), it is the same session; the same id for another session is 409 naming session_id.
+recipe "sessions: create under a chosen id" 200 'json:.id == "curl-recipes-office"' \
+  -X POST "$BASE/v1/sessions" -H 'content-type: application/json' --data-binary "@$D/session_named.json"
+recipe "sessions: the same create again (a retry): the same session" 200 \
+  'json:.id == "curl-recipes-office" and .name == "office"' \
+  -X POST "$BASE/v1/sessions" -H 'content-type: application/json' --data-binary "@$D/session_named.json"
+recipe "sessions: that id for another session: 409 naming session_id" 409 \
+  'json:.error.code == "ALREADY_EXISTS" and .error.field == "session_id"' \
+  -X POST "$BASE/v1/sessions" -H 'content-type: application/json' --data-binary "@$D/session_other.json"
+recipe "sessions: delete the named one" 200 'json:. == {}' -X DELETE "$BASE/v1/sessions/curl-recipes-office"
 
 recipe "metrics (Prometheus text)" 200 'raw:contains("trinocular_requests_total")' "$BASE/metrics"
 

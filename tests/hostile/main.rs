@@ -791,17 +791,20 @@ fn api_keys_keep_each_tenant_to_its_own_sessions_a_page_at_a_time() {
             assert_eq!(response.status().as_u16(), 200, "{probe}");
         }
 
-        // A's sessions: three, then the quota.
+        // A's sessions: three (the last under an id of its choosing), then the quota.
+        let mut named = create.clone();
+        named["sessionId"] = json!("kitchen");
+        let post = |key: &'static str, body: &Value| {
+            http.post(server.http("/v1/sessions"))
+                .bearer_auth(key)
+                .header("content-type", "application/json")
+                .body(body.to_string())
+                .send()
+        };
         let mut ids = Vec::new();
         for attempt in 0..4 {
-            let response = http
-                .post(server.http("/v1/sessions"))
-                .bearer_auth("aaaaaaaaaaaaaaaaaaaa")
-                .header("content-type", "application/json")
-                .body(create.to_string())
-                .send()
-                .await
-                .unwrap();
+            let body = if attempt == 2 { &named } else { &create };
+            let response = post("aaaaaaaaaaaaaaaaaaaa", body).await.unwrap();
             if attempt == 3 {
                 assert_eq!(response.status().as_u16(), 429, "the quota of 3");
                 break;
@@ -810,6 +813,26 @@ fn api_keys_keep_each_tenant_to_its_own_sessions_a_page_at_a_time() {
             let body: Value = serde_json::from_str(&response.text().await.unwrap()).unwrap();
             ids.push(body["id"].as_str().unwrap().to_string());
         }
+        assert_eq!(ids[2], "kitchen");
+        // At its quota, A's create of "kitchen" sent again (its answer lost) is that session,
+        // not a fourth; B's "kitchen" is B's own.
+        let response = post("aaaaaaaaaaaaaaaaaaaa", &named).await.unwrap();
+        assert_eq!(
+            response.status().as_u16(),
+            200,
+            "a retry is not a new session"
+        );
+        let response = post("bbbbbbbbbbbbbbbbbbbb", &named).await.unwrap();
+        assert_eq!(response.status().as_u16(), 200);
+        let body: Value = serde_json::from_str(&response.text().await.unwrap()).unwrap();
+        assert_eq!(body["id"], "kitchen");
+        let response = http
+            .delete(server.http("/v1/sessions/kitchen"))
+            .bearer_auth("bbbbbbbbbbbbbbbbbbbb")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(response.status().as_u16(), 200, "B deletes its own");
 
         // B sees none of them, and cannot reach one by its id, over either transport.
         fn with_key<T>(key: &str, message: T) -> tonic::Request<T> {

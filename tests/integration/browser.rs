@@ -68,6 +68,7 @@ async fn session_with(
             calibration: Some(calibration.clone()),
             options: None,
             map_options: None,
+            session_id: String::new(),
         }))
         .send()
         .await

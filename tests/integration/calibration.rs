@@ -215,6 +215,7 @@ fn calibrate_over_http_as_curl_sends_it_and_over_grpc() {
                 calibration: Some(calibration.clone()),
                 options: None,
                 map_options: None,
+                session_id: String::new(),
             })
             .await
             .expect("the Calibrate answer works unchanged")

@@ -765,8 +765,7 @@ fn each_request_is_counted_once_under_its_transport_route_and_code() {
             name: "room".into(),
             calibration: example_request().calibration,
             options: None,
-            map_options: None,
-        })
+            map_options: None, session_id: String::new(), })
         .await
         .unwrap();
         let bad_id = pb::GetSessionRequest {

@@ -53,6 +53,7 @@ fn create_request(calibration: &pb::Calibration) -> pb::CreateSessionRequest {
         calibration: Some(calibration.clone()),
         options: None,
         map_options: None,
+        session_id: String::new(),
     }
 }
 
@@ -631,9 +632,9 @@ fn a_capture_sent_again_under_its_name_is_stored_once() {
             .add_capture(named(&captures[2], id, "pose-0"))
             .await
             .unwrap_err();
-        assert_eq!(refused.code(), tonic::Code::InvalidArgument);
+        assert_eq!(refused.code(), tonic::Code::AlreadyExists);
         assert!(
-            refused.message().contains("capture_id"),
+            refused.message().starts_with("capture_id: "),
             "{}",
             refused.message()
         );
@@ -728,6 +729,94 @@ fn a_capture_sent_again_under_its_name_is_stored_once() {
             .unwrap()
             .into_inner();
         same_geometry(&map, &map_of(&mut grpc, &calibration, &captures).await);
+        running.shutdown().await;
+    });
+}
+
+#[test]
+fn a_session_created_again_under_its_id_is_the_same_session() {
+    let (calibration, captures) = panorama(2);
+    runtime().block_on(async {
+        let running = start().await;
+        let mut grpc = connect(running.grpc_addr).await;
+        let request = pb::CreateSessionRequest {
+            session_id: "robot-7-kitchen".to_string(),
+            ..create_request(&calibration)
+        };
+        let first = grpc
+            .create_session(request.clone())
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(first.id, "robot-7-kitchen");
+        grpc.add_capture(named(&captures[0], &first.id, ""))
+            .await
+            .unwrap();
+        // The answer was lost: sent again, the same session as it stands, its capture kept.
+        let again = grpc
+            .create_session(request.clone())
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(
+            (again.id.as_str(), again.created_unix_ms, again.captures),
+            ("robot-7-kitchen", first.created_unix_ms, 1)
+        );
+        // The id of another session: ALREADY_EXISTS naming it, the session untouched.
+        let other = pb::CreateSessionRequest {
+            name: "another room".to_string(),
+            ..request.clone()
+        };
+        let refused = grpc.create_session(other.clone()).await.unwrap_err();
+        assert_eq!(refused.code(), tonic::Code::AlreadyExists);
+        assert!(
+            refused.message().starts_with("session_id: "),
+            "{}",
+            refused.message()
+        );
+        let http = reqwest::Client::new();
+        let reply = http
+            .post(format!("http://{}/v1/sessions", running.http_addr))
+            .body(api::to_json(&other))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 409);
+        let body = reply.json_body().await;
+        assert_eq!(
+            (&body["error"]["code"], &body["error"]["field"]),
+            (
+                &serde_json::json!("ALREADY_EXISTS"),
+                &serde_json::json!("session_id")
+            )
+        );
+        // Over HTTP JSON as curl sends it, the same request is the same session.
+        let reply = http
+            .post(format!("http://{}/v1/sessions", running.http_addr))
+            .body(api::to_json(&request))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(reply.status(), 200);
+        // An id is a store key: letters, digits and '-', 64 at most.
+        for bad in ["has space", "tilde~", &"x".repeat(65)] {
+            let refused = grpc
+                .create_session(pb::CreateSessionRequest {
+                    session_id: bad.to_string(),
+                    ..create_request(&calibration)
+                })
+                .await
+                .unwrap_err();
+            assert_eq!(refused.code(), tonic::Code::InvalidArgument, "{bad}");
+            assert!(refused.message().starts_with("session_id: "), "{bad}");
+        }
+        // Ids the service makes are unaffected.
+        let made = grpc
+            .create_session(create_request(&calibration))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(made.id.len(), 32);
         running.shutdown().await;
     });
 }

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import trinocular
-from trinocular import Client, InvalidArgument, NotFound, TrinocularError
+from trinocular import AlreadyExists, Client, InvalidArgument, NotFound, TrinocularError
 
 REPO = Path(__file__).resolve().parents[3]
 IDENTITY = np.eye(4)
@@ -332,7 +332,7 @@ def test_a_named_capture_sent_again_is_answered_not_stored(client, demo, monkeyp
     # The name of a capture the session holds, with another pose: refused, naming it.
     moved = IDENTITY.copy()
     moved[0, 3] = 0.1
-    with pytest.raises(InvalidArgument) as e:
+    with pytest.raises(AlreadyExists) as e:
         client.add_capture(s.id, moved, images=_paths(demo), capture_id="robot-1/0001")
     assert e.value.field == "capture_id", e.value.message
 
@@ -360,20 +360,28 @@ def test_a_client_with_retries_repeats_only_what_is_safe_to_repeat(server, demo,
         sent, lost, call = [], set(), c._call
 
         def lossy(name, request, default_field=None):
-            # The first answer of each call is lost on the way back.
+            # The first answer of each call is lost on the way back: the call was made.
             sent.append(name)
+            answer = call(name, request, default_field)
             if name not in lost and name in ("Match", "CreateSession"):
                 lost.add(name)
                 raise TrinocularError(grpc.StatusCode.UNAVAILABLE, "connection reset")
-            return call(name, request, default_field)
+            return answer
 
         monkeypatch.setattr(c, "_call", lossy)
         r = c.match_images(demo / "calibration.json", *_paths(demo))
         assert len(r.segments_3d) > 0 and sent == ["Match", "Match"]
-        # A second session is not what a lost answer should cost: not repeated.
-        with pytest.raises(TrinocularError):
-            c.create_session(demo / "calibration.json")
-        assert sent[2:] == ["CreateSession"]
+        # A create is repeated under the id the client gave it: one session, not two.
+        s = c.create_session(demo / "calibration.json", name="retried")
+        assert sent[2:] == ["CreateSession", "CreateSession"]
+        assert re.fullmatch(r"[0-9a-f]{32}", s.id)
+        assert [x.id for x in c.list_sessions()].count(s.id) == 1
+        again = c.create_session(demo / "calibration.json", name="retried", session_id=s.id)
+        assert again.id == s.id and again.created_unix_ms == s.created_unix_ms
+        with pytest.raises(AlreadyExists) as e:
+            c.create_session(demo / "calibration.json", name="another", session_id=s.id)
+        assert e.value.field == "session_id", e.value.message
+        c.delete_session(s.id)
         # Nor is an answer that was not lost.
         bad = json.loads((demo / "calibration.json").read_text())
         bad["cameras"][2]["projection"] = [1.0, 2.0, 3.0]

@@ -165,6 +165,7 @@ impl Http {
             calibration: Some(self.calibration.clone()),
             options: None,
             map_options: None,
+            session_id: String::new(),
         };
         let answer = self.send(
             Request::post("/v1/sessions")

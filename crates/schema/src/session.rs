@@ -175,15 +175,34 @@ pub fn pose_to_pb(pose: &Isometry3<f64>) -> pb::Pose {
     }
 }
 
+/// Checks a session id, given in a path or chosen by a client: ids are store keys and appear
+/// in logs, so letters, digits and '-', 1 to 64.
+pub fn check_session_id(id: &str) -> Result<(), InputError> {
+    if id.is_empty() || id.len() > 64 || !id.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-')
+    {
+        let shown: String = id.chars().take(64).collect();
+        let more = if shown.len() < id.len() { "..." } else { "" };
+        return Err(InputError::new(
+            "session_id",
+            format!("{shown:?}{more} is not a session id (letters, digits and '-', up to 64)"),
+        ));
+    }
+    Ok(())
+}
+
 /// Checks a `CreateSessionRequest`: the calibration and options as `Match` would, the map
-/// options and the name.
+/// options, the name and the session id if the client chose one.
 pub fn check_create_session(request: &pb::CreateSessionRequest) -> Result<(), InputError> {
     let pb::CreateSessionRequest {
         name,
         calibration,
         options,
         map_options,
+        session_id,
     } = request;
+    if !session_id.is_empty() {
+        check_session_id(session_id)?;
+    }
     if name.chars().count() > MAX_NAME_CHARS {
         return Err(InputError::new(
             "name",

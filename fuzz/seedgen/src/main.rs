@@ -349,6 +349,7 @@ fn main() {
             // Unset, as before the field existed: the seed's bytes are unchanged.
             refine_poses: None,
         }),
+        session_id: String::new(),
     };
     write(
         "protobuf_body",

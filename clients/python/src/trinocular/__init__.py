@@ -10,6 +10,7 @@ from .client import (
     load_calibration,
 )
 from .errors import (
+    AlreadyExists,
     DeadlineExceeded,
     InvalidArgument,
     NotFound,
@@ -21,6 +22,6 @@ from .errors import (
 __all__ = [
     "Client", "MatchResult", "Map", "Session", "CaptureResult", "CalibrationResult",
     "load_calibration", "TrinocularError", "InvalidArgument", "NotFound", "Unavailable",
-    "ResourceExhausted", "DeadlineExceeded",
+    "ResourceExhausted", "DeadlineExceeded", "AlreadyExists",
 ]
 __version__ = "0.1.0"

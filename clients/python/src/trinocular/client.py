@@ -398,9 +398,10 @@ class Client:
 
         `retries`: how many times a call that is safe to repeat is sent again after a failure
         that may have lost its answer (UNAVAILABLE, DEADLINE_EXCEEDED, RESOURCE_EXHAUSTED, a
-        reset stream), with backoff: matching, calibration, reading sessions and maps, and
-        AddCapture (named with a UUID for it, unless `capture_id` is given: stored once).
-        CreateSession and DeleteSession are not repeated (a second session; NOT_FOUND).
+        reset stream), with backoff: matching, calibration, reading sessions and maps,
+        CreateSession and AddCapture (given a UUID for it, unless `session_id` or
+        `capture_id` is given: made or stored once). DeleteSession is not repeated (a repeat
+        would say NOT_FOUND).
 
         `tls=True`: the server serves TLS (`--tls-cert`/`--tls-key`) and its certificate is
         trusted by the system; `ca_cert` (a PEM file's path, or its bytes): trust this
@@ -536,12 +537,25 @@ class Client:
 
     def create_session(self, calibration, name: str = "", options=None,
                        min_observations: Optional[int] = None,
-                       refine_poses: Optional[bool] = None) -> Session:
+                       refine_poses: Optional[bool] = None, session_id: Optional[str] = None,
+                       retries: Optional[int] = None) -> Session:
         """`refine_poses` (default true): GetMap solves every capture's pose from the poses
         given and what each capture's segments said, when it was added, about the captures it
         overlaps (a pose graph: docs/SESSIONS.md); false fuses with the poses as given, taken
-        as exact."""
-        req = pb.CreateSessionRequest(name=name, calibration=load_calibration(calibration))
+        as exact.
+
+        `session_id` (letters, digits and '-', up to 64) names the session: sent again, a
+        create whose answer was lost is answered with the session as it stands, not made
+        twice; the id of another session is `AlreadyExists`. `retries` (default: the
+        client's): how many times to send it again after a failure that may have lost the
+        answer — the session is then given a random id unless `session_id` is."""
+        retries = self.retries if retries is None else retries
+        if retries < 0:
+            raise ValueError("retries must be 0 or more")
+        if session_id is None and retries > 0:
+            session_id = uuid.uuid4().hex
+        req = pb.CreateSessionRequest(name=name, calibration=load_calibration(calibration),
+                                      session_id=session_id or "")
         opts = _parse(options, pb.MatchOptions)
         if opts is not None:
             req.options.CopyFrom(opts)
@@ -549,7 +563,9 @@ class Client:
             req.map_options.min_observations = int(min_observations)
         if refine_poses is not None:
             req.map_options.refine_poses = bool(refine_poses)
-        return Session.from_pb(self._call("CreateSession", req))
+        if not session_id:
+            return Session.from_pb(self._call("CreateSession", req))
+        return Session.from_pb(self._call_again("CreateSession", req, "session_id", retries))
 
     def add_capture(self, session_id: str, rig_to_world, images: Optional[Sequence[ImageLike]] = None,
                     segments=None, oriented: bool = False,

@@ -38,6 +38,10 @@ class ResourceExhausted(TrinocularError):
     pass
 
 
+class AlreadyExists(TrinocularError):
+    """A session id or capture name the client chose names another session or capture."""
+
+
 class DeadlineExceeded(TrinocularError):
     pass
 
@@ -47,6 +51,7 @@ _BY_CODE = {
     grpc.StatusCode.NOT_FOUND: NotFound,
     grpc.StatusCode.UNAVAILABLE: Unavailable,
     grpc.StatusCode.RESOURCE_EXHAUSTED: ResourceExhausted,
+    grpc.StatusCode.ALREADY_EXISTS: AlreadyExists,
     grpc.StatusCode.DEADLINE_EXCEEDED: DeadlineExceeded,
 }
 
@@ -60,7 +65,8 @@ def parse_field(message: str) -> Optional[str]:
 def from_rpc_error(e: grpc.RpcError, default_field: Optional[str] = None) -> TrinocularError:
     code = e.code() if hasattr(e, "code") else grpc.StatusCode.UNKNOWN
     message = (e.details() if hasattr(e, "details") else None) or code.name.lower().replace("_", " ")
-    field = parse_field(message) if code == grpc.StatusCode.INVALID_ARGUMENT else None
+    named = (grpc.StatusCode.INVALID_ARGUMENT, grpc.StatusCode.ALREADY_EXISTS)
+    field = parse_field(message) if code in named else None
     if field is None and code == grpc.StatusCode.NOT_FOUND:
         field = default_field
     cls = _BY_CODE.get(code, TrinocularError)

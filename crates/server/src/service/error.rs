@@ -52,6 +52,10 @@ pub enum ServiceError {
     /// What the request names does not exist (or expired).
     #[error("{what} not found (it may have expired)")]
     NotFound { field: String, what: String },
+    /// The request names, as new, something that exists already and is not what it asks
+    /// for (a client-chosen session id or capture name used for another session or capture).
+    #[error("{field}: {what}")]
+    AlreadyExists { field: String, what: String },
     /// A dependency (the session store) cannot be reached; retry later.
     #[error("{message}")]
     Unavailable { message: String },
@@ -106,6 +110,7 @@ impl ServiceError {
             ServiceError::TooLarge { .. } => Code::OutOfRange,
             ServiceError::DeadlineExceeded { .. } => Code::DeadlineExceeded,
             ServiceError::NotFound { .. } => Code::NotFound,
+            ServiceError::AlreadyExists { .. } => Code::AlreadyExists,
             ServiceError::Unavailable { .. } => Code::Unavailable,
             ServiceError::Stopped { .. } => Code::Cancelled,
             ServiceError::Internal { .. } => Code::Internal,
@@ -116,7 +121,9 @@ impl ServiceError {
     pub fn field(&self) -> Option<&str> {
         match self {
             ServiceError::Input(e) => Some(&e.field),
-            ServiceError::NotFound { field, .. } => Some(field),
+            ServiceError::NotFound { field, .. } | ServiceError::AlreadyExists { field, .. } => {
+                Some(field)
+            }
             ServiceError::Busy { .. }
             | ServiceError::BodiesInFlight { .. }
             | ServiceError::MemoryBusy { .. }
@@ -150,6 +157,7 @@ impl ServiceError {
             | ServiceError::BodyTimeout { .. }
             | ServiceError::TooLarge { .. }
             | ServiceError::NotFound { .. }
+            | ServiceError::AlreadyExists { .. }
             | ServiceError::Unavailable { .. }
             | ServiceError::DeadlineExceeded { .. }
             | ServiceError::Stopped { .. }

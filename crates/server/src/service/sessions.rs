@@ -24,7 +24,7 @@ use trinocular_core::map::session::{Added, Placed, SessionParams};
 use trinocular_core::map::{self, FuseParams, MapGate, Measured, PosePrior};
 use trinocular_core::segment::Segment3;
 use trinocular_schema::session::{
-    capture_match_request, certain_only, edges_of, edges_to_pb, matrix6_to_vec,
+    capture_match_request, certain_only, check_session_id, edges_of, edges_to_pb, matrix6_to_vec,
     pose_from_pb_noting, pose_prior, pose_to_pb, registration_to_pb, status_to_pb,
     stored_capture_segments, stored_header_of, StoredSegments,
 };
@@ -155,8 +155,8 @@ enum Outcome {
     },
 }
 
-/// The registration a named capture was first answered with, for a retry of it: refused,
-/// naming `capture_id`, if the retry is not the same capture (another digest).
+/// The registration a named capture was first answered with, for a retry of it:
+/// ALREADY_EXISTS naming `capture_id` if the retry is not the same capture (another digest).
 fn answered_registration(
     name: &str,
     digest: &[u8],
@@ -173,14 +173,14 @@ fn answered_registration(
         });
     }
     if stored.request_digest != digest {
-        return Err(ServiceError::Input(InputError::new(
-            "capture_id",
-            format!(
+        return Err(ServiceError::AlreadyExists {
+            field: "capture_id".to_string(),
+            what: format!(
                 "{name:?} names capture {index} of this session, which was sent with another \
                  pose, covariance or input: a retry sends the same capture, and another \
                  capture needs a name of its own"
             ),
-        )));
+        });
     }
     stored.registration.ok_or_else(|| ServiceError::Internal {
         detail: format!("stored capture {index} is named but holds no registration"),
@@ -190,14 +190,7 @@ fn answered_registration(
 /// Session ids are looked up as given; refusing odd ones early keeps them out of store keys
 /// and logs.
 fn check_id(id: &str) -> Result<(), ServiceError> {
-    if id.is_empty() || id.len() > 64 || !id.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-')
-    {
-        return Err(ServiceError::Input(InputError::new(
-            "session_id",
-            format!("{id:?} is not a session id (letters, digits and '-', up to 64)"),
-        )));
-    }
-    Ok(())
+    check_session_id(id).map_err(ServiceError::Input)
 }
 
 impl Service {
@@ -237,22 +230,21 @@ impl Service {
     ) -> Result<pb::Session, ServiceError> {
         async {
             trinocular_schema::session::check_create_session(&request)?;
-            if caller.tenant.is_some() {
-                let held = self.own_sessions(caller).await?.len();
-                if held >= self.max_sessions_per_key {
-                    return Err(ServiceError::QuotaExceeded {
-                        limit: self.max_sessions_per_key,
-                    });
-                }
-            }
             let pb::CreateSessionRequest {
                 name,
                 calibration,
                 options,
                 map_options,
+                session_id,
             } = request;
+            let given = !session_id.is_empty();
+            let id = if given {
+                session_id
+            } else {
+                uuid::Uuid::new_v4().simple().to_string()
+            };
             let record = SessionRecord {
-                id: store_id(caller, &uuid::Uuid::new_v4().simple().to_string()),
+                id: store_id(caller, &id),
                 name,
                 created_unix_ms: self.clock.now_unix_ms(),
                 calibration: calibration.unwrap_or_default().encode_to_vec(),
@@ -262,7 +254,33 @@ impl Service {
                 }
                 .encode_to_vec(),
             };
-            self.store.create(&record).await?;
+            // A retry of a create whose answer was lost finds its session: answered as it
+            // stands, and not counted against the key's quota a second time.
+            if given {
+                if let Some(session) = self.created_before(caller, &record).await? {
+                    return Ok(session);
+                }
+            }
+            if caller.tenant.is_some() {
+                let held = self.own_sessions(caller).await?.len();
+                if held >= self.max_sessions_per_key {
+                    return Err(ServiceError::QuotaExceeded {
+                        limit: self.max_sessions_per_key,
+                    });
+                }
+            }
+            match self.store.create(&record).await {
+                Ok(()) => {}
+                // Created meanwhile by the call this one repeats (or taken by another).
+                Err(StoreError::AlreadyExists { .. }) if given => {
+                    return self.created_before(caller, &record).await?.ok_or_else(|| {
+                        ServiceError::Internal {
+                            detail: "a session id both taken and free".to_string(),
+                        }
+                    });
+                }
+                Err(e) => return Err(e.into()),
+            }
             let info = SessionInfo {
                 last_used_unix_ms: record.created_unix_ms,
                 captures: 0,
@@ -271,6 +289,36 @@ impl Service {
             self.session_pb(caller, &info, true)
         }
         .await
+    }
+
+    /// The live session with `record`'s id, when it was created with the same name,
+    /// calibration and options (a retry): `None` when there is none; ALREADY_EXISTS naming
+    /// `session_id` when it is another session.
+    async fn created_before(
+        &self,
+        caller: &Caller,
+        record: &SessionRecord,
+    ) -> Result<Option<pb::Session>, ServiceError> {
+        let info = match self.store.get(&record.id).await {
+            Ok(info) => info,
+            Err(StoreError::NotFound { .. }) => return Ok(None),
+            Err(e) => return Err(e.into()),
+        };
+        let held = &info.record;
+        if held.name != record.name
+            || held.calibration != record.calibration
+            || held.options != record.options
+        {
+            let id = public_id(caller, &record.id).unwrap_or(&record.id);
+            return Err(ServiceError::AlreadyExists {
+                field: "session_id".to_string(),
+                what: format!(
+                    "session {id:?} exists with another name, calibration or options: a retry \
+                     sends the same session, and another session needs an id of its own"
+                ),
+            });
+        }
+        self.session_pb(caller, &info, true).map(Some)
     }
 
     pub async fn get_session(

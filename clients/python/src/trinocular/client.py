@@ -435,6 +435,16 @@ class Client:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def _retried(self, retries: Optional[int], name: Optional[str]):
+        """The retries of a call that makes something (the client's by default), and the name
+        that makes repeating it safe: `name`, or a random UUID when it is to be retried."""
+        retries = self.retries if retries is None else retries
+        if retries < 0:
+            raise ValueError("retries must be 0 or more")
+        if name is None and retries > 0:
+            name = uuid.uuid4().hex
+        return retries, name
+
     def _call_again(self, name: str, request, default_field: Optional[str] = None,
                     retries: Optional[int] = None):
         """`_call`, sent again up to `retries` (default: the client's) times while its answer
@@ -549,11 +559,7 @@ class Client:
         twice; the id of another session is `AlreadyExists`. `retries` (default: the
         client's): how many times to send it again after a failure that may have lost the
         answer — the session is then given a random id unless `session_id` is."""
-        retries = self.retries if retries is None else retries
-        if retries < 0:
-            raise ValueError("retries must be 0 or more")
-        if session_id is None and retries > 0:
-            session_id = uuid.uuid4().hex
+        retries, session_id = self._retried(retries, session_id)
         req = pb.CreateSessionRequest(name=name, calibration=load_calibration(calibration),
                                       session_id=session_id or "")
         opts = _parse(options, pb.MatchOptions)
@@ -585,11 +591,7 @@ class Client:
         calling again gives the same `capture_id` itself."""
         if (images is None) == (segments is None):
             raise ValueError("give exactly one of images= or segments=")
-        retries = self.retries if retries is None else retries
-        if retries < 0:
-            raise ValueError("retries must be 0 or more")
-        if capture_id is None and retries > 0:
-            capture_id = uuid.uuid4().hex
+        retries, capture_id = self._retried(retries, capture_id)
         req = pb.AddCaptureRequest(session_id=session_id, rig_to_world=_pose(rig_to_world),
                                    capture_id=capture_id or "")
         if rig_to_world_covariance is not None:

@@ -544,16 +544,22 @@ mod tests {
         cleanup(&s).await;
     }
 
+    /// Two stores under one test prefix, each with its own connection, as two replicas have,
+    /// and a session `id` created through the first; None (after saying so) without Redis.
+    async fn two_replicas(test: &str, id: &str) -> Option<(Arc<RedisStore>, Arc<RedisStore>)> {
+        let ttl = Duration::from_secs(3600);
+        let a = store(test, ttl).await?;
+        let b = RedisStore::open(&url(), &a.prefix, ttl).await.unwrap();
+        a.create(&contract::record(id)).await.unwrap();
+        Some((Arc::new(a), Arc::new(b)))
+    }
+
     #[tokio::test]
     async fn redis_two_replicas_append_concurrently() {
-        let ttl = Duration::from_secs(3600);
-        let Some(a) = store("redis_two_replicas_append_concurrently", ttl).await else {
+        let Some((a, b)) = two_replicas("redis_two_replicas_append_concurrently", "shared").await
+        else {
             return;
         };
-        // A second store with its own connection, as another replica would have.
-        let b = RedisStore::open(&url(), &a.prefix, ttl).await.unwrap();
-        a.create(&contract::record("shared")).await.unwrap();
-        let (a, b) = (Arc::new(a), Arc::new(b));
         let append_all = |s: Arc<RedisStore>, replica: u8| {
             tokio::spawn(async move {
                 let mut got = Vec::new();
@@ -580,13 +586,10 @@ mod tests {
 
     #[tokio::test]
     async fn redis_two_replicas_store_a_named_capture_once() {
-        let ttl = Duration::from_secs(3600);
-        let Some(a) = store("redis_two_replicas_store_a_named_capture_once", ttl).await else {
+        let test = "redis_two_replicas_store_a_named_capture_once";
+        let Some((a, b)) = two_replicas(test, "retried").await else {
             return;
         };
-        let b = RedisStore::open(&url(), &a.prefix, ttl).await.unwrap();
-        a.create(&contract::record("retried")).await.unwrap();
-        let (a, b) = (Arc::new(a), Arc::new(b));
         // Each capture sent to both replicas at once, as a client's retry may race its first
         // attempt: one of the two stores it, the other answers with it.
         let send_all = |s: Arc<RedisStore>, replica: u8| {

@@ -180,6 +180,17 @@ impl JsonBody for reqwest::Response {
     }
 }
 
+/// The `/metrics` text of the server whose HTTP port is `http_addr`.
+pub async fn metrics_text(http: &reqwest::Client, http_addr: std::net::SocketAddr) -> String {
+    http.get(format!("http://{http_addr}/metrics"))
+        .send()
+        .await
+        .expect("metrics")
+        .text()
+        .await
+        .expect("metrics body")
+}
+
 /// The runtime of the tests' servers and clients.
 pub fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread()

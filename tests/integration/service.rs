@@ -7,7 +7,7 @@ use prost::Message;
 use trinocular::api::{self, pb, RunMatch};
 use trinocular::service::{server, Limits};
 
-use crate::common::{example_request, runtime, JsonBody};
+use crate::common::{example_request, metrics_text, runtime, JsonBody};
 
 async fn start(limits: Limits) -> server::Running {
     let any = "127.0.0.1:0".parse().unwrap();
@@ -579,14 +579,7 @@ fn deadlines_are_honoured_on_both_transports() {
 async fn stopped_jobs(http: &reqwest::Client, running: &server::Running, n: u64) -> u64 {
     let mut seen = 0;
     for _ in 0..500 {
-        let text = http
-            .get(format!("http://{}/metrics", running.http_addr))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
+        let text = metrics_text(http, running.http_addr).await;
         seen = text
             .lines()
             .filter(|l| l.starts_with("trinocular_jobs_stopped_total{"))
@@ -722,14 +715,7 @@ fn metrics_count_requests_by_transport_and_code() {
             .await
             .unwrap();
         assert_eq!(reply.status(), 400);
-        let text = http
-            .get(format!("http://{}/metrics", running.http_addr))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
+        let text = metrics_text(&http, running.http_addr).await;
         let has = |line: &str| text.lines().any(|l| l == line);
         assert!(
             has(r#"trinocular_requests_total{code="OK",route="match",transport="grpc"} 1"#),

@@ -10,7 +10,9 @@ use trinocular::api::{self, pb};
 use trinocular::service::{server, Limits};
 use trinocular::synth::{panoramic_session, Defects};
 
-use crate::common::{embedded_service, runtime, scratch_dir, JsonBody, ServerProcess};
+use crate::common::{
+    embedded_service, metrics_text, runtime, scratch_dir, JsonBody, ServerProcess,
+};
 
 fn limits() -> Limits {
     Limits {
@@ -706,14 +708,7 @@ fn a_capture_sent_again_under_its_name_is_stored_once() {
             .all(|a| a.registration == answers[0].registration));
         assert_eq!(captures_held(&mut grpc).await, 3);
         // Operators see how often clients retry.
-        let metrics = http
-            .get(format!("http://{}/metrics", running.http_addr))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
+        let metrics = metrics_text(&http, running.http_addr).await;
         for (outcome, count) in [("stored", 3), ("retried", 5)] {
             let line = format!("trinocular_captures_total{{outcome=\"{outcome}\"}} {count}");
             assert!(metrics.lines().any(|l| l == line), "{line} in\n{metrics}");

@@ -87,8 +87,7 @@ pub trait SessionStore: Send + Sync {
     /// the TTL. Concurrent appends (from any replica) each get their own index.
     async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
         match self.append_named(id, capture, None).await? {
-            Appended::New(index) => Ok(index),
-            Appended::Existing { index, .. } => Ok(index),
+            Appended::New(index) | Appended::Existing { index, .. } => Ok(index),
         }
     }
     /// [`SessionStore::append_capture`] under the client's `name` for the capture, in the

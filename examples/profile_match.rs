@@ -2,7 +2,10 @@
 //! over on one thread, for a profiler to sample (`tools/perf_report.sh` runs it under
 //! `perf record`); prints the median of each stage's time (`stats`) over the runs.
 //!
-//!     cargo run --release --example profile_match -- [N] [RUNS]
+//!     cargo run --release --example profile_match -- [N] [RUNS] [VERTEX_REACH_PX]
+//!
+//! `VERTEX_REACH_PX` (default: the default `MatchParams::vertex_reach_px`) compares a stage
+//! with and without shared vertices in one build; 0 turns them off.
 
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
@@ -18,18 +21,27 @@ fn main() {
     let n: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(600);
     let runs: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(2000);
     let (rig, lists) = scattered_capture(n, 0.3, 0.2, 1);
-    let options = Options::with(MatchParams::default());
+    let vertex_reach_px: f64 = args
+        .next()
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(MatchParams::VERTEX_REACH_PX);
+    let options = Options::with(MatchParams {
+        vertex_reach_px,
+        ..MatchParams::default()
+    });
     let one = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .expect("pool");
     let mut stages: [Vec<f64>; 5] = Default::default();
+    let mut joined = 0;
     one.install(|| {
         for _ in 0..runs {
             let s = pipeline::run(&rig, Input::lists(&lists), &options)
                 .expect("matched")
                 .output
                 .stats;
+            joined = s.joined_at_vertices;
             for (v, x) in stages.iter_mut().zip([
                 s.rectify_ms,
                 s.predict_ms,
@@ -43,6 +55,6 @@ fn main() {
     });
     let [rectify, predict, validate, reconstruct, total] = stages.map(median);
     println!(
-        "match/{n}, {runs} runs, medians: rectify {rectify:.3} predict {predict:.3} validate {validate:.3} reconstruct {reconstruct:.3} total {total:.3} ms"
+        "match/{n}, {runs} runs, medians: rectify {rectify:.3} predict {predict:.3} validate {validate:.3} reconstruct {reconstruct:.3} total {total:.3} ms; {joined} joined at a vertex"
     );
 }

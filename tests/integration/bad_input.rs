@@ -64,6 +64,9 @@ fn non_finite_numbers_are_named() {
     r["options"] = json!({"depthBlindGradientRatioMax": 0.5});
     assert_eq!(field_of(&r), "options.depth_blind_gradient_ratio_max");
     let mut r = request_json();
+    r["options"] = json!({"vertexReachPx": 9});
+    assert_eq!(field_of(&r), "options.vertex_reach_px");
+    let mut r = request_json();
     r["options"] = json!({"minGradientToBackground": "-Infinity"});
     assert_eq!(field_of(&r), "options.min_gradient_to_background");
     let mut r = request_json();

@@ -18,10 +18,13 @@ use thiserror::Error;
 
 use crate::extract::{self, Adjacent, Extraction, GreyImage};
 use crate::geometry::{
-    Line3Estimate, LineObservation, Rectification, RectifyError, Rig, RigFrames,
+    estimate_line_through, Line3Estimate, LineObservation, PointOnLine, Rectification,
+    RectifyError, Rig, RigFrames,
 };
 use crate::matching::{self, Hypothesis, MatchParams, ParamErrors, RectSegment, Views};
-use crate::reconstruct::{fragment_groups, reconstruct, reconstruct_fragments, reconstruct_pieces};
+use crate::reconstruct::{
+    fragment_groups, reconstruct, reconstruct_fragments, reconstruct_pieces, END_SIGMA_PX,
+};
 use crate::segment::{CrowdingModel, LineNoise, Segment3, SegmentList};
 
 /// How far outside the image a segment endpoint may lie, in image sizes: farther is not a
@@ -216,6 +219,10 @@ pub struct MatchStats {
     /// segments, that is one 3D line elsewhere within its noise: the images cannot tell the
     /// two apart, so they are uncertain (counted in `uncertain` too).
     pub ambiguous: u32,
+    /// Of the winners the gate doubted: made certain by a vertex they share with a certain
+    /// one (`MatchParams::vertex_reach_px`), before the uniqueness test (which may still find
+    /// them `ambiguous`).
+    pub joined_at_vertices: u32,
     /// How much larger than stated the image-line noise turned out to be in this capture (a
     /// factor on σ, at least 1; read off the first reconstructions: mostly the calibration's
     /// own error).
@@ -1126,6 +1133,12 @@ fn validate_and_reconstruct(
         )?;
         stats.reconstruct_ms += ms(t);
     }
+    if params.vertex_reach_px > 0.0 {
+        checkpoint.before("reconstruct")?;
+        let t = Instant::now();
+        join_at_vertices(request, &observations, &kept, &mut fits, stats)?;
+        stats.reconstruct_ms += ms(t);
+    }
     if params.validate {
         // The rivals' reconstructions are more work: a request past its deadline stops here.
         checkpoint.before("reconstruct")?;
@@ -1431,6 +1444,146 @@ fn flag_ambiguous(
         }
     }
 }
+
+/// Shared vertices: an uncertain winner that ends, in all three views, where a certain winner
+/// ends — a corner the two edges share — is estimated again through that vertex, whose 3D
+/// place the certain segment measured (its end and that end's covariance, a point the line
+/// passes through: [`crate::geometry::estimate_line_through`]). It takes the new fit when that
+/// is still one line within its noise and now meets the gate. A short segment's direction is
+/// what the gate refuses (docs/ACCURACY.md); a vertex fixed by a long segment fixes one of its
+/// ends, two vertices the whole line.
+///
+/// The ends must meet within `MatchParams::vertex_reach_px` in every view, each view's image
+/// of the certain end against the uncertain segment's observed ends: an occluded line that
+/// stops at an occluding contour meets it at a different place in each view, and a T-junction
+/// meets the other segment's middle, not its end. Only winners certain before this step lend
+/// vertices, so the outcome does not depend on the order. Those made certain are then
+/// checked for uniqueness like every certain winner ([`flag_ambiguous`]).
+fn join_at_vertices(
+    request: &Matching,
+    observations: &Observations,
+    kept: &[usize],
+    fits: &mut [Option<Fit>],
+    stats: &mut MatchStats,
+) -> Result<(), Stopped> {
+    let Matching {
+        rig,
+        hypotheses,
+        params,
+        checkpoint,
+        ..
+    } = *request;
+    let reach = params.vertex_reach_px;
+    let cameras = [rig.camera(0), rig.camera(1), rig.camera(2)];
+    // The certain winners' ends: where each lies, how well, its image in each view
+    // (undistorted, as the observations are) and its triplet.
+    struct Vertex {
+        known: PointOnLine,
+        image: [Point2<f64>; 3],
+        segments: [u32; 3],
+    }
+    let mut vertices: Vec<Vertex> = Vec::new();
+    for &h in kept {
+        let Some(Some((est, quality))) = &fits[h] else {
+            continue;
+        };
+        if !quality.certain {
+            continue;
+        }
+        for (point, block) in [(est.start, 0), (est.end, 3)] {
+            let image = cameras.map(|c| {
+                let x = c.projection() * point.to_homogeneous();
+                (x.z > 0.0).then(|| Point2::new(x.x / x.z, x.y / x.z))
+            });
+            let [Some(a), Some(b), Some(c)] = image else {
+                continue;
+            };
+            vertices.push(Vertex {
+                known: PointOnLine {
+                    point,
+                    covariance: est.covariance.fixed_view::<3, 3>(block, block).into_owned(),
+                },
+                image: [a, b, c],
+                segments: hypotheses[h].segments,
+            });
+        }
+    }
+    if vertices.is_empty() {
+        return Ok(());
+    }
+    // Indexed by their image in view 1, in cells as wide as the reach. A cell where more
+    // ends pile up than edges meet at a corner is a crowd, not a vertex: it lends none (and a
+    // request that piles its segments' ends on one pixel pays once for them, not once per
+    // segment).
+    let cell = |p: &Point2<f64>| ((p.x / reach).floor() as i64, (p.y / reach).floor() as i64);
+    let mut cells: FxHashMap<(i64, i64), Vec<u32>> = FxHashMap::default();
+    for (i, v) in vertices.iter().enumerate() {
+        cells.entry(cell(&v.image[0])).or_default().push(i as u32);
+    }
+    cells.retain(|_, ends| ends.len() <= MAX_ENDS_AT_A_VERTEX);
+    let factor = stats.noise_scale.powi(2);
+    let uncertain: Vec<usize> = kept
+        .iter()
+        .copied()
+        .filter(|&h| matches!(&fits[h], Some(Some((_, q))) if !q.certain))
+        .collect();
+    for (done, h) in uncertain.into_iter().enumerate() {
+        if done % RECONSTRUCT_CHUNK == 0 {
+            checkpoint.before("reconstruct")?;
+        }
+        // A triplet whose depth rests on the searched view alone (its verifying view runs
+        // along the line: docs/RIGS.md) has ends the views place along that line, and a
+        // vertex that meets them there may lie anywhere along the rays: on the near-collinear
+        // rig it pinned 13 lines of 16 rooms to another edge's end, each near no edge.
+        if hypotheses[h].depth_blind {
+            continue;
+        }
+        let segments = hypotheses[h].segments;
+        let obs: [LineObservation; 3] =
+            std::array::from_fn(|v| observations.lines[v][segments[v] as usize]);
+        let meets = |vertex: &Vertex| {
+            (0..3).all(|v| {
+                let (o, q) = (&obs[v], vertex.image[v]);
+                vertex.segments[v] != segments[v]
+                    && ((o.start - q).norm() <= reach || (o.end - q).norm() <= reach)
+            })
+        };
+        let mut through: Vec<PointOnLine> = Vec::new();
+        for end in [obs[0].start, obs[0].end] {
+            let (cx, cy) = cell(&end);
+            let nearest = (cx - 1..=cx + 1)
+                .flat_map(|x| (cy - 1..=cy + 1).map(move |y| (x, y)))
+                .filter_map(|key| cells.get(&key))
+                .flatten()
+                .map(|&i| &vertices[i as usize])
+                .filter(|v| (v.image[0] - end).norm() <= reach && meets(v))
+                .min_by(|a, b| {
+                    (a.image[0] - end)
+                        .norm()
+                        .total_cmp(&(b.image[0] - end).norm())
+                });
+            if let Some(v) = nearest {
+                if through.iter().all(|k| k.point != v.known.point) {
+                    through.push(v.known);
+                }
+            }
+        }
+        if through.is_empty() {
+            continue;
+        }
+        let est = estimate_line_through(&cameras, &obs, END_SIGMA_PX, &through)
+            .map(|e| rescaled(e, factor));
+        if let Some(fit) = accept(est, rig, params).filter(|(_, q)| q.certain) {
+            fits[h] = Some(Some(fit));
+            stats.joined_at_vertices += 1;
+        }
+    }
+    Ok(())
+}
+
+/// Most certain ends in one cell of [`join_at_vertices`]'s index (as wide as the reach) for
+/// them to lend a vertex: a corner where a few edges meet.
+const MAX_ENDS_AT_A_VERTEX: usize = 8;
 
 /// How far across a segment an opposite-contrast segment may lie to be tried in its place,
 /// pixels.
@@ -1892,6 +2045,97 @@ mod tests {
         assert_eq!(modelled.segments_3d.len(), 1, "{:?}", modelled.stats);
         assert!(modelled.segments_3d[0].uncertain);
         assert!(run_lists(None, false).segments_3d.is_empty());
+    }
+
+    #[test]
+    fn a_short_segment_ending_at_a_certain_ones_end_is_placed_through_their_vertex() {
+        let rig = preset_rig();
+        // A post 2 m ahead, 60 cm tall, seen precisely (0.05 px at each end); from its top a
+        // short rail runs off to the side and back, 14 cm, seen to 0.15 px: too short for its
+        // direction to meet the gate alone.
+        let top = nalgebra::Point3::new(0.05, 2.0, 0.15);
+        let post = [nalgebra::Point3::new(0.05, 2.0, -0.45), top];
+        let rail = [top, top + nalgebra::Vector3::new(0.1, 0.07, 0.06)];
+        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], sigma_px: Option<f64>| {
+            let cam = rig.camera(view);
+            let (a, b) = (
+                cam.project(&line[0]).unwrap(),
+                cam.project(&line[1]).unwrap(),
+            );
+            Segment2 {
+                gradient: Some(20.0),
+                noise: sigma_px.map(|s| LineNoise::from_endpoint_sigma(s, (b - a).norm())),
+                ..Segment2::new(a, b)
+            }
+        };
+        // `gap_px`: the rail's segment in view 3 starts this far along itself from the post's
+        // top, as where an occluded line stops differs from view to view.
+        let lists_with = |gap_px: f64| -> [SegmentList; 3] {
+            std::array::from_fn(|v| {
+                let mut rail = seen(v, &rail, Some(0.15));
+                if v == 2 {
+                    rail.start += (rail.end - rail.start).normalize() * gap_px;
+                }
+                SegmentList {
+                    segments: vec![seen(v, &post, Some(0.05)), rail],
+                    oriented: true,
+                    background_gradient: None,
+                }
+            })
+        };
+        let lists = lists_with(0.0);
+        let run_with = |vertex_reach_px| {
+            let params = MatchParams {
+                vertex_reach_px,
+                include_uncertain: true,
+                ..MatchParams::default()
+            };
+            run(&rig, Input::lists(&lists), &Options::with(params))
+                .unwrap()
+                .output
+        };
+        let rail_of = |out: &MatchOutput| {
+            out.segments_3d
+                .iter()
+                .find(|s| out.triplets[s.triplet as usize].segments == [1, 1, 1])
+                .cloned()
+                .expect("the rail is matched")
+        };
+        let alone = run_with(0.0);
+        assert_eq!(alone.stats.joined_at_vertices, 0);
+        let before = rail_of(&alone);
+        assert!(before.uncertain, "{before:?}");
+        let joined = run_with(MatchParams::VERTEX_REACH_PX);
+        assert_eq!(joined.stats.joined_at_vertices, 1, "{:?}", joined.stats);
+        let after = rail_of(&joined);
+        assert!(!after.uncertain, "{after:?}");
+        assert!(after.direction_sigma_deg < 0.8 * before.direction_sigma_deg);
+        // And it is where the rail is: its ends on the rail's line.
+        let truth = (rail[1] - rail[0]).normalize();
+        for p in [after.segment.start, after.segment.end] {
+            let w = p - rail[0];
+            assert!((w - truth * w.dot(&truth)).norm() < 0.005, "{p}");
+        }
+        // The post lent its vertex and stayed as it was.
+        let post_of = |out: &MatchOutput| {
+            out.segments_3d
+                .iter()
+                .find(|s| out.triplets[s.triplet as usize].segments == [0, 0, 0])
+                .map(|s| (s.segment, s.uncertain))
+        };
+        assert_eq!(post_of(&joined), post_of(&alone));
+        assert_eq!(post_of(&alone).map(|p| p.1), Some(false));
+        // Ends that meet in two views but not the third are no vertex.
+        let apart = lists_with(3.0);
+        let params = MatchParams {
+            include_uncertain: true,
+            ..MatchParams::default()
+        };
+        let out = run(&rig, Input::lists(&apart), &Options::with(params))
+            .unwrap()
+            .output;
+        assert_eq!(out.stats.joined_at_vertices, 0, "{:?}", out.stats);
+        assert!(rail_of(&out).uncertain);
     }
 
     #[test]

@@ -269,6 +269,7 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         line_noise_px,
         list_push_px,
         max_direction_sigma_deg,
+        vertex_reach_px,
         gate_direction_deg,
         gate_position_m,
         gate_position_rel,
@@ -298,6 +299,7 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         line_noise_px: line_noise_px.unwrap_or(d.line_noise_px),
         list_push_px: list_push_px.unwrap_or(d.list_push_px),
         max_direction_sigma_deg: max_direction_sigma_deg.unwrap_or(d.max_direction_sigma_deg),
+        vertex_reach_px: vertex_reach_px.unwrap_or(d.vertex_reach_px),
         gate_direction_deg: gate_direction_deg.unwrap_or(d.gate_direction_deg),
         gate_position_m: gate_position_m.unwrap_or(d.gate_position_m),
         gate_position_rel: gate_position_rel.unwrap_or(d.gate_position_rel),
@@ -760,6 +762,7 @@ pub fn match_response(
             ambiguous: s.ambiguous,
             gradient_gains: s.gradient_gains.to_vec(),
             depth_blind_refused: s.depth_blind_refused,
+            joined_at_vertices: s.joined_at_vertices,
         }),
         extracted: extracted
             .map(|e| e.iter().map(|x| segment_list_to_pb(&x.segments)).collect())

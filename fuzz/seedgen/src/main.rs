@@ -148,6 +148,7 @@ fn main() {
         min_gradient: Some(1.0),
         min_gradient_to_background: Some(2.5),
         max_direction_sigma_deg: Some(90.0),
+        vertex_reach_px: Some(2.0),
         extract: Some(pb::ExtractOptions {
             smoothing_sigma_px: Some(1.0),
             gradient_low: Some(2.0),

@@ -275,6 +275,27 @@ pub fn estimate_line(
     obs: &[LineObservation],
     end_sigma_px: f64,
 ) -> Option<Line3Estimate> {
+    estimate_line_through(cameras, obs, end_sigma_px, &[])
+}
+
+/// A 3D point the line is known to pass through, with its covariance (metres²): where
+/// another, better measured segment ends at a vertex the two share.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PointOnLine {
+    pub point: Point3<f64>,
+    pub covariance: Matrix3<f64>,
+}
+
+/// [`estimate_line`] with `through`, points the line passes through within their
+/// covariance, as observations of the line besides the images: each adds the squared
+/// normalised distance of its point from the line (two degrees of freedom) to the χ²
+/// minimised. With none, it is [`estimate_line`] to the bit.
+pub fn estimate_line_through(
+    cameras: &[&Camera; 3],
+    obs: &[LineObservation],
+    end_sigma_px: f64,
+    through: &[PointOnLine],
+) -> Option<Line3Estimate> {
     let (mut x0, mut d) = linear_start(cameras, obs)?;
     let points: Vec<(usize, VirtualPoints)> = obs
         .iter()
@@ -297,6 +318,24 @@ pub fn estimate_line(
                 chi2 += rn * rn;
                 sum_px += r * r;
             }
+        }
+        for known in through {
+            // The point's offset from the line across it, and how it moves with the line's
+            // parameters: the line's point moved by (a, b) along (e1, e2), its direction
+            // turned by (c, f) at the pivot, which at `t` along the line moves it t·(c, f).
+            let w = known.point.coords - x0;
+            let t = w.dot(d);
+            let r = nalgebra::Vector2::new(e1.dot(&w), e2.dot(&w));
+            let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
+            let weight = (basis.transpose() * known.covariance * basis).try_inverse()?;
+            let mut a = nalgebra::Matrix2x4::<f64>::zeros();
+            a[(0, 0)] = -1.0;
+            a[(0, 2)] = -t;
+            a[(1, 1)] = -1.0;
+            a[(1, 3)] = -t;
+            h += a.transpose() * weight * a;
+            g += a.transpose() * weight * r;
+            chi2 += r.dot(&(weight * r));
         }
         Some((h, g, chi2, sum_px, e1, e2))
     };
@@ -400,7 +439,7 @@ pub fn estimate_line(
     // stated noise was too small for this line: scale up (never down) by the χ² per degree
     // of freedom.
     let n_obs = points.len() * 2;
-    let dof = n_obs.saturating_sub(4);
+    let dof = (n_obs + 2 * through.len()).saturating_sub(4);
     let posterior = if dof > 0 {
         (chi2 / dof as f64).max(1.0)
     } else {

@@ -12,7 +12,9 @@ pub mod line;
 pub mod rectify;
 
 pub use camera::{Camera, CameraError, Distortion, Rig, RigError};
-pub use line::{across_basis, estimate_line, Line3Estimate, LineObservation};
+pub use line::{
+    across_basis, estimate_line, estimate_line_through, Line3Estimate, LineObservation, PointOnLine,
+};
 pub use rectify::{Rectification, RectifyError, RigFrames};
 
 #[cfg(test)]

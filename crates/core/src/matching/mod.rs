@@ -71,6 +71,12 @@ pub struct MatchParams {
     pub list_push_px: f64,
     /// 3D segments whose direction σ exceeds this are dropped, degrees.
     pub max_direction_sigma_deg: f64,
+    /// An uncertain 3D segment that ends, within this many pixels in every view, where a
+    /// certain one ends is estimated again through that shared vertex (`pipeline`,
+    /// docs/ACCURACY.md "Shared vertices"); 0 turns it off. 2 gained completeness in both
+    /// rendered rooms from images and LSD lists at no error; 3 placed a segment from LSD lists
+    /// near no edge.
+    pub vertex_reach_px: f64,
     /// The accuracy a 3D segment must meet, at `gate_confidence`, to be in the answer by
     /// default: its direction within `gate_direction_deg`, and its midpoint and both ends
     /// across the line within max(`gate_position_m`, `gate_position_rel` × distance from the
@@ -102,6 +108,7 @@ impl Default for MatchParams {
             line_noise_px: 0.3,
             list_push_px: crate::segment::CrowdingModel::LSD_PUSH_PX,
             max_direction_sigma_deg: 180.0,
+            vertex_reach_px: MatchParams::VERTEX_REACH_PX,
             gate_direction_deg: 5.0,
             gate_position_m: 0.02,
             gate_position_rel: 0.01,
@@ -110,6 +117,15 @@ impl Default for MatchParams {
         }
     }
 }
+
+impl MatchParams {
+    /// The default of [`MatchParams::vertex_reach_px`].
+    pub const VERTEX_REACH_PX: f64 = 2.0;
+}
+
+/// Largest `vertex_reach_px`: ends farther apart than a segment's own minimum length are not
+/// one vertex.
+pub const MAX_VERTEX_REACH_PX: f64 = 8.0;
 
 /// Largest `list_push_px`: a push is at most a quarter of the distance anyway, and five
 /// times LSD's is no detector's.
@@ -215,6 +231,12 @@ impl MatchParams {
                 self.max_direction_sigma_deg,
                 self.max_direction_sigma_deg > 0.0,
                 "a finite number greater than 0",
+            ),
+            rule(
+                "vertex_reach_px",
+                self.vertex_reach_px,
+                (0.0..=MAX_VERTEX_REACH_PX).contains(&self.vertex_reach_px),
+                "a finite number in [0, 8]",
             ),
             rule(
                 "gate_direction_deg",

@@ -1515,7 +1515,17 @@ fn join_at_vertices(
     // ends pile up than edges meet at a corner is a crowd, not a vertex: it lends none (and a
     // request that piles its segments' ends on one pixel pays once for them, not once per
     // segment).
-    let cell = |p: &Point2<f64>| ((p.x / reach).floor() as i64, (p.y / reach).floor() as i64);
+    // Cells no smaller than a hundredth of a pixel, and their neighbours found with
+    // saturating steps: a reach of 1e-300 px put the ends in a cell at i64::MAX, whose
+    // neighbour overflowed (found by `fuzz/match_whole`), and a certain end projected from
+    // near a camera's plane lands there at any reach.
+    let cell_px = reach.max(MIN_VERTEX_CELL_PX);
+    let cell = |p: &Point2<f64>| {
+        (
+            (p.x / cell_px).floor() as i64,
+            (p.y / cell_px).floor() as i64,
+        )
+    };
     let mut cells: FxHashMap<(i64, i64), Vec<u32>> = FxHashMap::default();
     for (i, v) in vertices.iter().enumerate() {
         cells.entry(cell(&v.image[0])).or_default().push(i as u32);
@@ -1551,8 +1561,8 @@ fn join_at_vertices(
         let mut through: Vec<PointOnLine> = Vec::new();
         for end in [obs[0].start, obs[0].end] {
             let (cx, cy) = cell(&end);
-            let nearest = (cx - 1..=cx + 1)
-                .flat_map(|x| (cy - 1..=cy + 1).map(move |y| (x, y)))
+            let nearest = (cx.saturating_sub(1)..=cx.saturating_add(1))
+                .flat_map(|x| (cy.saturating_sub(1)..=cy.saturating_add(1)).map(move |y| (x, y)))
                 .filter_map(|key| cells.get(&key))
                 .flatten()
                 .map(|&i| &vertices[i as usize])
@@ -1584,6 +1594,9 @@ fn join_at_vertices(
 /// Most certain ends in one cell of [`join_at_vertices`]'s index (as wide as the reach) for
 /// them to lend a vertex: a corner where a few edges meet.
 const MAX_ENDS_AT_A_VERTEX: usize = 8;
+/// Smallest cell of that index, pixels: any size down to the reach finds the same vertices
+/// (the 3 × 3 cells about an end hold every end within the reach of it).
+const MIN_VERTEX_CELL_PX: f64 = 0.01;
 
 /// How far across a segment an opposite-contrast segment may lie to be tried in its place,
 /// pixels.
@@ -2136,6 +2149,13 @@ mod tests {
             .output;
         assert_eq!(out.stats.joined_at_vertices, 0, "{:?}", out.stats);
         assert!(rail_of(&out).uncertain);
+        // A reach far below a pixel is a valid option: it finds no vertex, and the index of
+        // the ends stays within i64 (found by fuzzing: an overflow in the neighbouring cell).
+        for tiny in [1e-300, f64::MIN_POSITIVE, 1e-17] {
+            let out = run_with(tiny);
+            assert_eq!(out.stats.joined_at_vertices, 0, "{tiny}");
+            assert_eq!(rail_of(&out).uncertain, before.uncertain);
+        }
     }
 
     #[test]

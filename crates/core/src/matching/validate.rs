@@ -260,7 +260,8 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
     }
     // Cells no smaller than a hundredth of a pixel: a radius of 1e-17 px would put every end
     // in a cell at i64::MAX (found by fuzzing), and larger cells only make the 3 x 3 search
-    // look at a few more ends.
+    // look at a few more ends. An end that far out all the same (a rectified coordinate
+    // past 10¹⁶ px) has its neighbouring cells found with saturating steps.
     let size = radius.max(MIN_CELL_PX);
     let cell = |p: Point2<f64>| ((p.x / size).floor() as i64, (p.y / size).floor() as i64);
     let mut ends: Vec<((i64, i64), u32, Point2<f64>)> = segments
@@ -282,7 +283,8 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
         for dx in -1..=1 {
             // Endpoints of one column of three cells are contiguous in (x, y) order: nothing
             // sorts between (x, y − 1), (x, y) and (x, y + 1).
-            let column = (-1..=1).filter_map(|dy| runs.get(&(cx + dx, cy + dy)));
+            let column =
+                (-1..=1).filter_map(|dy| runs.get(&(cx.saturating_add(dx), cy.saturating_add(dy))));
             let (Some(lo), Some(hi)) =
                 (column.clone().map(|r| r.0).min(), column.map(|r| r.1).max())
             else {

@@ -2,13 +2,15 @@
 //! odometry gives: the driving sessions of issue 16, rendered and scored by our own `synth`.
 //!
 //!     cargo run --release --example driving_session -- [--seeds 1,2,3,4] [--captures 16]
-//!         [--noise 0/0,1/0.02,3/0.05] [--out DIR] [--verbose] [--in-3d-only]
+//!         [--revisit N] [--noise 0/0,1/0.02,3/0.05] [--out DIR] [--verbose] [--in-3d-only]
 //!
 //! Per seed: the standard room (`synth::Scene::room`) and rig (`RigSpec::non_collinear`);
 //! the rig drives once round an ellipse through the middle of the room, 1.2 m up, looking
 //! along its path — `--captures` captures, 0.3–0.45 m and 15–30° apart, the last one a step
 //! behind the first and turned from it (in seed 6 its views hold 1 of the first capture's 64
-//! segments: the loop does not close by segments). Each capture is rendered (`render_triplet`) and
+//! segments: the loop does not close by segments; `--revisit N` drives N captures on past the
+//! start, half a step off the first captures' places, a loop whose end sees its start). Each
+//! capture is rendered (`render_triplet`) and
 //! matched from its images (every 3D segment kept with its covariance, as a session's
 //! AddCapture keeps them); each noise level `YAW_DEG/XY_M` then gives every capture but the
 //! first a heading error N(0, YAW_DEG) about its rig's origin and a floor error N(0, XY_M) per
@@ -40,6 +42,11 @@ struct Args {
     seeds: String,
     #[arg(long, default_value_t = 16)]
     captures: usize,
+    /// Drive on past the start for this many captures more, half a step off the first
+    /// captures' places (a loop whose end sees its start again, as a robot's does when it
+    /// comes back); 0: one lap, whose last capture is a step short of the first.
+    #[arg(long, default_value_t = 0)]
+    revisit: usize,
     /// Odometry noise levels, `yaw_deg/xy_m` comma-separated.
     #[arg(long, default_value = "0/0,1/0.02,3/0.05")]
     noise: String,
@@ -102,7 +109,7 @@ fn main() -> anyhow::Result<()> {
     println!("| seed | odometry noise | map segments | error | completeness | segments per covered edge | pose error, median |");
     println!("|---|---|---|---|---|---|---|");
     for &seed in &seeds {
-        let (scene, seen, eligible) = drive(seed, args.captures)?;
+        let (scene, seen, eligible) = drive(seed, args.captures, args.revisit)?;
         let truth_edges = scene.ground_truth_edges();
         let centres: Vec<Point3<f64>> = seen.iter().map(|s| s.centre).collect();
         let mean_centre = Point3::from(
@@ -185,10 +192,17 @@ struct Pooled {
 }
 
 /// The poses of the loop: position and heading (radians, the rig's yaw, 0 looking along +y).
-fn path(captures: usize) -> Vec<(Point3<f64>, f64)> {
-    (0..captures)
+/// `captures` round the lap, then `revisit` more past the start, each half-way between two
+/// of the lap's first places.
+fn path(captures: usize, revisit: usize) -> Vec<(Point3<f64>, f64)> {
+    (0..captures + revisit)
         .map(|k| {
-            let t = std::f64::consts::TAU * k as f64 / captures as f64;
+            let step = if k < captures {
+                k as f64
+            } else {
+                k as f64 + 0.5
+            };
+            let t = std::f64::consts::TAU * step / captures as f64;
             let (a, b) = (SEMI_AXES[0], SEMI_AXES[1]);
             let position = Point3::new(CENTRE[0] + a * t.cos(), CENTRE[1] + b * t.sin(), HEIGHT_M);
             // Counter-clockwise: the tangent, and the yaw that turns +y onto it.
@@ -200,7 +214,11 @@ fn path(captures: usize) -> Vec<(Point3<f64>, f64)> {
 
 /// Renders and matches every capture of the loop in room `seed`; returns the scene, the
 /// captures and the eligible parts of the ground truth, united over the captures.
-fn drive(seed: u64, captures: usize) -> anyhow::Result<(Scene, Vec<Seen>, Vec<Vec<Interval>>)> {
+fn drive(
+    seed: u64,
+    captures: usize,
+    revisit: usize,
+) -> anyhow::Result<(Scene, Vec<Seen>, Vec<Vec<Interval>>)> {
     let scene = Scene::room(seed);
     let spec = RigSpec::non_collinear(seed);
     let rig = spec.build(&Pose::identity())?;
@@ -211,7 +229,7 @@ fn drive(seed: u64, captures: usize) -> anyhow::Result<(Scene, Vec<Seen>, Vec<Ve
     let options = Options::with(params);
     let mut seen = Vec::new();
     let mut eligible: Vec<Vec<Interval>> = Vec::new();
-    for (k, (position, yaw)) in path(captures).into_iter().enumerate() {
+    for (k, (position, yaw)) in path(captures, revisit).into_iter().enumerate() {
         let pose = Pose::from_position_yaw(position, yaw);
         let placed = spec.build(&pose)?;
         let images = render_triplet(

@@ -1591,11 +1591,11 @@ fn join_at_vertices(
     Ok(())
 }
 
-/// Most certain ends in one cell of [`join_at_vertices`]'s index (as wide as the reach) for
-/// them to lend a vertex: a corner where a few edges meet.
+/// Most certain ends in one cell of [`join_at_vertices`]'s index (as wide as the reach, or
+/// [`MIN_VERTEX_CELL_PX`]) for them to lend a vertex: a corner where a few edges meet.
 const MAX_ENDS_AT_A_VERTEX: usize = 8;
-/// Smallest cell of that index, pixels: any size down to the reach finds the same vertices
-/// (the 3 × 3 cells about an end hold every end within the reach of it).
+/// Smallest cell of that index, pixels: any cell at least as wide as the reach finds the
+/// same vertices (the 3 × 3 cells about an end hold every end within the reach of it).
 const MIN_VERTEX_CELL_PX: f64 = 0.01;
 
 /// How far across a segment an opposite-contrast segment may lie to be tried in its place,

@@ -410,7 +410,12 @@ pub fn estimate_line_through(
     let mut shift = nalgebra::Matrix4::<f64>::identity();
     shift[(0, 2)] = mid;
     shift[(1, 3)] = mid;
-    let line_cov = shift * h.try_inverse()? * shift.transpose();
+    // A normal matrix too ill-conditioned for its inverse to come out positive definite
+    // (a line lying nearly in an epipolar plane of a collinear rig, known to metres: found by
+    // `ml_line_round_trips`) is a line the views do not determine.
+    let h_inv = h.try_inverse()?;
+    h_inv.cholesky()?;
+    let line_cov = shift * h_inv * shift.transpose();
     let (t_start, t_end) = if first_sign >= 0.0 {
         (lo, hi)
     } else {

@@ -1566,13 +1566,12 @@ fn join_at_vertices(
                 .filter_map(|key| cells.get(&key))
                 .flatten()
                 .map(|&i| &vertices[i as usize])
-                .filter(|v| (v.image[0] - end).norm() <= reach && meets(v))
-                .min_by(|a, b| {
-                    (a.image[0] - end)
-                        .norm()
-                        .total_cmp(&(b.image[0] - end).norm())
-                });
-            if let Some(v) = nearest {
+                .filter_map(|v| {
+                    let apart = (v.image[0] - end).norm();
+                    (apart <= reach && meets(v)).then_some((apart, v))
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((_, v)) = nearest {
                 if through.iter().all(|k| k.point != v.known.point) {
                     through.push(v.known);
                 }

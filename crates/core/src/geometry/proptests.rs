@@ -268,6 +268,46 @@ fn noisy_images(
     Some(obs)
 }
 
+/// χ²'s 95% and 99% quantiles for two degrees of freedom (a direction, or a point across a
+/// line): the calibration goal's bounds.
+const CHI2_2DOF_Q95: f64 = 5.991_464_547;
+const CHI2_2DOF_Q99: f64 = 9.210_340_372;
+/// Segments each calibration test scores, and draws it may take to find them.
+const CALIBRATION_SAMPLES: usize = 2000;
+const CALIBRATION_DRAWS: usize = 200_000;
+
+/// Draws segments from `random_segment`'s box (`half`, `depth`, `length`), images them with
+/// [`noisy_images`] and estimates each from its three lines, until `visit` has counted
+/// [`CALIBRATION_SAMPLES`] of them (it returns whether it counted one) or the draws run out;
+/// returns how many it counted. `visit` gets the generator to draw more of its own, in order.
+fn for_each_estimate(
+    cams: &[&Camera; 3],
+    rng: &mut trinocular_synth::Rng,
+    (half, depth, length): ([f64; 2], [f64; 2], [f64; 2]),
+    mut visit: impl FnMut(
+        &mut trinocular_synth::Rng,
+        (Point3<f64>, Point3<f64>),
+        &[LineObservation],
+        super::Line3Estimate,
+    ) -> bool,
+) -> usize {
+    let mut n = 0;
+    for _ in 0..CALIBRATION_DRAWS {
+        if n == CALIBRATION_SAMPLES {
+            break;
+        }
+        let (p, q) = random_segment(rng, half, depth, length);
+        let Some(obs) = noisy_images(cams, (p, q), rng) else {
+            continue;
+        };
+        let Some(est) = estimate_line(cams, &obs, 1.0) else {
+            continue;
+        };
+        n += usize::from(visit(rng, (p, q), &obs, est));
+    }
+    n
+}
+
 /// When the image lines carry exactly the noise they state, the reported covariance describes
 /// the true errors: squared normalised errors of the direction and of the midpoint (2 degrees
 /// of freedom each) fall within χ²'s 95% and 99% quantiles as often as they should. This is
@@ -278,28 +318,25 @@ fn ml_covariance_is_calibrated_when_the_noise_is_as_stated() {
     let r = uneven_triangle();
     let cams = [r.camera(0), r.camera(1), r.camera(2)];
     let mut rng = Rng::new(7);
-    let (mut n, mut dir95, mut dir99, mut pos95, mut pos99) = (0usize, 0, 0, 0, 0);
-    let (q95, q99) = (5.991_464_547, 9.210_340_372);
-    for _ in 0..200_000 {
-        if n == 2000 {
-            break;
-        }
-        // A segment 2–5 m in front (the rig looks along +y), 0.2–1.2 m long, any direction.
-        let (p, q) = random_segment(&mut rng, [1.0, 0.8], [2.0, 5.0], [0.2, 1.2]);
-        let Some(obs) = noisy_images(&cams, (p, q), &mut rng) else {
-            continue;
-        };
-        let Some(est) = estimate_line(&cams, &obs, 1.0) else {
-            continue;
-        };
-        let (cd, cp) = normalised_errors(&est, (p, q));
-        n += 1;
-        dir95 += usize::from(cd <= q95);
-        dir99 += usize::from(cd <= q99);
-        pos95 += usize::from(cp <= q95);
-        pos99 += usize::from(cp <= q99);
-    }
-    assert_eq!(n, 2000, "too few segments seen by all three cameras");
+    let (mut dir95, mut dir99, mut pos95, mut pos99) = (0, 0, 0, 0);
+    // Segments 2–5 m in front (the rig looks along +y), 0.2–1.2 m long, any direction.
+    let n = for_each_estimate(
+        &cams,
+        &mut rng,
+        ([1.0, 0.8], [2.0, 5.0], [0.2, 1.2]),
+        |_, truth, _, est| {
+            let (cd, cp) = normalised_errors(&est, truth);
+            dir95 += usize::from(cd <= CHI2_2DOF_Q95);
+            dir99 += usize::from(cd <= CHI2_2DOF_Q99);
+            pos95 += usize::from(cp <= CHI2_2DOF_Q95);
+            pos99 += usize::from(cp <= CHI2_2DOF_Q99);
+            true
+        },
+    );
+    assert_eq!(
+        n, CALIBRATION_SAMPLES,
+        "too few segments seen by all three cameras"
+    );
     let share = |k: usize| k as f64 / n as f64;
     println!(
         "direction {:.3} / {:.3}, position {:.3} / {:.3} within chi2 q95 / q99",
@@ -423,55 +460,52 @@ fn a_known_vertex_narrows_a_short_segments_direction_and_stays_calibrated() {
     let r = uneven_triangle();
     let cams = [r.camera(0), r.camera(1), r.camera(2)];
     let mut rng = Rng::new(11);
-    let (q95, q99) = (5.991_464_547, 9.210_340_372);
-    let (mut n, mut dir95, mut dir99, mut narrower) = (0usize, 0, 0, 0);
+    let (mut dir95, mut dir99, mut narrower) = (0, 0, 0);
     let mut sigma_ratios = Vec::new();
-    for _ in 0..200_000 {
-        if n == 2000 {
-            break;
-        }
-        // Short segments (8–25 cm, 2–4 m away): the ones whose direction the gate refuses.
-        let (p, q) = random_segment(&mut rng, [0.8, 0.6], [2.0, 4.0], [0.08, 0.25]);
-        let Some(obs) = noisy_images(&cams, (p, q), &mut rng) else {
-            continue;
-        };
-        let Some(alone) = estimate_line(&cams, &obs, 1.0) else {
-            continue;
-        };
-        assert_eq!(
-            estimate_line_through(&cams, &obs, 1.0, &[]),
-            Some(alone),
-            "no vertex: the same estimate to the bit"
-        );
-        // The vertex at p, measured to 5 mm across and 1 cm along an arbitrary axis, and off
-        // by exactly that noise.
-        let axis = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
-        let covariance =
-            Matrix3::identity() * 0.005f64.powi(2) + axis * axis.transpose() * 0.0075f64.powi(2);
-        let draw = covariance.cholesky().unwrap().l()
-            * Vector3::new(rng.normal(), rng.normal(), rng.normal());
-        let vertex = PointOnLine {
-            point: p + draw,
-            covariance,
-        };
-        let Some(est) = estimate_line_through(&cams, &obs, 1.0, &[vertex]) else {
-            continue;
-        };
-        let chi2 = normalised_errors(&est, (p, q)).0;
-        let sigma = |c: nalgebra::Matrix3<f64>| c.trace().sqrt();
-        let ratio = sigma(est.direction_covariance()) / sigma(alone.direction_covariance());
-        sigma_ratios.push(ratio);
-        n += 1;
-        narrower += usize::from(ratio < 1.0);
-        dir95 += usize::from(chi2 <= q95);
-        dir99 += usize::from(chi2 <= q99);
-        assert_eq!(
-            est.dof,
-            alone.dof + 2,
-            "a point adds two degrees of freedom"
-        );
-    }
-    assert_eq!(n, 2000, "too few segments seen by all three cameras");
+    // Short segments (8–25 cm, 2–4 m away): the ones whose direction the gate refuses.
+    let n = for_each_estimate(
+        &cams,
+        &mut rng,
+        ([0.8, 0.6], [2.0, 4.0], [0.08, 0.25]),
+        |rng, (p, q), obs, alone| {
+            assert_eq!(
+                estimate_line_through(&cams, obs, 1.0, &[]),
+                Some(alone),
+                "no vertex: the same estimate to the bit"
+            );
+            // The vertex at p, measured to 5 mm across and 1 cm along an arbitrary axis, and
+            // off by exactly that noise.
+            let axis = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+            let covariance = Matrix3::identity() * 0.005f64.powi(2)
+                + axis * axis.transpose() * 0.0075f64.powi(2);
+            let draw = covariance.cholesky().unwrap().l()
+                * Vector3::new(rng.normal(), rng.normal(), rng.normal());
+            let vertex = PointOnLine {
+                point: p + draw,
+                covariance,
+            };
+            let Some(est) = estimate_line_through(&cams, obs, 1.0, &[vertex]) else {
+                return false;
+            };
+            let chi2 = normalised_errors(&est, (p, q)).0;
+            let sigma = |c: nalgebra::Matrix3<f64>| c.trace().sqrt();
+            let ratio = sigma(est.direction_covariance()) / sigma(alone.direction_covariance());
+            sigma_ratios.push(ratio);
+            narrower += usize::from(ratio < 1.0);
+            dir95 += usize::from(chi2 <= CHI2_2DOF_Q95);
+            dir99 += usize::from(chi2 <= CHI2_2DOF_Q99);
+            assert_eq!(
+                est.dof,
+                alone.dof + 2,
+                "a point adds two degrees of freedom"
+            );
+            true
+        },
+    );
+    assert_eq!(
+        n, CALIBRATION_SAMPLES,
+        "too few segments seen by all three cameras"
+    );
     sigma_ratios.sort_by(f64::total_cmp);
     let share = |k: usize| k as f64 / n as f64;
     let median_ratio = sigma_ratios[n / 2];

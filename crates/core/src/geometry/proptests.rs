@@ -276,6 +276,15 @@ const CHI2_2DOF_Q99: f64 = 9.210_340_372;
 const CALIBRATION_SAMPLES: usize = 2000;
 const CALIBRATION_DRAWS: usize = 200_000;
 
+/// The calibration goal: of the squared normalised errors, >= 93% within χ²'s 95%
+/// quantile and >= 98% within its 99% (`within95`, `within99`: the shares measured).
+fn assert_calibrated(what: &str, within95: f64, within99: f64) {
+    assert!(
+        within95 >= 0.93 && within99 >= 0.98,
+        "{what} {within95} {within99}"
+    );
+}
+
 /// Draws segments from `random_segment`'s box (`half`, `depth`, `length`), images them with
 /// [`noisy_images`] and estimates each from its three lines, until `visit` has counted
 /// [`CALIBRATION_SAMPLES`] of them (it returns whether it counted one) or the draws run out;
@@ -345,19 +354,8 @@ fn ml_covariance_is_calibrated_when_the_noise_is_as_stated() {
         share(pos95),
         share(pos99)
     );
-    // The calibration goal: >= 93% within the 95% quantile, >= 98% within the 99%.
-    assert!(
-        share(dir95) >= 0.93 && share(dir99) >= 0.98,
-        "direction {} {}",
-        share(dir95),
-        share(dir99)
-    );
-    assert!(
-        share(pos95) >= 0.93 && share(pos99) >= 0.98,
-        "position {} {}",
-        share(pos95),
-        share(pos99)
-    );
+    assert_calibrated("direction", share(dir95), share(dir99));
+    assert_calibrated("position", share(pos95), share(pos99));
     // ...and not by inflating it: no more than 99.5% within the 95% quantile.
     assert!(
         share(dir95) <= 0.995 && share(pos95) <= 0.995,
@@ -516,13 +514,7 @@ fn a_known_vertex_narrows_a_short_segments_direction_and_stays_calibrated() {
         share(dir99),
         share(narrower)
     );
-    // The calibration goal, as for the lines alone.
-    assert!(
-        share(dir95) >= 0.93 && share(dir99) >= 0.98,
-        "direction {} {}",
-        share(dir95),
-        share(dir99)
-    );
+    assert_calibrated("direction", share(dir95), share(dir99));
     // A vertex 5 mm across at one end of a 8–25 cm segment is worth a good deal of its
     // direction: at the median, at least a fifth narrower.
     assert!(median_ratio < 0.8, "median ratio {median_ratio}");

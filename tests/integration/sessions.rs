@@ -352,10 +352,14 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
         scaled[0] *= 1.5;
         let mut nan = good.rig_to_world.clone().unwrap().matrix;
         nan[3] = f64::NAN;
+        // A pose no robot maps from, whose top view was once a picture of 1e186 pixels.
+        let mut far = good.rig_to_world.clone().unwrap().matrix;
+        far[7] = -1.0187e189;
         for (bad, field) in [
             (with_matrix(vec![1.0; 12]), "rig_to_world.matrix"),
             (with_matrix(scaled), "rig_to_world.matrix"),
             (with_matrix(nan), "rig_to_world.matrix[3]"),
+            (with_matrix(far), "rig_to_world.matrix[7]"),
             (
                 pb::AddCaptureRequest {
                     rig_to_world: None,

@@ -272,9 +272,9 @@ pub struct FloorPlan {
 }
 
 impl FloorPlan {
-    /// The plan of everything in `points` (world x, y; non-finite ones left out), cropped to
-    /// them with a margin, `px_per_m` (or less, so that the plot's larger side is at most
-    /// `max_side_px`), with `legend` under it.
+    /// The plan of everything in `points` (world x, y; non-finite ones, and those beyond
+    /// [`MAX_PLAN_COORD_M`], left out), cropped to them with a margin, `px_per_m` (or less, so
+    /// that the plot's larger side is at most `max_side_px`), with `legend` under it.
     pub fn fit(
         points: impl IntoIterator<Item = (f64, f64)>,
         px_per_m: f64,
@@ -282,8 +282,9 @@ impl FloorPlan {
         legend: Vec<LegendEntry>,
     ) -> FloorPlan {
         let (mut xmin, mut xmax, mut ymin, mut ymax) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        let placeable = |v: f64| v.abs() <= MAX_PLAN_COORD_M;
         for (x, y) in points {
-            if x.is_finite() && y.is_finite() {
+            if placeable(x) && placeable(y) {
                 (xmin, xmax) = (xmin.min(x), xmax.max(x));
                 (ymin, ymax) = (ymin.min(y), ymax.max(y));
             }
@@ -295,7 +296,10 @@ impl FloorPlan {
         let pad = 0.04 * (xmax - xmin).max(ymax - ymin).max(0.5);
         let (xmin, xmax, ymin, ymax) = (xmin - pad, xmax + pad, ymin - pad, ymax + pad);
         let span = (xmax - xmin).max(ymax - ymin);
-        let px_per_m = px_per_m.min(max_side_px / span).max(1e-3);
+        // No floor on the scale: the picture's size and its grid's lines stay bounded however
+        // far apart the points are (a floor of 1e-3 px/m once drew a session whose poses a
+        // client put 1e189 m apart as a plot of 1e186 pixels, its grid never finished).
+        let px_per_m = px_per_m.min(max_side_px / span);
         let plot_w = (xmax - xmin) * px_per_m;
         let plot_h = (ymax - ymin) * px_per_m;
         let width = (plot_w + LEFT_PX + RIGHT_PX).max(MIN_WIDTH_PX);
@@ -498,9 +502,15 @@ impl FloorPlan {
 /// Room the scale bar and its label take at the start of the legend's first row.
 const SCALE_ROOM_PX: f64 = 8.0 + 120.0 + 6.0 + 7.0 * CHAR_PX;
 
+/// 1-2-5 lengths from 1 cm to 5·10¹³ m: at the smallest scale a plan can have (its largest
+/// side over twice [`MAX_PLAN_COORD_M`]) a grid step of at least 48 pixels is among them.
 fn nice_steps() -> impl Iterator<Item = f64> {
-    (-2..5).flat_map(|e| [1.0, 2.0, 5.0].map(|m| m * 10f64.powi(e)))
+    (-2..14).flat_map(|e| [1.0, 2.0, 5.0].map(|m| m * 10f64.powi(e)))
 }
+
+/// Points farther than this from the origin (metres) are left out of a plan's extent, as
+/// non-finite ones are: the extent, its span and the scale then stay finite and positive.
+const MAX_PLAN_COORD_M: f64 = 1e12;
 
 fn trim(v: f64) -> String {
     let s = format!("{v:.2}");
@@ -583,6 +593,32 @@ mod tests {
             inked > 500,
             "the labels and bar are drawn: {inked} dark pixels"
         );
+    }
+
+    /// Points any distance apart make a picture of the bounded size, with a grid of a few
+    /// lines: the size and the grid's count are what a client's poses control.
+    #[test]
+    fn points_far_apart_make_a_bounded_plan_with_a_few_grid_lines() {
+        for far in [2e7, 1e11, 1e12, 1e189, f64::MAX] {
+            let p = FloorPlan::fit(
+                [(0.0, 0.0), (1.0, 1.0), (0.0, -far), (far, 0.0)],
+                400.0,
+                1100.0,
+                Vec::new(),
+            );
+            assert!(
+                p.width <= 1400 && p.height <= 1400,
+                "{far}: {} x {}",
+                p.width,
+                p.height
+            );
+            assert!(p.px_per_m > 0.0 && p.px_per_m.is_finite(), "{far}");
+            let mut svg = Svg::new(p.width, p.height, [255, 255, 255]);
+            p.draw_grid(&mut svg);
+            p.draw_frame(&mut svg, "title");
+            let lines = svg.finish().matches("<path").count();
+            assert!(lines < 120, "{far}: {lines} lines");
+        }
     }
 
     #[test]

@@ -11,6 +11,7 @@ pub mod json_body;
 pub mod match_whole;
 pub mod multipart_body;
 pub mod protobuf_body;
+pub mod session_whole;
 
 use std::sync::{Arc, Mutex, OnceLock};
 

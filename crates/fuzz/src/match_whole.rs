@@ -58,7 +58,7 @@ impl<'a> Arbitrary<'a> for Input {
 }
 
 #[derive(Arbitrary, Debug)]
-struct RigSeed {
+pub(crate) struct RigSeed {
     /// Image size: 16 + 4 n pixels.
     size: [u8; 2],
     /// Focal length, relative to the image side: 0.3 to 1.3.
@@ -130,14 +130,14 @@ impl<'a> Arbitrary<'a> for Op {
 }
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
-struct Extra {
+pub(crate) struct Extra {
     gradient: Option<u8>,
     /// Offset (1/64 px) and angle (1/32 degree) sigmas.
     noise: Option<(u8, u8)>,
 }
 
 #[derive(Arbitrary, Debug)]
-struct Options {
+pub(crate) struct Options {
     /// Each of the eighteen numeric options, from 0 to 4 times its default (steps of 1/64).
     scaled: [Option<u8>; 18],
     /// One option set to any number (index modulo 18).
@@ -169,7 +169,7 @@ const NUMERIC: [(f64, Setter); 18] = [
     (0.95, |o, v| o.gate_confidence = Some(v)),
 ];
 
-fn options(o: &Options) -> pb::MatchOptions {
+pub(crate) fn options(o: &Options) -> pb::MatchOptions {
     let mut out = pb::MatchOptions {
         validate: o.validate,
         include_uncertain: o.include_uncertain,
@@ -187,7 +187,7 @@ fn options(o: &Options) -> pb::MatchOptions {
 }
 
 /// The three cameras, or `None` where the seed makes an invalid one.
-fn cameras(seed: &RigSeed) -> Option<[Camera; 3]> {
+pub(crate) fn cameras(seed: &RigSeed) -> Option<[Camera; 3]> {
     let (w, h) = (
         16 + 4 * u32::from(seed.size[0]),
         16 + 4 * u32::from(seed.size[1]),
@@ -231,7 +231,7 @@ fn cameras(seed: &RigSeed) -> Option<[Camera; 3]> {
     built.try_into().ok()
 }
 
-fn with_extra(mut s: pb::Segment, extra: Extra) -> pb::Segment {
+pub(crate) fn with_extra(mut s: pb::Segment, extra: Extra) -> pb::Segment {
     s.gradient = extra.gradient.map(f64::from);
     if let Some((offset, angle)) = extra.noise {
         s.offset_sigma_px = Some((1.0 + f64::from(offset)) / 64.0);
@@ -240,7 +240,7 @@ fn with_extra(mut s: pb::Segment, extra: Extra) -> pb::Segment {
     s
 }
 
-fn segment(u1: f64, v1: f64, u2: f64, v2: f64) -> pb::Segment {
+pub(crate) fn segment(u1: f64, v1: f64, u2: f64, v2: f64) -> pb::Segment {
     pb::Segment {
         u1,
         v1,

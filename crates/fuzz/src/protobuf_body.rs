@@ -5,7 +5,7 @@
 use crate::debug;
 use prost::Message;
 use trinocular::api::calibrate::{calibrate_request, CalibrateSource};
-use trinocular::api::session::{capture_match_request, check_create_session, pose_from_pb};
+use trinocular::api::session::{capture_match_request, capture_pose_from_pb, check_create_session};
 use trinocular::api::{self, pb, RunCalibration};
 
 /// Largest image side a calibration is run on.
@@ -35,7 +35,7 @@ pub fn run(data: &[u8]) {
     }
     if let Ok(request) = pb::AddCaptureRequest::decode(data) {
         // As the service does with a session's stored calibration and options.
-        if pose_from_pb(request.rig_to_world.as_ref(), "rig_to_world").is_ok() {
+        if capture_pose_from_pb(request.rig_to_world.as_ref(), "rig_to_world").is_ok() {
             let calibration = crate::calibration(64, 48);
             let checked = api::match_request(
                 &capture_match_request(calibration, None, request.input),

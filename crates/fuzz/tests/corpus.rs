@@ -95,6 +95,11 @@ fn match_whole() {
     replay("match_whole", trinocular_fuzz::match_whole::run);
 }
 
+#[test]
+fn session_whole() {
+    replay("session_whole", trinocular_fuzz::session_whole::run);
+}
+
 /// The replay fails when a target panics: a test of the test.
 #[test]
 fn a_panicking_input_fails_the_replay() {

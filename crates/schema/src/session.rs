@@ -156,6 +156,38 @@ pub fn pose_from_pb_noting(
     Ok((Isometry3::from_parts(translation, rotation), warning))
 }
 
+/// Farthest a pose a client gives a capture may put its rig from the world's origin, metres
+/// along each axis: 10,000 km holds any frame on Earth (a UTM northing included). A pose
+/// beyond it is no place a robot maps; taken, a pose 1e189 m away made the session's top view
+/// a picture of 1e186 pixels (found by the `session_whole` fuzz target).
+pub const MAX_POSE_TRANSLATION_M: f64 = 1e7;
+
+/// [`pose_from_pb_noting`] for the pose a client gives a capture (`AddCaptureRequest.
+/// rig_to_world`): also within [`MAX_POSE_TRANSLATION_M`] of the origin, the number beyond it
+/// named (`FIELD.matrix[3]`, `[7]`, `[11]` or `FIELD.translation[i]`).
+pub fn capture_pose_from_pb(
+    pose: Option<&pb::Pose>,
+    field: &str,
+) -> Result<(Isometry3<f64>, Option<String>), InputError> {
+    let (taken, warning) = pose_from_pb_noting(pose, field)?;
+    let t = taken.translation.vector;
+    if let Some(axis) = (0..3).find(|&k| t[k].abs() > MAX_POSE_TRANSLATION_M) {
+        let name = match pose {
+            Some(p) if p.matrix.is_empty() => format!("{field}.translation[{axis}]"),
+            _ => format!("{field}.matrix[{}]", 4 * axis + 3),
+        };
+        return Err(InputError::new(
+            name,
+            format!(
+                "{} m from the world's origin: a capture's pose must lie within {:.0e} m of it \
+                 along each axis",
+                t[axis], MAX_POSE_TRANSLATION_M
+            ),
+        ));
+    }
+    Ok((taken, warning))
+}
+
 /// The rotation nearest `m` (its polar factor, by SVD): for a matrix already close to one,
 /// which the callers check first (a reflection is not close to any).
 pub(crate) fn nearest_rotation(m: &Matrix3<f64>) -> Matrix3<f64> {
@@ -670,6 +702,39 @@ mod tests {
         assert_eq!(kept, [vec![0, 1], vec![2]]);
         assert_eq!(certain.segments_3d[1].triplet, 2);
         assert_eq!(certain.stats.unwrap().segments_3d, 2);
+    }
+
+    #[test]
+    fn a_capture_pose_beyond_the_earth_is_refused_naming_the_number() {
+        let mut matrix = vec![0.0; 16];
+        for i in 0..4 {
+            matrix[i * 5] = 1.0;
+        }
+        // A UTM position: taken.
+        matrix[3] = 500_000.0;
+        matrix[7] = 5_000_000.0;
+        let utm = pb::Pose {
+            matrix: matrix.clone(),
+            ..pb::Pose::default()
+        };
+        assert!(capture_pose_from_pb(Some(&utm), "rig_to_world").is_ok());
+        matrix[7] = -1.0187e189;
+        let far = pb::Pose {
+            matrix,
+            ..pb::Pose::default()
+        };
+        let e = capture_pose_from_pb(Some(&far), "rig_to_world").unwrap_err();
+        assert_eq!(e.field, "rig_to_world.matrix[7]");
+        assert!(e.message.contains("within 1e7 m"), "{e}");
+        let far = pb::Pose {
+            quaternion: vec![1.0, 0.0, 0.0, 0.0],
+            translation: vec![0.0, 0.0, 2e7],
+            ..pb::Pose::default()
+        };
+        let e = capture_pose_from_pb(Some(&far), "p").unwrap_err();
+        assert_eq!(e.field, "p.translation[2]");
+        // Stored poses are read as they were stored: a refined pose is not refused.
+        assert!(pose_from_pb(Some(&far), "p").is_ok());
     }
 
     #[test]

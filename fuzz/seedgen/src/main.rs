@@ -528,4 +528,18 @@ fn main() {
             .collect();
         write("match_whole", &format!("random-{len}"), &bytes);
     }
+    // session_whole too: its structure puts the captures a step apart and the world's lines
+    // ahead of them, so that random bytes already make sessions whose captures register.
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    for len in [256usize, 1024, 4096, 16384] {
+        let bytes: Vec<u8> = (0..len)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 24) as u8
+            })
+            .collect();
+        write("session_whole", &format!("random-{len}"), &bytes);
+    }
 }

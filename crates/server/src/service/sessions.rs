@@ -24,8 +24,8 @@ use trinocular_core::map::session::{Added, Placed, SessionParams};
 use trinocular_core::map::{self, FuseParams, MapGate, Measured, PosePrior};
 use trinocular_core::segment::Segment3;
 use trinocular_schema::session::{
-    capture_match_request, certain_only, check_session_id, edges_of, edges_to_pb, matrix6_to_vec,
-    pose_from_pb_noting, pose_prior, pose_to_pb, registration_to_pb, status_to_pb,
+    capture_match_request, capture_pose_from_pb, certain_only, check_session_id, edges_of,
+    edges_to_pb, matrix6_to_vec, pose_prior, pose_to_pb, registration_to_pb, status_to_pb,
     stored_capture_segments, stored_header_of, StoredSegments,
 };
 use trinocular_schema::{match_params, pb, rig_from_calibration, segment_lists, InputError};
@@ -462,7 +462,7 @@ impl Service {
                      (global) is not supported",
                 )));
             };
-            let (pose, pose_warning) = pose_from_pb_noting(Some(&rig_to_world), "rig_to_world")?;
+            let (pose, pose_warning) = capture_pose_from_pb(Some(&rig_to_world), "rig_to_world")?;
             let prior = pose_prior(pose, &rig_to_world_covariance, "rig_to_world_covariance")?;
             let info = self.store.get(&session_id).await?;
             // A retry of a capture the session holds is answered, not stored again (below):

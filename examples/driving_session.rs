@@ -2,11 +2,13 @@
 //! odometry gives: the driving sessions of issue 16, rendered and scored by our own `synth`.
 //!
 //!     cargo run --release --example driving_session -- [--seeds 1,2,3,4] [--captures 16]
-//!         [--revisit N] [--noise 0/0,1/0.02,3/0.05] [--out DIR] [--verbose] [--in-3d-only]
+//!         [--path ellipse|circle] [--revisit N] [--noise 0/0,1/0.02,3/0.05] [--out DIR]
+//!         [--verbose] [--in-3d-only] [--shared-edges] [--pin-truth 8]
 //!
 //! Per seed: the standard room (`synth::Scene::room`) and rig (`RigSpec::non_collinear`);
 //! the rig drives once round an ellipse through the middle of the room, 1.2 m up, looking
-//! along its path — `--captures` captures, 0.3–0.45 m and 15–30° apart, the last one a step
+//! along its path — `--captures` captures, 0.30–0.50 m and 13–36° apart at 16 (`--path
+//! circle`: a circle of 1 m, 0.39 m and 22.5° apart, the issue's drive), the last one a step
 //! behind the first and turned from it (in seed 6 its views hold 1 of the first capture's 64
 //! segments: the loop does not close by segments; `--revisit N` drives N captures on past the
 //! start, half a step off the first captures' places, a loop whose end sees its start). Each
@@ -47,6 +49,21 @@ struct Args {
     /// comes back); 0: one lap, whose last capture is a step short of the first.
     #[arg(long, default_value_t = 0)]
     revisit: usize,
+    /// The loop's shape: `ellipse` (1.3 x 0.75 m semi-axes: steps of 0.30-0.50 m, turns of
+    /// 13-36 degrees between captures at 16 captures) or `circle` (1.0 m radius: steps of
+    /// 0.39 m and turns of 22.5 degrees at 16, the drive the issue describes).
+    #[arg(long, value_enum, default_value_t = Loop::Ellipse)]
+    path: Loop,
+    /// An oracle, to measure what a gap in the drive's views costs: these captures
+    /// (comma-separated indices) are given their true pose as prior, known to 0.05° and 2 mm,
+    /// as if something had linked them to the captures before.
+    #[arg(long, value_delimiter = ',')]
+    pin_truth: Vec<usize>,
+    /// Print, per capture, how many ground-truth edges its 3D segments share with the
+    /// capture before it and with the earlier capture it shares most with: what registration
+    /// has to work with.
+    #[arg(long)]
+    shared_edges: bool,
     /// Odometry noise levels, `yaw_deg/xy_m` comma-separated.
     #[arg(long, default_value = "0/0,1/0.02,3/0.05")]
     noise: String,
@@ -73,9 +90,23 @@ struct Args {
     no_landmarks: bool,
 }
 
-/// The loop: an ellipse about the room's middle, clear of the furniture along the walls.
+/// The loop: about the room's middle, clear of the furniture along the walls.
 const CENTRE: [f64; 2] = [3.0, 2.5];
-const SEMI_AXES: [f64; 2] = [1.3, 0.75];
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum Loop {
+    Ellipse,
+    Circle,
+}
+
+impl Loop {
+    fn semi_axes(self) -> [f64; 2] {
+        match self {
+            Loop::Ellipse => [1.3, 0.75],
+            Loop::Circle => [1.0, 1.0],
+        }
+    }
+}
 const HEIGHT_M: f64 = 1.2;
 
 /// One capture's match and where it really was.
@@ -105,18 +136,22 @@ fn main() -> anyhow::Result<()> {
             Ok::<_, anyhow::Error>((y.trim().parse()?, t.trim().parse()?))
         })
         .collect::<Result<_, _>>()?;
+    let pinned = args.pin_truth.clone();
     let mut pooled = vec![Pooled::default(); levels.len()];
     println!("| seed | odometry noise | map segments | error | completeness | segments per covered edge | pose error, median |");
     println!("|---|---|---|---|---|---|---|");
     for &seed in &seeds {
-        let (scene, seen, eligible) = drive(seed, args.captures, args.revisit)?;
+        let (scene, seen, eligible) = drive(seed, args.captures, args.revisit, args.path)?;
         let truth_edges = scene.ground_truth_edges();
+        if args.shared_edges {
+            print_shared_edges(seed, &seen, &truth_edges, &eligible);
+        }
         let centres: Vec<Point3<f64>> = seen.iter().map(|s| s.centre).collect();
         let mean_centre = Point3::from(
             centres.iter().fold(Vector3::zeros(), |a, c| a + c.coords) / centres.len() as f64,
         );
         for (k, &(yaw_deg, xy_m)) in levels.iter().enumerate() {
-            let priors = odometry(&seen, yaw_deg, xy_m, seed * 1000 + k as u64);
+            let priors = odometry(&seen, yaw_deg, xy_m, seed * 1000 + k as u64, &pinned);
             let (poses, fused) = build_map(
                 &seen,
                 &priors,
@@ -194,7 +229,7 @@ struct Pooled {
 /// The poses of the loop: position and heading (radians, the rig's yaw, 0 looking along +y).
 /// `captures` round the lap, then `revisit` more past the start, each half-way between two
 /// of the lap's first places.
-fn path(captures: usize, revisit: usize) -> Vec<(Point3<f64>, f64)> {
+fn path(captures: usize, revisit: usize, shape: Loop) -> Vec<(Point3<f64>, f64)> {
     (0..captures + revisit)
         .map(|k| {
             let step = if k < captures {
@@ -203,7 +238,7 @@ fn path(captures: usize, revisit: usize) -> Vec<(Point3<f64>, f64)> {
                 k as f64 + 0.5
             };
             let t = std::f64::consts::TAU * step / captures as f64;
-            let (a, b) = (SEMI_AXES[0], SEMI_AXES[1]);
+            let [a, b] = shape.semi_axes();
             let position = Point3::new(CENTRE[0] + a * t.cos(), CENTRE[1] + b * t.sin(), HEIGHT_M);
             // Counter-clockwise: the tangent, and the yaw that turns +y onto it.
             let (hx, hy) = (-a * t.sin(), b * t.cos());
@@ -218,6 +253,7 @@ fn drive(
     seed: u64,
     captures: usize,
     revisit: usize,
+    shape: Loop,
 ) -> anyhow::Result<(Scene, Vec<Seen>, Vec<Vec<Interval>>)> {
     let scene = Scene::room(seed);
     let spec = RigSpec::non_collinear(seed);
@@ -229,7 +265,7 @@ fn drive(
     let options = Options::with(params);
     let mut seen = Vec::new();
     let mut eligible: Vec<Vec<Interval>> = Vec::new();
-    for (k, (position, yaw)) in path(captures, revisit).into_iter().enumerate() {
+    for (k, (position, yaw)) in path(captures, revisit, shape).into_iter().enumerate() {
         let pose = Pose::from_position_yaw(position, yaw);
         let placed = spec.build(&pose)?;
         let images = render_triplet(
@@ -293,8 +329,9 @@ fn drive(
 
 /// Each capture's prior: the truth, but every capture after the first turned by N(0, yaw)
 /// about its rig's origin and moved by N(0, xy) per floor axis; the covariance says so
-/// (at least 0.25° and 1 cm, as a robot would never claim to be exact).
-fn odometry(seen: &[Seen], yaw_deg: f64, xy_m: f64, seed: u64) -> Vec<PosePrior> {
+/// (at least 0.25° and 1 cm, as a robot would never claim to be exact). The `pinned`
+/// captures' priors are their true poses, known to 0.05° and 2 mm.
+fn odometry(seen: &[Seen], yaw_deg: f64, xy_m: f64, seed: u64, pinned: &[usize]) -> Vec<PosePrior> {
     let mut rng = Rng::new(seed);
     seen.iter()
         .enumerate()
@@ -313,6 +350,15 @@ fn odometry(seen: &[Seen], yaw_deg: f64, xy_m: f64, seed: u64) -> Vec<PosePrior>
                     UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw) * s.truth.rotation,
                 )
             };
+            if pinned.contains(&i) {
+                return PosePrior::odometry(
+                    s.truth,
+                    0.05,
+                    0.05,
+                    0.002,
+                    map::register::DEFAULT_Z_SIGMA_M,
+                );
+            }
             PosePrior::odometry(
                 pose,
                 yaw_deg.max(0.25),
@@ -438,6 +484,43 @@ fn build_map(
     };
     let fused = map::fuse(&captures, &fuse);
     (solved.iter().map(|p| p.rig_to_world).collect(), fused)
+}
+
+/// Per capture after the first, the ground-truth edges its 3D segments (certain or not, in
+/// the world by the true pose) share with the capture before it and with the earlier capture
+/// it shares most with.
+fn print_shared_edges(
+    seed: u64,
+    seen: &[Seen],
+    truth_edges: &[Segment3],
+    eligible: &[Vec<Interval>],
+) {
+    let edges: Vec<std::collections::BTreeSet<usize>> = seen
+        .iter()
+        .map(|s| {
+            let world: Vec<Segment3> = s
+                .measured
+                .iter()
+                .map(|m| Segment3 {
+                    start: s.truth * m.start,
+                    end: s.truth * m.end,
+                })
+                .collect();
+            let scored = score(&world, truth_edges, eligible, s.centre);
+            scored.matches.iter().flatten().copied().collect()
+        })
+        .collect();
+    for k in 1..edges.len() {
+        let shared = |j: usize| edges[k].intersection(&edges[j]).count();
+        let (most, with) = (0..k).map(|j| (shared(j), j)).max().unwrap_or((0, 0));
+        eprintln!(
+            "seed {seed} capture {k:02}: {} edges, {} shared with capture {:02}, at most {most} \
+             with an earlier one (capture {with:02})",
+            edges[k].len(),
+            shared(k - 1),
+            k - 1
+        );
+    }
 }
 
 /// Median rotation (degrees) and translation (metres) error of the poses after the first.

@@ -272,6 +272,10 @@ pub const PRIOR_GATE: f64 = 22.458;
 const MAX_CANDIDATES: usize = 6;
 /// Capture segments (longest first) whose candidates seed hypotheses.
 const SEED_SEGMENTS: usize = 10;
+/// Seeds beyond those: the longest segments of a direction (within [`MIN_SEED_ANGLE_DEG`])
+/// that fewer than `SEEDS_PER_DIRECTION` seeds have, at most `EXTRA_SEEDS` of them.
+const EXTRA_SEEDS: usize = 3;
+const SEEDS_PER_DIRECTION: usize = 4;
 /// Two seeds must differ in direction by this much to fix the rotation, degrees …
 const MIN_SEED_ANGLE_DEG: f64 = 20.0;
 /// … or, parallel, lie this far apart across their direction, metres: two vertical edges a
@@ -830,18 +834,38 @@ impl Problem<'_> {
                 .total_cmp(&self.segments[a].length())
                 .then(a.cmp(&b))
         });
-        seeds.truncate(SEED_SEGMENTS);
         let direction = |k: usize| {
             let s = &self.segments[k];
             (s.end - s.start).normalize()
         };
+        let cos_min = MIN_SEED_ANGLE_DEG.to_radians().cos();
+        // The longest segments, and then the longest of each direction fewer than
+        // [`SEEDS_PER_DIRECTION`] of them share: a capture facing a wall may have its longest
+        // all along the wall, which fix nothing along it, while a row of short uprights does
+        // — if the uprights that seed hypotheses include one the map saw.
+        let longest = seeds.len().min(SEED_SEGMENTS);
+        let mut extra: Vec<usize> = Vec::new();
+        for &k in &seeds[longest..] {
+            if extra.len() == EXTRA_SEEDS {
+                break;
+            }
+            let alike = seeds[..longest]
+                .iter()
+                .chain(&extra)
+                .filter(|&&j| direction(j).dot(&direction(k)).abs() > cos_min)
+                .count();
+            if alike < SEEDS_PER_DIRECTION {
+                extra.push(k);
+            }
+        }
+        seeds.truncate(longest);
+        seeds.extend(extra);
         let separation = |k1: usize, k2: usize| {
             let (a, b) = (&self.segments[k1], &self.segments[k2]);
             let d = direction(k1);
             let apart = nalgebra::center(&b.start, &b.end) - nalgebra::center(&a.start, &a.end);
             (apart - d * apart.dot(&d)).norm()
         };
-        let cos_min = MIN_SEED_ANGLE_DEG.to_radians().cos();
         // The prior itself is a hypothesis: with exact odometry it should win. It is solved on
         // what it associates as tightly as the two-pair hypotheses are scored, so that it
         // goes on to refinement as sure of itself as they do: refined from the prior's own
@@ -1304,6 +1328,35 @@ mod tests {
         );
         // What the lines fix is corrected: across the row and the heading.
         assert!(off.y.abs() < 0.005, "{off:?}");
+        assert!(rotation_error_deg(&got.rig_to_world, &truth) < 0.1);
+    }
+
+    #[test]
+    fn uprights_shorter_than_every_line_along_a_wall_still_place_the_capture_along_it() {
+        // Ten long lines along x fix everything but the position along x, and they are the
+        // capture's ten longest segments; five uprights, unevenly spaced so that only one fit
+        // explains them, are what fixes x. The odometry is 15 cm off along x: hypotheses
+        // seeded from the long lines alone stay where the prior puts them, and from there
+        // the uprights are too far off to be associated.
+        let mut world: Vec<Measured> = (0..10)
+            .map(|k| {
+                let z = 0.1 + 0.22 * k as f64;
+                let y = 3.0 - 0.05 * (k % 3) as f64;
+                edge(Point3::new(-2.0, y, z), Point3::new(1.5, y, z), 0.003)
+            })
+            .collect();
+        world.extend(
+            [-0.9, -0.55, 0.05, 0.3, 0.85]
+                .map(|x| edge(Point3::new(x, 3.0, 0.2), Point3::new(x, 3.0, 0.8), 0.003)),
+        );
+        let truth = row_truth();
+        let capture = seen_from_rig(&world, &truth);
+        let prior =
+            PosePrior::with_default_covariance(Isometry3::translation(0.15, 0.0, 0.0) * truth);
+        let got = register(&world, &capture, &prior, &RegisterParams::default());
+        assert_eq!(got.status, RegistrationStatus::Registered);
+        let off = got.rig_to_world.translation.vector - truth.translation.vector;
+        assert!(off.norm() < 0.01, "{off:?}");
         assert!(rotation_error_deg(&got.rig_to_world, &truth) < 0.1);
     }
 

@@ -182,6 +182,19 @@ impl Http {
     }
 }
 
+/// The operations of a structured input: as many as the bytes give, up to `most` — not
+/// arbitrary's `Vec`, whose continue-or-stop bit per element gives two or three on average.
+pub(crate) fn ops_until_exhausted<'a, T: arbitrary::Arbitrary<'a>>(
+    u: &mut arbitrary::Unstructured<'a>,
+    most: usize,
+) -> arbitrary::Result<Vec<T>> {
+    let mut ops = Vec::new();
+    while !u.is_empty() && ops.len() < most {
+        ops.push(T::arbitrary(u)?);
+    }
+    Ok(ops)
+}
+
 /// With `FUZZ_DEBUG` set, prints what `what` says (to see where an input gets: replay a file
 /// with `FUZZ_DEBUG=1 target FILE`).
 pub fn debug(what: impl FnOnce() -> String) {

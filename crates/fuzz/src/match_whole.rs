@@ -47,12 +47,7 @@ const MAX_OPS: usize = 3 * MAX_SEGMENTS;
 impl<'a> Arbitrary<'a> for Input {
     fn arbitrary(u: &mut Unstructured<'a>) -> arbitrary::Result<Input> {
         let head = Head::arbitrary(u)?;
-        // Not arbitrary's Vec (a continue-or-stop bit per element gives two or three
-        // operations on average): as many as the bytes give.
-        let mut ops = Vec::new();
-        while !u.is_empty() && ops.len() < MAX_OPS {
-            ops.push(Op::arbitrary(u)?);
-        }
+        let ops = crate::ops_until_exhausted(u, MAX_OPS)?;
         Ok(Input { head, ops })
     }
 }

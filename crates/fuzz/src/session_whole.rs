@@ -48,7 +48,7 @@ struct CaptureSeed {
     /// One number of the pose as sent (its 16 matrix entries) set to anything, one time in
     /// sixteen.
     raw_pose: (u8, u8, f64),
-    /// A capture sent with no pose (refused, naming it), one time in 64.
+    /// A capture sent with no pose (refused, naming it) when 0: one time in 256.
     no_pose: u8,
 }
 
@@ -72,10 +72,7 @@ pub struct Input {
 impl<'a> Arbitrary<'a> for Input {
     fn arbitrary(u: &mut Unstructured<'a>) -> arbitrary::Result<Input> {
         let head = Head::arbitrary(u)?;
-        let mut ops = Vec::new();
-        while !u.is_empty() && ops.len() < MAX_LINES {
-            ops.push(Op::arbitrary(u)?);
-        }
+        let ops = crate::ops_until_exhausted(u, MAX_LINES)?;
         Ok(Input { head, ops })
     }
 }

@@ -27,6 +27,21 @@ fn write(target: &str, name: &str, bytes: &[u8]) {
     println!("{:>6} B  {target}/seed-{name}", bytes.len());
 }
 
+/// Seeds `random-LEN` of `target`: xorshift bytes from `state`, one string per length in turn.
+fn random_seeds(target: &str, mut state: u64, lengths: &[usize]) {
+    for &len in lengths {
+        let bytes: Vec<u8> = (0..len)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 24) as u8
+            })
+            .collect();
+        write(target, &format!("random-{len}"), &bytes);
+    }
+}
+
 fn encoded(image: &DynamicImage, format: ImageFormat) -> Vec<u8> {
     let mut out = Cursor::new(Vec::new());
     image.write_to(&mut out, format).unwrap();
@@ -166,7 +181,7 @@ fn main() {
     };
     let full = pb::MatchRequest {
         calibration: Some(calibration_krt.clone()),
-        options: Some(options.clone()),
+        options: Some(options),
         input: Some(pb::match_request::Input::Segments(noisy)),
     };
 
@@ -344,7 +359,7 @@ fn main() {
     let session = pb::CreateSessionRequest {
         name: "room".into(),
         calibration: Some(calibration.clone()),
-        options: Some(options.clone()),
+        options: Some(options),
         map_options: Some(pb::MapOptions {
             min_observations: Some(2),
             // Unset, as before the field existed: the seed's bytes are unchanged.
@@ -514,32 +529,14 @@ fn main() {
         ]),
     );
 
-    // match_whole reads structured input (the `arbitrary` crate): any bytes are an input, so
-    // a few pseudo-random strings of several lengths start it.
-    let mut state = 0x9E37_79B9_7F4A_7C15u64;
-    for len in [64usize, 512, 2048, 8192] {
-        let bytes: Vec<u8> = (0..len)
-            .map(|_| {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                (state >> 24) as u8
-            })
-            .collect();
-        write("match_whole", &format!("random-{len}"), &bytes);
-    }
-    // session_whole too: its structure puts the captures a step apart and the world's lines
-    // ahead of them, so that random bytes already make sessions whose captures register.
-    let mut state = 0x2545_F491_4F6C_DD1Du64;
-    for len in [256usize, 1024, 4096, 16384] {
-        let bytes: Vec<u8> = (0..len)
-            .map(|_| {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                (state >> 24) as u8
-            })
-            .collect();
-        write("session_whole", &format!("random-{len}"), &bytes);
-    }
+    // match_whole and session_whole read structured input (the `arbitrary` crate): any bytes
+    // are an input, so a few pseudo-random strings of several lengths start them.
+    // session_whole's structure puts the captures a step apart and the world's lines ahead of
+    // them, so that random bytes already make sessions whose captures register.
+    random_seeds("match_whole", 0x9E37_79B9_7F4A_7C15, &[64, 512, 2048, 8192]);
+    random_seeds(
+        "session_whole",
+        0x2545_F491_4F6C_DD1D,
+        &[256, 1024, 4096, 16384],
+    );
 }

@@ -144,6 +144,27 @@ impl Http {
         })
     }
 
+    /// [`Http::send`], failing on a 5xx answer (what the HTTP targets promise), and with
+    /// `FUZZ_DEBUG` set printing the answer's start.
+    pub fn send_checked(&self, request: Request<Body>) -> Answer {
+        let what = format!("{} {}", request.method(), request.uri());
+        let answer = self.send(request);
+        assert!(
+            !answer.status.is_server_error(),
+            "{what} answered {}: {}",
+            answer.status,
+            String::from_utf8_lossy(&answer.body)
+        );
+        debug(|| {
+            let body: String = String::from_utf8_lossy(&answer.body)
+                .chars()
+                .take(300)
+                .collect();
+            format!("{what}: {} {body}", answer.status)
+        });
+        answer
+    }
+
     /// The session that captures go to now.
     pub fn session(&self) -> String {
         self.session.lock().unwrap().clone()

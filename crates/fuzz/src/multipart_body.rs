@@ -9,23 +9,11 @@ use axum::http::{Request, StatusCode};
 const CONTENT_TYPE: &str = "multipart/form-data; boundary=X";
 
 fn post(http: &Http, uri: &str, data: &[u8]) -> StatusCode {
-    let answer = http.send(
-        Request::post(uri)
-            .header("content-type", CONTENT_TYPE)
-            .body(Body::from(data.to_vec()))
-            .unwrap(),
-    );
-    assert!(
-        !answer.status.is_server_error(),
-        "{uri} answered {}: {}",
-        answer.status,
-        String::from_utf8_lossy(&answer.body)
-    );
-    crate::debug(|| {
-        let body = String::from_utf8_lossy(&answer.body);
-        format!("{uri}: {} {}", answer.status, &body[..body.len().min(300)])
-    });
-    answer.status
+    let request = Request::post(uri)
+        .header("content-type", CONTENT_TYPE)
+        .body(Body::from(data.to_vec()))
+        .unwrap();
+    http.send_checked(request).status
 }
 
 pub fn run(data: &[u8]) {

@@ -239,21 +239,7 @@ fn lists(
 }
 
 fn send(http: &Http, request: Request<Body>) -> (StatusCode, Vec<u8>) {
-    let what = format!("{} {}", request.method(), request.uri());
-    let answer = http.send(request);
-    assert!(
-        !answer.status.is_server_error(),
-        "{what} answered {}: {}",
-        answer.status,
-        String::from_utf8_lossy(&answer.body)
-    );
-    crate::debug(|| {
-        let body: String = String::from_utf8_lossy(&answer.body)
-            .chars()
-            .take(300)
-            .collect();
-        format!("{what}: {} {body}", answer.status)
-    });
+    let answer = http.send_checked(request);
     (answer.status, answer.body)
 }
 

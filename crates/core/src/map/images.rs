@@ -1641,47 +1641,10 @@ mod tests {
         // post along them, the rig sees the same picture but for the rows' ends (5 of 6
         // posts paired, as the driving loop's wrong basins pair 81%), a basin no refinement
         // leaves and the ±4 cm of a tighter prior's search do not reach past.
-        let rig = preset_rig();
-        let camera = rig.camera(0);
-        let axis = camera.axis().normalize();
-        let side = axis.cross(&Vector3::z()).normalize();
-        let truth = Isometry3::from_parts(
-            Vector3::new(0.4, -0.2, 0.0).into(),
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -side.y.atan2(side.x)),
-        );
         let pitch = 0.08;
-        // Two rows, 2.5 m and 4 m away (one row at one depth would let a turn stand for a
-        // step along it).
-        let row: Vec<Point3<f64>> = [(2.5, 0.0), (4.0, 0.35)]
-            .into_iter()
-            .flat_map(|(depth, height)| {
-                (0..6).flat_map(move |k| {
-                    let foot = camera.centre()
-                        + axis * depth
-                        + side * (pitch * (k as f64 - 2.5))
-                        + Vector3::z() * height;
-                    [foot - Vector3::z() * 0.15, foot + Vector3::z() * 0.15]
-                })
-            })
-            .collect();
-        let references = measured(&row, &truth);
-        let lists = images(&rig, &row);
-        assert!(lists.iter().all(|l| l.len() == 12), "the rows are in view");
-        let views = Views {
-            cameras: rig.cameras(),
-            segments: std::array::from_fn(|k| &lists[k][..]),
-            list_noise_px: 0.3,
-        };
-        let start = perturbed(&truth, &Vector6::new(0.0, 0.0, 0.0, pitch, 0.0, 0.0));
-        let params = ImageParams::default();
-        assert!(pitch > (GRID_STEPS_XY + 1) as f64 * params.grid_step_m);
+        assert!(pitch > (GRID_STEPS_XY + 1) as f64 * ImageParams::default().grid_step_m);
         // Odometry of 5 cm per axis: the right post is 1.6σ from the prior.
-        let prior = PosePrior::odometry(start, 1.0, 0.3, 0.05, 0.01);
-        let fit =
-            refine_in_images(&references, &views, &[start], &prior, &params).expect("registered");
-        let (deg, m) = off(&fit.pose, &truth);
-        assert!(deg < 0.02 && m < 0.001, "{deg}° {m} m off");
-        assert_eq!(fit.inliers, 36, "every post paired in every view");
+        a_start_a_post_over_comes_back(pitch, 0.05);
     }
 
     /// Posts `pitch` apart along the world's x, `count` of them centred in front of the rig's
@@ -1714,6 +1677,47 @@ mod tests {
             })
             .collect();
         (truth, ends)
+    }
+
+    /// [`rows_of_posts`] registered in the images from a start `offset_m` along the rows
+    /// from the truth, under odometry of `sigma_m` per axis across the floor: the fit, the
+    /// true pose and how many posts each view holds.
+    fn fit_along_posts(
+        pitch: f64,
+        count: usize,
+        offset_m: f64,
+        sigma_m: f64,
+    ) -> (ImageFit, Isometry3<f64>, [usize; 3]) {
+        let rig = preset_rig();
+        let (truth, row) = rows_of_posts(&rig, pitch, count);
+        let references = measured(&row, &truth);
+        let lists = images(&rig, &row);
+        let views = Views {
+            cameras: rig.cameras(),
+            segments: std::array::from_fn(|k| &lists[k][..]),
+            list_noise_px: 0.3,
+        };
+        let start = perturbed(&truth, &Vector6::new(0.0, 0.0, 0.0, offset_m, 0.0, 0.0));
+        let prior = PosePrior::odometry(start, 1.0, 0.3, sigma_m, 0.01);
+        let fit = refine_in_images(
+            &references,
+            &views,
+            &[start],
+            &prior,
+            &ImageParams::default(),
+        )
+        .expect("registered");
+        (fit, truth, std::array::from_fn(|k| lists[k].len()))
+    }
+
+    /// Six posts a row, a start one post over: the fit comes back onto the true pose with
+    /// every post paired in every view.
+    fn a_start_a_post_over_comes_back(pitch: f64, sigma_m: f64) {
+        let (fit, truth, in_view) = fit_along_posts(pitch, 6, pitch, sigma_m);
+        assert_eq!(in_view, [12; 3], "the rows are in view");
+        let (deg, m) = off(&fit.pose, &truth);
+        assert!(deg < 0.02 && m < 0.001, "{deg}° {m} m off");
+        assert_eq!(fit.inliers, 36, "every post paired in every view");
     }
 
     fn upright(x: f64, y: f64) -> Measured {
@@ -1780,27 +1784,10 @@ mod tests {
         // Posts 20 cm apart: from a start one post over, the wrong basin pairs five of six
         // posts per row, the local search reaches 10 cm at most, and only the row's period
         // finds the right fit, clearly cheaper.
-        let rig = preset_rig();
         let pitch = 0.2;
-        let (truth, row) = rows_of_posts(&rig, pitch, 6);
-        let references = measured(&row, &truth);
-        let lists = images(&rig, &row);
-        assert!(lists.iter().all(|l| l.len() == 12), "the rows are in view");
-        let views = Views {
-            cameras: rig.cameras(),
-            segments: std::array::from_fn(|k| &lists[k][..]),
-            list_noise_px: 0.3,
-        };
-        let params = ImageParams::default();
-        assert!(pitch > (MAX_GRID_STEPS_XY + 1) as f64 * params.grid_step_m);
-        let start = perturbed(&truth, &Vector6::new(0.0, 0.0, 0.0, pitch, 0.0, 0.0));
+        assert!(pitch > (MAX_GRID_STEPS_XY + 1) as f64 * ImageParams::default().grid_step_m);
         // Odometry of 10 cm per axis: the right post is 2σ from the prior.
-        let prior = PosePrior::odometry(start, 1.0, 0.3, 0.1, 0.01);
-        let fit =
-            refine_in_images(&references, &views, &[start], &prior, &params).expect("registered");
-        let (deg, m) = off(&fit.pose, &truth);
-        assert!(deg < 0.02 && m < 0.001, "{deg}° {m} m off");
-        assert_eq!(fit.inliers, 36, "every post paired in every view");
+        a_start_a_post_over_comes_back(pitch, 0.1);
     }
 
     #[test]
@@ -1808,25 +1795,9 @@ mod tests {
         // Thirty posts a row, running out of every view at both sides: a post over sees the
         // same picture, so the images cannot say which post is which, and the fit must not
         // claim to know its place along the row to millimetres.
-        let rig = preset_rig();
         let pitch = 0.2;
-        let (truth, row) = rows_of_posts(&rig, pitch, 30);
-        let references = measured(&row, &truth);
-        let lists = images(&rig, &row);
-        let views = Views {
-            cameras: rig.cameras(),
-            segments: std::array::from_fn(|k| &lists[k][..]),
-            list_noise_px: 0.3,
-        };
-        let prior = PosePrior::odometry(truth, 1.0, 0.3, 0.1, 0.01);
-        let fit = refine_in_images(
-            &references,
-            &views,
-            &[truth],
-            &prior,
-            &ImageParams::default(),
-        )
-        .expect("registered");
+        let (fit, truth, in_view) = fit_along_posts(pitch, 30, 0.0, 0.1);
+        assert!(in_view.iter().all(|&n| n < 60), "the rows run out of view");
         let (deg, m) = off(&fit.pose, &truth);
         assert!(deg < 0.02 && m < 0.001, "{deg}° {m} m off: started there");
         let along = Vector6::new(0.0, 0.0, 0.0, 1.0, 0.0, 0.0);

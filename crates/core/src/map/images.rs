@@ -40,7 +40,7 @@ use nalgebra::{
 };
 
 use super::poses::{difference, perturbed};
-use super::register::{Measured, PosePrior};
+use super::register::{rival_weight, Measured, PosePrior, RIVAL_COST};
 use crate::checkpoint::{never_stopped, Checkpoint, Stopped};
 use crate::geometry::camera::Camera;
 use crate::segment::{LineNoise, Segment2};
@@ -1356,8 +1356,6 @@ pub fn refine_in_images_until(
 /// projections more explained than the best explains. Less is what a row running out of
 /// the reference's view gives the fit one step along it.
 const CLEARLY_CHEAPER: f64 = 4.0 * PAIR_GATE;
-/// Rivals costing more than this over the fit add nothing (their weight is under e^-7).
-const RIVAL_COST: f64 = 14.0;
 /// Fits whose rigs stand within this of each other are one fit found twice.
 const SAME_FIT_M: f64 = 0.01;
 
@@ -1379,7 +1377,7 @@ fn with_rivals(
         .filter(|r| r.cost - fit.cost <= RIVAL_COST)
         .map(|r| {
             (
-                (-(r.cost - fit.cost).max(0.0) / 2.0).exp(),
+                rival_weight(r.cost - fit.cost),
                 difference(&r.pose, &fit.pose),
             )
         })

@@ -1054,7 +1054,7 @@ impl Problem<'_> {
                 rivals.ambiguous.push(other);
                 continue;
             }
-            let weight = (-(cost - own).max(0.0) / 2.0).exp();
+            let weight = rival_weight(cost - own);
             rivals.spread += d * d.transpose() * weight;
             total += weight;
         }
@@ -1118,8 +1118,14 @@ const AMBIGUOUS_COST: f64 = 9.21;
 const RIVAL_APART: f64 = 16.812;
 /// Rivals costing more than this over the refined pose are not re-solved (their weight would
 /// be under e^-7), and at most this many are.
-const RIVAL_COST: f64 = 14.0;
+pub(crate) const RIVAL_COST: f64 = 14.0;
 const MAX_RIVALS: usize = 8;
+
+/// A rival's weight in the mixture of a fit and its rivals: its likelihood against the fit's,
+/// e^(−Δcost/2), one for a rival no worse than the fit.
+pub(crate) fn rival_weight(more_cost: f64) -> f64 {
+    (-more_cost.max(0.0) / 2.0).exp()
+}
 
 /// The uncertainty a hypothesis is scored with.
 fn slack() -> Matrix6<f64> {

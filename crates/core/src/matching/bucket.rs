@@ -73,7 +73,7 @@ impl EntryLine {
     }
 }
 
-/// Segments (or cells) [`Buckets::build_until`] handles between two checkpoints.
+/// Segments, entries or cells [`Buckets::build_until`] handles between two checkpoints.
 const CHECK_EVERY: usize = 4096;
 
 impl Buckets {
@@ -157,18 +157,21 @@ impl Buckets {
             period,
         };
 
-        // Two passes (count, then fill) give one flat allocation.
-        let cells_of = |s: &RectSegment, visit: &mut dyn FnMut(usize)| {
-            grid.for_each_cell_on_path(s.a, s.b, slack_px, |cx, cy| visit(cy * nx + cx));
-        };
-        let mut counts = vec![0u32; nx * ny];
+        // Each segment's path is walked once, its windows noted, and the notes then placed by
+        // window (a counting sort) into one flat allocation.
+        let mut placed: Vec<(u32, u32)> = Vec::with_capacity(2 * segments.len());
         for (i, s) in segments.iter().enumerate() {
             check(i)?;
-            cells_of(s, &mut |c| counts[c] += 1);
+            grid.for_each_cell_on_path(s.a, s.b, slack_px, |cx, cy| {
+                placed.push(((cy * nx + cx) as u32, i as u32));
+            });
         }
         let mut offsets = vec![0u32; nx * ny + 1];
+        for &(c, _) in &placed {
+            offsets[c as usize + 1] += 1;
+        }
         for c in 0..nx * ny {
-            offsets[c + 1] = offsets[c] + counts[c];
+            offsets[c + 1] += offsets[c];
         }
         let mut cursor = offsets.clone();
         let mut entries = vec![
@@ -176,18 +179,17 @@ impl Buckets {
                 angle: 0.0,
                 segment: 0
             };
-            offsets[nx * ny] as usize
+            placed.len()
         ];
-        for (i, s) in segments.iter().enumerate() {
-            check(i)?;
-            let angle = angle_key(s.dir, period);
-            cells_of(s, &mut |c| {
-                entries[cursor[c] as usize] = Entry {
-                    angle,
-                    segment: i as u32,
-                };
-                cursor[c] += 1;
-            });
+        let angles: Vec<f64> = segments.iter().map(|s| angle_key(s.dir, period)).collect();
+        for (n, &(c, i)) in placed.iter().enumerate() {
+            check(n)?;
+            let slot = &mut cursor[c as usize];
+            entries[*slot as usize] = Entry {
+                angle: angles[i as usize],
+                segment: i,
+            };
+            *slot += 1;
         }
         for c in 0..nx * ny {
             check(c)?;
@@ -257,12 +259,17 @@ impl Buckets {
         cell: f64,
         n: usize,
     ) -> Option<(usize, usize)> {
-        let a = floor((lo - origin) / cell);
-        let b = floor((hi - origin) / cell);
-        if a.is_nan() || b.is_nan() || b < 0.0 || a >= n as f64 || b < a {
+        let (lo, hi) = ((lo - origin) / cell, (hi - origin) / cell);
+        if lo.is_nan() || hi.is_nan() {
             return None;
         }
-        Some((a.max(0.0) as usize, (b as usize).min(n - 1)))
+        // In integers from here: a float's conversion to usize is several instructions
+        // more than to i64, and every window walk makes two per row.
+        let (a, b) = (floor_index(lo), floor_index(hi));
+        if b < 0 || a >= n as i64 || b < a {
+            return None;
+        }
+        Some((a.max(0) as usize, (b as usize).min(n - 1)))
     }
 
     /// Calls `visit(segment)` for the segments of window `(cx, cy)` whose angle key lies
@@ -358,18 +365,15 @@ impl Buckets {
     }
 }
 
-/// `x.floor()` by a round trip through an integer: on x86-64 without SSE4.1 (the baseline
-/// the service is built for) `f64::floor` is a library call, and the searches take several
-/// per segment. Exact for |x| < 2⁶³; beyond it the value is out of every grid anyway, on the
-/// same side as the true floor. NaN stays NaN.
+/// `x.floor()` as an integer, by a round trip through one: on x86-64 without SSE4.1 (the
+/// baseline the service is built for) `f64::floor` is a library call, and the searches take
+/// several per segment. Exact for |x| < 2⁶³; beyond it, saturated, on the same side of every
+/// grid as the true floor. Not for NaN, which the caller rules out.
 #[inline]
-fn floor(x: f64) -> f64 {
-    if x.is_nan() {
-        return x;
-    }
-    let t = x as i64 as f64;
-    if t > x {
-        t - 1.0
+fn floor_index(x: f64) -> i64 {
+    let t = x as i64;
+    if t as f64 > x {
+        t.saturating_sub(1)
     } else {
         t
     }
@@ -436,7 +440,7 @@ mod tests {
         assert_eq!(built.offsets, plain.offsets);
         assert!(
             calls.into_inner() >= 6,
-            "asked once per {CHECK_EVERY} segments, each pass"
+            "asked once per {CHECK_EVERY} segments and per {CHECK_EVERY} entries placed"
         );
     }
 
@@ -458,12 +462,50 @@ mod tests {
             f64::MIN_POSITIVE,
             -f64::MIN_POSITIVE,
         ] {
-            assert_eq!(floor(x), x.floor(), "{x}");
+            assert_eq!(floor_index(x) as f64, x.floor(), "{x}");
         }
-        assert!(floor(f64::NAN).is_nan());
-        // Out of i64's range: wrong value, right side of every grid.
-        assert!(floor(1e300) > 1e18 && floor(-1e300) < -1e18);
-        assert!(floor(f64::INFINITY) > 1e18 && floor(f64::NEG_INFINITY) < -1e18);
+        // Out of i64's range: saturated, on the right side of every grid.
+        assert_eq!(floor_index(1e300), i64::MAX);
+        assert_eq!(floor_index(-1e300), i64::MIN);
+        assert_eq!(floor_index(f64::INFINITY), i64::MAX);
+        assert_eq!(floor_index(f64::NEG_INFINITY), i64::MIN);
+    }
+
+    #[test]
+    fn window_ranges_are_the_floors_of_their_bounds() {
+        // The ranges as first written, in floats with the library's floor.
+        let reference = |lo: f64, hi: f64, origin: f64, cell: f64, n: usize| {
+            let (a, b) = (((lo - origin) / cell).floor(), ((hi - origin) / cell).floor());
+            if a.is_nan() || b.is_nan() || b < 0.0 || a >= n as f64 || b < a {
+                None
+            } else {
+                Some((a.max(0.0) as usize, (b as usize).min(n - 1)))
+            }
+        };
+        let grid = Buckets::build(&[seg(0.0, 0.0, 100.0, 50.0)], Vector2::x(), 1.0, PI);
+        let mut bounds = vec![
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            1e300,
+            -1e300,
+            1e19,
+            -1e19,
+        ];
+        // Around every window boundary of a 7-window axis, on it and either side of it.
+        for k in -3..=10 {
+            let at = -4.0 + 12.5 * k as f64;
+            bounds.extend([at, at - 1e-9, at + 1e-9, at + 6.25]);
+        }
+        for &lo in &bounds {
+            for &hi in &bounds {
+                assert_eq!(
+                    grid.index_range(lo, hi, -4.0, 12.5, 7),
+                    reference(lo, hi, -4.0, 12.5, 7),
+                    "[{lo}, {hi}]"
+                );
+            }
+        }
     }
 
     #[test]

@@ -293,7 +293,7 @@ fn drive(
             .map(|r| Measured {
                 start: r.segment.start,
                 end: r.segment.end,
-                covariance: r.covariance,
+                covariance: r.relative_covariance(),
                 uncertain: r.uncertain,
             })
             .collect();
@@ -312,7 +312,7 @@ fn drive(
             truth,
             centre: rig_centre(&placed),
             certain: certain.iter().map(|r| r.segment).collect(),
-            certain_covariances: certain.iter().map(|r| r.covariance).collect(),
+            certain_covariances: certain.iter().map(|r| r.relative_covariance()).collect(),
             measured,
             rig: rig.clone(),
             views: std::array::from_fn(|k| {

@@ -311,7 +311,7 @@ fn main() -> Result<(), Error> {
             out.segments_3d
                 .iter()
                 .filter(fused_here)
-                .map(|r| r.covariance)
+                .map(|r| r.relative_covariance())
                 .collect(),
         );
         measured.push(
@@ -320,7 +320,7 @@ fn main() -> Result<(), Error> {
                 .map(|r| Measured {
                     start: r.segment.start,
                     end: r.segment.end,
-                    covariance: r.covariance,
+                    covariance: r.relative_covariance(),
                     uncertain: r.uncertain,
                 })
                 .collect(),

@@ -213,6 +213,18 @@ def _assert_covariances(r):
     for c in (d, p):
         assert (np.linalg.norm(c @ u[:, :, None], axis=(1, 2))
                 <= 1e-9 * np.abs(c).max(axis=(1, 2))).all()
+    # The shift the views share is in the covariance: taken out, the direction is the same and
+    # the midpoint is σ² narrower across the line.
+    assert r.shift_sigma_m.shape == (m,) and (r.shift_sigma_m > 0).all()
+    relative = r.relative_covariance()
+    j_dir = np.concatenate([-np.eye(3), np.eye(3)], axis=1)
+    np.testing.assert_allclose(j_dir @ relative @ j_dir.T, j_dir @ r.covariance @ j_dir.T,
+                               rtol=0, atol=1e-12 * scale.max())
+    across = np.eye(3) - u[:, :, None] * u[:, None, :]
+    np.testing.assert_allclose(p - across @ (relative[:, :3, :3] + relative[:, :3, 3:]
+                                             + relative[:, 3:, :3] + relative[:, 3:, 3:]) @ across / 4,
+                               across * (r.shift_sigma_m ** 2)[:, None, None],
+                               rtol=0, atol=1e-12 * scale.max())
 
 
 def test_covariances_and_uncertain(client, demo):

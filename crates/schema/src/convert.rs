@@ -735,6 +735,7 @@ pub fn match_response(
                 covariance: r.covariance.transpose().as_slice().to_vec(),
                 position_sigma_m: r.position_sigma_m,
                 uncertain: r.uncertain,
+                shift_sigma_m: r.shift_sigma_m,
             })
             .collect(),
         stats: Some(pb::MatchStats {

@@ -457,14 +457,23 @@ fn measured(s: &pb::Segment3) -> Measured {
         let p = p.unwrap_or_default();
         Point3::new(p.x, p.y, p.z)
     };
+    let (start, end) = (point(&s.start), point(&s.end));
     let covariance = if s.covariance.len() == 36 && s.covariance.iter().all(|v| v.is_finite()) {
+        // The shift the three views share is shared with the other captures of the scene
+        // too: registration and fusion compare segments by what they do not share.
+        let shift = if s.shift_sigma_m.is_finite() {
+            s.shift_sigma_m
+        } else {
+            0.0
+        };
         Matrix6::from_row_slice(&s.covariance)
+            - trinocular_core::pipeline::shared_shift_covariance(&start, &end, shift)
     } else {
         Matrix6::identity() * LEGACY_SEGMENT_SIGMA_M.powi(2)
     };
     Measured {
-        start: point(&s.start),
-        end: point(&s.end),
+        start,
+        end,
         covariance,
         uncertain: s.uncertain,
     }
@@ -664,6 +673,38 @@ mod tests {
         let mut zero = diagonal.clone();
         zero[35] = 0.0;
         assert_eq!(field(zero).field, "c[35]");
+    }
+
+    #[test]
+    fn registration_and_fusion_take_the_shared_shift_out_of_a_covariance() {
+        let (start, end) = (Point3::new(0.2, 0.1, 2.0), Point3::new(0.2, 0.6, 2.4));
+        let own = Matrix6::from_fn(|r, c| if r == c { 4e-6 } else { 1e-7 });
+        let sigma = 0.0015;
+        let reported =
+            own + trinocular_core::pipeline::shared_shift_covariance(&start, &end, sigma);
+        let p = |p: Point3<f64>| {
+            Some(pb::Point3 {
+                x: p.x,
+                y: p.y,
+                z: p.z,
+            })
+        };
+        let segment = pb::Segment3 {
+            start: p(start),
+            end: p(end),
+            covariance: reported.transpose().as_slice().to_vec(),
+            shift_sigma_m: sigma,
+            ..Default::default()
+        };
+        let measured = StoredSegments::measured_of(std::slice::from_ref(&segment));
+        assert!((measured[0].covariance - own).abs().max() < 1e-18);
+        // A capture stored before the shift was reported (none given) keeps its covariance.
+        let older = pb::Segment3 {
+            shift_sigma_m: 0.0,
+            ..segment
+        };
+        let measured = StoredSegments::measured_of(std::slice::from_ref(&older));
+        assert_eq!(measured[0].covariance, reported);
     }
 
     #[test]

@@ -200,8 +200,10 @@ class MatchResult:
     Per 3D segment: `covariance` M×6×6, of the two endpoints stacked (x1 y1 z1 x2 y2 z2),
     metres² (NaN from a server that sends none); `direction_sigma_deg` and `position_sigma_m`
     M, the 1σ of the direction (degrees) and of the midpoint across the line (metres), largest
-    axis; `uncertain` M bools, True for the segments that miss the accuracy gate (returned only
-    with options {"includeUncertain": true}). `stats` has every MatchStats field (zeros
+    axis; `shift_sigma_m` M, the 1σ of the shift across the line that the three views share,
+    included in `covariance` (segments of one scene compared with one another share most of it;
+    see `relative_covariance`); `uncertain` M bools, True for the segments that miss the
+    accuracy gate (returned only with options {"includeUncertain": true}). `stats` has every MatchStats field (zeros
     included), e.g. `stats["uncertain"]`, `stats["inconsistent"]`."""
 
     triplets: np.ndarray
@@ -212,6 +214,7 @@ class MatchResult:
     direction_sigma_deg: np.ndarray = None
     covariance: np.ndarray = None
     position_sigma_m: np.ndarray = None
+    shift_sigma_m: np.ndarray = None
     uncertain: np.ndarray = None
     extracted: List[np.ndarray] = field(default_factory=list)
     extracted_lists: List[Any] = field(default_factory=list)
@@ -230,6 +233,7 @@ class MatchResult:
             direction_sigma_deg=np.array([s.direction_sigma_deg for s in segs], dtype=float),
             covariance=_covariances(segs),
             position_sigma_m=np.array([s.position_sigma_m for s in segs], dtype=float),
+            shift_sigma_m=np.array([s.shift_sigma_m for s in segs], dtype=float),
             uncertain=np.array([s.uncertain for s in segs], dtype=bool),
             extracted=[segment_list_array(l) for l in r.extracted],
             extracted_lists=list(r.extracted),
@@ -261,6 +265,14 @@ class MatchResult:
         out."""
         p, _ = self._across()
         return self._propagate(np.concatenate([p / 2, p / 2], axis=2))
+
+    def relative_covariance(self) -> np.ndarray:
+        """M×6×6 `covariance` without the shift the three views share (σ² P in each 3×3
+        block, P = I - u uᵀ, σ = `shift_sigma_m`): what two segments of one scene are compared
+        by, as a session's registration and fusion do."""
+        p, _ = self._across()
+        block = p * (self.shift_sigma_m ** 2)[:, None, None]
+        return self.covariance - np.block([[block, block], [block, block]])
 
 
 @dataclass

@@ -475,7 +475,10 @@ mod tests {
     fn window_ranges_are_the_floors_of_their_bounds() {
         // The ranges as first written, in floats with the library's floor.
         let reference = |lo: f64, hi: f64, origin: f64, cell: f64, n: usize| {
-            let (a, b) = (((lo - origin) / cell).floor(), ((hi - origin) / cell).floor());
+            let (a, b) = (
+                ((lo - origin) / cell).floor(),
+                ((hi - origin) / cell).floor(),
+            );
             if a.is_nan() || b.is_nan() || b < 0.0 || a >= n as f64 || b < a {
                 None
             } else {

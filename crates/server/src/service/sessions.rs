@@ -847,6 +847,7 @@ fn stored_capture(
                 end: s.end,
                 covariance: s.covariance.clone(),
                 uncertain: s.uncertain,
+                shift_sigma_m: s.shift_sigma_m,
                 ..Default::default()
             })
             .collect(),
@@ -920,6 +921,47 @@ fn place_capture(
 mod tests {
     use super::*;
     use nalgebra::Isometry3;
+
+    #[test]
+    fn a_stored_capture_keeps_the_shift_its_segments_share() {
+        // Registration and fusion read a stored capture's covariances without the shift its
+        // three views share (`StoredSegments::measured_of`), so the record must keep it.
+        let segment = pb::Segment3 {
+            start: Some(pb::Point3 {
+                x: 0.0,
+                y: 0.0,
+                z: 2.0,
+            }),
+            end: Some(pb::Point3 {
+                x: 0.0,
+                y: 0.5,
+                z: 2.0,
+            }),
+            covariance: vec![1e-6; 36],
+            shift_sigma_m: 0.0012,
+            ..Default::default()
+        };
+        let matched = pb::MatchResponse {
+            segments_3d: vec![segment],
+            ..Default::default()
+        };
+        let prior = PosePrior::with_default_covariance(Isometry3::identity());
+        let added = Added {
+            registration: trinocular_core::map::Registration {
+                rig_to_world: Isometry3::identity(),
+                covariance: prior.covariance,
+                status: trinocular_core::map::RegistrationStatus::EmptyMap,
+                inliers: 0,
+                rotation_change_deg: 0.0,
+                translation_change_m: 0.0,
+            },
+            edges: Vec::new(),
+        };
+        let stored = stored_capture(&matched, &added, &Isometry3::identity(), &prior, 0);
+        assert_eq!(stored.segments.len(), 1);
+        assert_eq!(stored.segments[0].shift_sigma_m, 0.0012);
+        assert_eq!(stored.segments[0].covariance, vec![1e-6; 36]);
+    }
 
     #[test]
     fn capture_ids_are_short_printable_ascii() {

@@ -479,7 +479,7 @@ fn build_map(
         })
         .collect();
     let fuse = FuseParams {
-        gate: Some(MapGate::of(&MatchParams::default())),
+        gate: Some(MapGate::of(&MatchParams::default()).sharing_shift(&seen[0].rig)),
         ..FuseParams::default()
     };
     let fused = map::fuse(&captures, &fuse);

@@ -348,7 +348,7 @@ fn main() -> Result<(), Error> {
     // Without registration the poses are taken as exact; with it, each carries the
     // covariance registration or the graph gives it.
     let poses: Vec<PosePrior> = if args.register {
-        let rig = rig.ok_or("no capture")?;
+        let rig = rig.as_ref().ok_or("no capture")?;
         let views: Vec<Views> = seen
             .iter()
             .map(|lists| Views {
@@ -424,6 +424,11 @@ fn main() -> Result<(), Error> {
             pose_covariance: pose.covariance,
         })
         .collect();
+    // The gate adds, once, the shift the rig's views share (the captures' own covariances
+    // leave it out).
+    if let (Some(gate), Some(rig)) = (params.gate, rig.as_ref()) {
+        params.gate = Some(gate.sharing_shift(rig));
+    }
     let t0 = std::time::Instant::now();
     let fused = map::fuse(&captures, &params);
     let fuse_ms = t0.elapsed().as_secs_f64() * 1e3;

@@ -461,7 +461,6 @@ fn merge(items: &[Item], group: &[usize], gate: Option<&MapGate>) -> Option<MapS
     let basis = Matrix3x2::from_columns(&[line.e1, line.e2]);
     // Across the line at parameter t: δ = e1 (δc1 + t δθ1) + e2 (δc2 + t δθ2).
     let at = |t: f64| Matrix2x4::new(t, 0.0, 1.0, 0.0, 0.0, t, 0.0, 1.0);
-    let across = |t: f64| basis * at(t) * line.covariance * at(t).transpose() * basis.transpose();
     let mid_t = 0.5 * (lo + hi);
     // Along the line each end is a description (where the observations stopped), given the
     // spread of a lateral tolerance, as a Match's ends are.
@@ -475,30 +474,38 @@ fn merge(items: &[Item], group: &[usize], gate: Option<&MapGate>) -> Option<MapS
         .unwrap_or(start);
     let tolerance =
         |p: &Point3<f64>, floor: f64, rel: f64| floor.max(rel * (p - nearest_rig).norm());
+    // The shift its rigs' views share, once: the members were fused without it.
+    let shift = gate.map_or(0.0, |g| {
+        let mid = line.line.c + line.line.d * mid_t;
+        g.shift_per_metre * (mid - nearest_rig).norm()
+    });
+    let shared = (Matrix3::identity() - line.line.d * line.line.d.transpose()) * (shift * shift);
+    let across = |t: f64| basis * at(t) * line.covariance * at(t).transpose() * basis.transpose();
+    let across_reported = |t: f64| across(t) + shared;
     let along = |p: &Point3<f64>| {
         let t = tolerance(p, 0.01, 0.005);
         t * t * (line.line.d * line.line.d.transpose())
     };
     let mut covariance = Matrix6::zeros();
     let (a_lo, a_hi) = (at(lo), at(hi));
-    let cross = basis * a_lo * line.covariance * a_hi.transpose() * basis.transpose();
+    let cross = basis * a_lo * line.covariance * a_hi.transpose() * basis.transpose() + shared;
     covariance
         .fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(across(lo) + along(&start)));
+        .copy_from(&(across_reported(lo) + along(&start)));
     covariance
         .fixed_view_mut::<3, 3>(3, 3)
-        .copy_from(&(across(hi) + along(&end)));
+        .copy_from(&(across_reported(hi) + along(&end)));
     covariance.fixed_view_mut::<3, 3>(0, 3).copy_from(&cross);
     covariance
         .fixed_view_mut::<3, 3>(3, 0)
         .copy_from(&cross.transpose());
     let direction = line.covariance.fixed_view::<2, 2>(0, 0).into_owned();
     let direction_var = principal_variances(&(basis * direction * basis.transpose()), &basis);
-    let midpoint_var = principal_variances(&across(mid_t), &basis);
+    let midpoint_var = principal_variances(&across_reported(mid_t), &basis);
     let uncertain = gate.is_some_and(|g| {
         let within = |t: f64, p: &Point3<f64>| {
             within_radius(
-                principal_variances(&across(t), &basis),
+                principal_variances(&across_reported(t), &basis),
                 tolerance(p, g.position_m, g.position_rel),
                 g.confidence,
             )

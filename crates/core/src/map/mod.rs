@@ -104,6 +104,11 @@ pub struct MapGate {
     pub confidence: f64,
     /// Keep the segments that miss it too, flagged [`MapSegment::uncertain`].
     pub include_uncertain: bool,
+    /// σ of the shift across the line that a rig's three views share, per metre of range
+    /// ([`crate::pipeline::SHARED_SHIFT_PX`] over the cameras' mean focal length; 0: none).
+    /// The captures' own covariances are fused without it, since captures of one scene share
+    /// it; a map segment's gate and reported covariance add it once.
+    pub shift_per_metre: f64,
 }
 
 impl MapGate {
@@ -115,6 +120,16 @@ impl MapGate {
             position_rel: params.gate_position_rel,
             confidence: params.gate_confidence,
             include_uncertain: params.include_uncertain,
+            shift_per_metre: 0.0,
+        }
+    }
+
+    /// The gate with the shift `rig`'s three views share ([`MapGate::shift_per_metre`]).
+    pub fn sharing_shift(self, rig: &crate::geometry::Rig) -> MapGate {
+        let focal = (0..3).map(|v| rig.camera(v).focal_px()).sum::<f64>() / 3.0;
+        MapGate {
+            shift_per_metre: crate::pipeline::SHARED_SHIFT_PX / focal,
+            ..self
         }
     }
 }

@@ -616,3 +616,55 @@ fn a_gate_out_of_range_is_named() {
     params.gate.as_mut().unwrap().confidence = 1.0;
     assert_eq!(params.check().unwrap_err().field(), "gate.confidence");
 }
+
+#[test]
+fn a_map_segment_adds_once_the_shift_its_rigs_views_share() {
+    // The same edge seen twice: fused without the shift, reported and gated with it added
+    // once, at the segment's range from the nearest rig, across the line only.
+    let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
+    let (pa, pb) = (pose(1.0, 0.0, 0.0), pose(1.2, 0.2, 2.0));
+    let mut n = Noise(5);
+    let (sa, sb) = (
+        seen(&pa, &wall, &mut n, 0.001),
+        seen(&pb, &wall, &mut n, 0.001),
+    );
+    let (ca, cb) = (with_sigma(&sa, 0.003), with_sigma(&sb, 0.003));
+    let captures = two_captures((pa, &sa, &ca), (pb, &sb, &cb), nalgebra::Matrix6::zeros());
+    let gate = super::MapGate::of(&crate::matching::MatchParams::default());
+    let fused = |gate: super::MapGate| {
+        let map = fuse(
+            &captures,
+            &FuseParams {
+                gate: Some(gate),
+                ..FuseParams::default()
+            },
+        );
+        assert_eq!(map.len(), 1, "{map:?}");
+        map[0].clone()
+    };
+    let without = fused(gate);
+    let per_metre = 0.002;
+    let with = fused(super::MapGate {
+        shift_per_metre: per_metre,
+        ..gate
+    });
+    assert_eq!((with.start, with.end), (without.start, without.end));
+    let mid = nalgebra::center(&with.start, &with.end);
+    let range = [pa, pb]
+        .iter()
+        .map(|q| (mid - Point3::from(q.translation.vector)).norm())
+        .fold(f64::INFINITY, f64::min);
+    let sigma = per_metre * range;
+    let u = (with.end - with.start).normalize();
+    let across = nalgebra::Matrix3::identity() - u * u.transpose();
+    let added = with.covariance - without.covariance;
+    for (r, c) in [(0, 0), (0, 3), (3, 0), (3, 3)] {
+        let block = added.fixed_view::<3, 3>(r, c).into_owned();
+        assert!(
+            (block - across * sigma * sigma).abs().max() < 1e-12,
+            "{block}"
+        );
+    }
+    assert!(with.position_sigma_m > without.position_sigma_m);
+    assert_eq!(with.direction_sigma_deg, without.direction_sigma_deg);
+}

@@ -668,16 +668,18 @@ impl Service {
                 // the pool, with the rest of the work.
                 let calibration = pb::Calibration::decode(&calibration[..])
                     .map_err(|e| corrupt("calibration", e))?;
-                let rig = rig_from_calibration(Some(&calibration))
-                    .map(|rig| RigMarker::of(&rig))
-                    .map_err(|e| ServiceError::Internal {
+                let cameras = rig_from_calibration(Some(&calibration)).map_err(|e| {
+                    ServiceError::Internal {
                         detail: format!("stored calibration is not a rig: {e}"),
-                    })?;
+                    }
+                })?;
                 let options = MapBuild {
                     min_observations,
                     refine_poses,
-                    gate,
-                    rig,
+                    // The shift the rig's views share, added once to each map segment (the
+                    // captures were fused without it).
+                    gate: gate.sharing_shift(&cameras),
+                    rig: RigMarker::of(&cameras),
                 };
                 let stop = || abandoned.is_set();
                 let checkpoint = Checkpoint::new(&stop);

@@ -23,6 +23,11 @@
 //!
 //! Eligible length: the part of each edge visible in all three cameras that projects to at
 //! least 20 px in each, and (`c10`) that also has at least 10 grey levels of contrast in each.
+//!
+//! And the covariance's calibration, as `tools/eval_rooms.py --calibration` measures it on the
+//! rendered rooms: of the segments whose match is right, the share whose direction's and
+//! midpoint's squared normalised errors (two degrees of freedom each) fall within χ²'s 95% and
+//! 99% quantiles (`include_uncertain=1` for every segment, as the goal is measured).
 
 use trinocular::matching::MatchParams;
 use trinocular::pipeline::{self, Input, Options};
@@ -40,6 +45,43 @@ fn show(p: &Pooled) -> String {
         (p.segments - p.correct) as f64 / p.segments.max(1) as f64,
         p.covered_m / p.eligible_m.max(1e-12)
     )
+}
+
+/// χ² quantiles of two degrees of freedom, 95% and 99%.
+const CHI2_2DOF: [f64; 2] = [5.991_464_547, 9.210_340_372];
+
+/// Squared normalised errors of a 3D segment's direction and of its midpoint across the line
+/// (two degrees of freedom each) under its reported covariance, against the true `edge` —
+/// what `tools/eval_rooms.py --calibration` measures on the rendered rooms.
+fn normalised_errors(r: &trinocular::pipeline::Reconstructed, edge: &Segment3) -> Option<[f64; 2]> {
+    let (a, b) = (r.segment.start, r.segment.end);
+    let length = (b - a).norm();
+    let u = (b - a) / length;
+    let mut truth = (edge.end - edge.start).normalize();
+    if truth.dot(&u) < 0.0 {
+        truth = -truth;
+    }
+    let (e1, e2) = trinocular::geometry::across_basis(&u);
+    let basis = nalgebra::Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]);
+    let mut j_dir = nalgebra::Matrix2x6::zeros();
+    j_dir
+        .fixed_view_mut::<2, 3>(0, 0)
+        .copy_from(&(-basis / length));
+    j_dir
+        .fixed_view_mut::<2, 3>(0, 3)
+        .copy_from(&(basis / length));
+    let mut j_pos = nalgebra::Matrix2x6::zeros();
+    j_pos.fixed_view_mut::<2, 3>(0, 0).copy_from(&(basis * 0.5));
+    j_pos.fixed_view_mut::<2, 3>(0, 3).copy_from(&(basis * 0.5));
+    let mid = nalgebra::center(&a, &b);
+    let foot = edge.start + truth * (mid - edge.start).dot(&truth);
+    let errors = [basis * (truth - u), basis * (foot - mid)];
+    let mut out = [0.0; 2];
+    for (k, (j, e)) in [j_dir, j_pos].iter().zip(errors).enumerate() {
+        let c = j * r.covariance * j.transpose();
+        out[k] = e.dot(&(c.try_inverse()? * e));
+    }
+    Some(out)
 }
 
 /// How far a listed segment's ends lie across its true edge's image, the larger, pixels.
@@ -133,6 +175,8 @@ fn main() {
             Pooled::default(),
         );
         let mut ms = Vec::new();
+        // Per quantity (direction, position): segments on their true edge, within q95, q99.
+        let mut calibration = [[0usize; 3]; 2];
         let captures = (1..=seeds).flat_map(|seed| {
             turntable_captures(seed, poses, &defects, collinear)
                 .into_iter()
@@ -154,6 +198,18 @@ fn main() {
                 eligible_intervals_with(&obs, 20.0, Some(10.0)),
             );
             let truth = &obs.ground_truth;
+            // The calibration's population: segments whose image segments are images of one
+            // true edge (the match right), however far off in 3D.
+            for (r, label) in out.segments_3d.iter().zip(&labels) {
+                let Some(errors) = label.and_then(|e| normalised_errors(r, &truth[e])) else {
+                    continue;
+                };
+                for (counts, chi2) in calibration.iter_mut().zip(errors) {
+                    counts[0] += 1;
+                    counts[1] += usize::from(chi2 <= CHI2_2DOF[0]);
+                    counts[2] += usize::from(chi2 <= CHI2_2DOF[1]);
+                }
+            }
             matched.add(&score_labelled(&segs, &labels, truth, &elig));
             matched_c10.add(&score_labelled(&segs, &labels, truth, &elig_c10));
             let strict_score = score(&segs, truth, &elig, rig_centre(&rig));
@@ -208,8 +264,10 @@ fn main() {
             ms.push(out.stats.total_ms);
         }
         ms.sort_by(f64::total_cmp);
+        let share = |c: &[usize; 3], k: usize| c[k] as f64 / c[0].max(1) as f64;
+        let [dir, pos] = &calibration;
         println!(
-            "{name:21} n {:5} | match: {} (c10 {:.4}) | 3D: {} (c10 {:.4}; dir / near / far {} / {} / {}) | median {:.2} ms",
+            "{name:21} n {:5} | match: {} (c10 {:.4}) | 3D: {} (c10 {:.4}; dir / near / far {} / {} / {}) | within q95 / q99: direction {:.3} / {:.3}, position {:.3} / {:.3} | median {:.2} ms",
             matched.segments,
             show(&matched),
             matched_c10.covered_m / matched_c10.eligible_m.max(1e-12),
@@ -218,6 +276,10 @@ fn main() {
             strict.classes.direction_only,
             strict.classes.near,
             strict.classes.far,
+            share(dir, 1),
+            share(dir, 2),
+            share(pos, 1),
+            share(pos, 2),
             ms[ms.len() / 2],
         );
     }

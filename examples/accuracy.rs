@@ -55,31 +55,23 @@ const CHI2_2DOF: [f64; 2] = [5.991_464_547, 9.210_340_372];
 /// what `tools/eval_rooms.py --calibration` measures on the rendered rooms.
 fn normalised_errors(r: &trinocular::pipeline::Reconstructed, edge: &Segment3) -> Option<[f64; 2]> {
     let (a, b) = (r.segment.start, r.segment.end);
-    let length = (b - a).norm();
-    let u = (b - a) / length;
+    let u = (b - a).normalize();
     let mut truth = (edge.end - edge.start).normalize();
     if truth.dot(&u) < 0.0 {
         truth = -truth;
     }
     let (e1, e2) = trinocular::geometry::across_basis(&u);
     let basis = nalgebra::Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]);
-    let mut j_dir = nalgebra::Matrix2x6::zeros();
-    j_dir
-        .fixed_view_mut::<2, 3>(0, 0)
-        .copy_from(&(-basis / length));
-    j_dir
-        .fixed_view_mut::<2, 3>(0, 3)
-        .copy_from(&(basis / length));
-    let mut j_pos = nalgebra::Matrix2x6::zeros();
-    j_pos.fixed_view_mut::<2, 3>(0, 0).copy_from(&(basis * 0.5));
-    j_pos.fixed_view_mut::<2, 3>(0, 3).copy_from(&(basis * 0.5));
     let mid = nalgebra::center(&a, &b);
     let foot = edge.start + truth * (mid - edge.start).dot(&truth);
-    let errors = [basis * (truth - u), basis * (foot - mid)];
     let mut out = [0.0; 2];
-    for (k, (j, e)) in [j_dir, j_pos].iter().zip(errors).enumerate() {
-        let c = j * r.covariance * j.transpose();
-        out[k] = e.dot(&(c.try_inverse()? * e));
+    let errors = [
+        (truth - u, r.direction_covariance()),
+        (foot - mid, r.midpoint_covariance()),
+    ];
+    for (k, (error, covariance)) in errors.into_iter().enumerate() {
+        let e = basis * error;
+        out[k] = e.dot(&((basis * covariance * basis.transpose()).try_inverse()? * e));
     }
     Some(out)
 }

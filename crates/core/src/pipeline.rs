@@ -272,6 +272,25 @@ impl Reconstructed {
         self.covariance
             - shared_shift_covariance(&self.segment.start, &self.segment.end, self.shift_sigma_m)
     }
+
+    /// Covariance of the unit direction (rank 2, across the line), from `covariance`.
+    pub fn direction_covariance(&self) -> nalgebra::Matrix3<f64> {
+        crate::geometry::line::direction_covariance(
+            &self.segment.start,
+            &self.segment.end,
+            &self.covariance,
+        )
+    }
+
+    /// Covariance of the midpoint across the line (rank 2), from `covariance`: the shared
+    /// shift included.
+    pub fn midpoint_covariance(&self) -> nalgebra::Matrix3<f64> {
+        crate::geometry::line::midpoint_covariance(
+            &self.segment.start,
+            &self.segment.end,
+            &self.covariance,
+        )
+    }
 }
 
 impl MatchOutput {
@@ -830,8 +849,17 @@ fn shared_shift_sigma_m(
     start: &nalgebra::Point3<f64>,
     end: &nalgebra::Point3<f64>,
 ) -> f64 {
-    let focal = (0..3).map(|v| rig.camera(v).focal_px()).sum::<f64>() / 3.0;
-    SHARED_SHIFT_PX * (nalgebra::center(start, end) - centre).norm() / focal
+    SHARED_SHIFT_PX * (nalgebra::center(start, end) - centre).norm() / mean_focal_px(rig)
+}
+
+/// σ of the shared shift per metre of range for `rig`: [`SHARED_SHIFT_PX`] over its
+/// cameras' mean focal length.
+pub fn shared_shift_per_metre(rig: &Rig) -> f64 {
+    SHARED_SHIFT_PX / mean_focal_px(rig)
+}
+
+fn mean_focal_px(rig: &Rig) -> f64 {
+    (0..3).map(|v| rig.camera(v).focal_px()).sum::<f64>() / 3.0
 }
 
 /// The covariance of the two endpoints `(start, end)` stacked that a shift of σ `sigma_m`
@@ -1092,11 +1120,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
         return None;
     }
     let midpoint_var = principal_variances(
-        &Line3Estimate {
-            covariance: reported,
-            ..est
-        }
-        .midpoint_covariance(),
+        &crate::geometry::line::midpoint_covariance(&est.start, &est.end, &reported),
         &basis,
     );
     let position_sigma_m = midpoint_var.0.sqrt();
@@ -2020,6 +2044,7 @@ mod tests {
             .output;
         assert!(out.segments_3d.len() >= 6, "{:?}", out.stats);
         let focal = (0..3).map(|v| rig.camera(v).focal_px()).sum::<f64>() / 3.0;
+        assert!((shared_shift_per_metre(&rig) - SHARED_SHIFT_PX / focal).abs() < 1e-18);
         for r in &out.segments_3d {
             let mid = nalgebra::center(&r.segment.start, &r.segment.end);
             let expected = SHARED_SHIFT_PX * (mid - rig.centroid()).norm() / focal;

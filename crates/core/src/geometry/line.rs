@@ -74,22 +74,42 @@ impl Line3Estimate {
 
     /// Covariance of the unit direction (rank 2, across the line).
     pub fn direction_covariance(&self) -> Matrix3<f64> {
-        let l = (self.end - self.start).norm().max(1e-12);
-        let mut j = nalgebra::Matrix3x6::zeros();
-        let across = across_projector(&self.direction());
-        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-across / l));
-        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(across / l));
-        j * self.covariance * j.transpose()
+        direction_covariance(&self.start, &self.end, &self.covariance)
     }
 
     /// Covariance of the midpoint's position across the line (rank 2).
     pub fn midpoint_covariance(&self) -> Matrix3<f64> {
-        let mut j = nalgebra::Matrix3x6::zeros();
-        let across = across_projector(&self.direction()) * 0.5;
-        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&across);
-        j.fixed_view_mut::<3, 3>(0, 3).copy_from(&across);
-        j * self.covariance * j.transpose()
+        midpoint_covariance(&self.start, &self.end, &self.covariance)
     }
+}
+
+/// Covariance of the unit direction of the segment `start`–`end` whose endpoints, stacked,
+/// have `covariance` (rank 2, across the line).
+pub fn direction_covariance(
+    start: &Point3<f64>,
+    end: &Point3<f64>,
+    covariance: &Matrix6<f64>,
+) -> Matrix3<f64> {
+    let l = (end - start).norm().max(1e-12);
+    let mut j = nalgebra::Matrix3x6::zeros();
+    let across = across_projector(&(end - start).normalize());
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-across / l));
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(across / l));
+    j * covariance * j.transpose()
+}
+
+/// Covariance of the midpoint of the segment `start`–`end` across the line, its endpoints'
+/// stacked covariance `covariance` (rank 2).
+pub fn midpoint_covariance(
+    start: &Point3<f64>,
+    end: &Point3<f64>,
+    covariance: &Matrix6<f64>,
+) -> Matrix3<f64> {
+    let mut j = nalgebra::Matrix3x6::zeros();
+    let across = across_projector(&(end - start).normalize()) * 0.5;
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&across);
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&across);
+    j * covariance * j.transpose()
 }
 
 fn across_projector(u: &Vector3<f64>) -> Matrix3<f64> {

@@ -480,8 +480,9 @@ fn merge(items: &[Item], group: &[usize], gate: Option<&MapGate>) -> Option<MapS
         g.shift_per_metre * (mid - nearest_rig).norm()
     });
     let shared = (Matrix3::identity() - line.line.d * line.line.d.transpose()) * (shift * shift);
-    let across = |t: f64| basis * at(t) * line.covariance * at(t).transpose() * basis.transpose();
-    let across_reported = |t: f64| across(t) + shared;
+    // Across the line at parameter t, as reported and gated: the fused line's and the shift.
+    let across =
+        |t: f64| basis * at(t) * line.covariance * at(t).transpose() * basis.transpose() + shared;
     let along = |p: &Point3<f64>| {
         let t = tolerance(p, 0.01, 0.005);
         t * t * (line.line.d * line.line.d.transpose())
@@ -491,21 +492,21 @@ fn merge(items: &[Item], group: &[usize], gate: Option<&MapGate>) -> Option<MapS
     let cross = basis * a_lo * line.covariance * a_hi.transpose() * basis.transpose() + shared;
     covariance
         .fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(across_reported(lo) + along(&start)));
+        .copy_from(&(across(lo) + along(&start)));
     covariance
         .fixed_view_mut::<3, 3>(3, 3)
-        .copy_from(&(across_reported(hi) + along(&end)));
+        .copy_from(&(across(hi) + along(&end)));
     covariance.fixed_view_mut::<3, 3>(0, 3).copy_from(&cross);
     covariance
         .fixed_view_mut::<3, 3>(3, 0)
         .copy_from(&cross.transpose());
     let direction = line.covariance.fixed_view::<2, 2>(0, 0).into_owned();
     let direction_var = principal_variances(&(basis * direction * basis.transpose()), &basis);
-    let midpoint_var = principal_variances(&across_reported(mid_t), &basis);
+    let midpoint_var = principal_variances(&across(mid_t), &basis);
     let uncertain = gate.is_some_and(|g| {
         let within = |t: f64, p: &Point3<f64>| {
             within_radius(
-                principal_variances(&across_reported(t), &basis),
+                principal_variances(&across(t), &basis),
                 tolerance(p, g.position_m, g.position_rel),
                 g.confidence,
             )

@@ -126,9 +126,8 @@ impl MapGate {
 
     /// The gate with the shift `rig`'s three views share ([`MapGate::shift_per_metre`]).
     pub fn sharing_shift(self, rig: &crate::geometry::Rig) -> MapGate {
-        let focal = (0..3).map(|v| rig.camera(v).focal_px()).sum::<f64>() / 3.0;
         MapGate {
-            shift_per_metre: crate::pipeline::SHARED_SHIFT_PX / focal,
+            shift_per_metre: crate::pipeline::shared_shift_per_metre(rig),
             ..self
         }
     }

@@ -497,10 +497,12 @@ fn a_segment_seen_again_is_known_better_and_its_covariance_says_so() {
     }
 }
 
-#[test]
-fn where_a_segment_ends_is_no_doubt_across_the_fused_line() {
-    // Two sightings of one edge at a slight angle, one with 30 cm of spread along itself
-    // (a receding line's ends): it must not make the fused line doubtful across it.
+/// One capture's sighting of an edge: its pose, its segments and their covariances.
+type Sighting = (Isometry3<f64>, Vec<Segment3>, Vec<nalgebra::Matrix6<f64>>);
+
+/// A wall edge seen by two captures at a slight angle, 1 mm of noise, each segment stated
+/// at 3 mm across.
+fn one_wall_edge_at_a_slight_angle() -> (Sighting, Sighting) {
     let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
     let (pa, pb) = (pose(1.0, 0.0, 0.0), pose(1.2, 0.2, 2.0));
     let mut n = Noise(5);
@@ -508,8 +510,15 @@ fn where_a_segment_ends_is_no_doubt_across_the_fused_line() {
         seen(&pa, &wall, &mut n, 0.001),
         seen(&pb, &wall, &mut n, 0.001),
     );
-    let ca = with_sigma(&sa, 0.003);
-    let mut cb = with_sigma(&sb, 0.003);
+    let (ca, cb) = (with_sigma(&sa, 0.003), with_sigma(&sb, 0.003));
+    ((pa, sa, ca), (pb, sb, cb))
+}
+
+#[test]
+fn where_a_segment_ends_is_no_doubt_across_the_fused_line() {
+    // Two sightings of one edge at a slight angle, one with 30 cm of spread along itself
+    // (a receding line's ends): it must not make the fused line doubtful across it.
+    let ((pa, sa, ca), (pb, sb, mut cb)) = one_wall_edge_at_a_slight_angle();
     let along = (sb[0].end - sb[0].start).normalize();
     for k in 0..2 {
         let mut block = cb[0].fixed_view_mut::<3, 3>(3 * k, 3 * k);
@@ -621,14 +630,7 @@ fn a_gate_out_of_range_is_named() {
 fn a_map_segment_adds_once_the_shift_its_rigs_views_share() {
     // The same edge seen twice: fused without the shift, reported and gated with it added
     // once, at the segment's range from the nearest rig, across the line only.
-    let wall = [(p(0.0, 3.0, 0.8), p(2.0, 3.0, 0.8))];
-    let (pa, pb) = (pose(1.0, 0.0, 0.0), pose(1.2, 0.2, 2.0));
-    let mut n = Noise(5);
-    let (sa, sb) = (
-        seen(&pa, &wall, &mut n, 0.001),
-        seen(&pb, &wall, &mut n, 0.001),
-    );
-    let (ca, cb) = (with_sigma(&sa, 0.003), with_sigma(&sb, 0.003));
+    let ((pa, sa, ca), (pb, sb, cb)) = one_wall_edge_at_a_slight_angle();
     let captures = two_captures((pa, &sa, &ca), (pb, &sb, &cb), nalgebra::Matrix6::zeros());
     let gate = super::MapGate::of(&crate::matching::MatchParams::default());
     let fused = |gate: super::MapGate| {

@@ -94,11 +94,22 @@ pub fn subpixel_offset(before: f32, centre: f32, after: f32) -> f32 {
     }
 }
 
-/// Step 1 and 2 for row `y`: appends its edge points to `map`, given the gradient magnitude
+/// Where suppression writes the points of a band of rows: the points in row-major order,
+/// and the band's rows of the image's index, numbered from the band's first point (made the
+/// image's numbers when the bands are put together, [`join_bands`]).
+struct Band<'a> {
+    width: usize,
+    height: usize,
+    first_row: usize,
+    points: Vec<EdgePoint>,
+    index: &'a mut [u32],
+}
+
+/// Step 1 and 2 for row `y`: appends its edge points to `band`, given the gradient magnitude
 /// of rows `y − 1`, `y`, `y + 1` and the gradient of row `y`.
 #[allow(clippy::too_many_arguments)]
 fn suppress_row(
-    map: &mut EdgeMap,
+    band: &mut Band,
     y: usize,
     above: &[f32],
     row: &[f32],
@@ -107,7 +118,7 @@ fn suppress_row(
     gv: &[f32],
     low: f32,
 ) {
-    let w = map.width;
+    let w = band.width;
     // The test of every pixel is branch-free arithmetic over a block (`maxima`, which the
     // compiler vectorises); only the few pixels it marks are visited one by one. A test with
     // an early return per pixel mispredicted on the tens of thousands of noise pixels over
@@ -144,7 +155,7 @@ fn suppress_row(
         while marked != 0 {
             let x = start + marked.trailing_zeros() as usize;
             marked &= marked - 1;
-            push_point(map, (x, y), above, row, below, gu, gv);
+            push_point(band, (x, y), above, row, below, gu, gv);
         }
         start = end;
     }
@@ -203,7 +214,7 @@ fn is_maximum(
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn push_point(
-    map: &mut EdgeMap,
+    band: &mut Band,
     (x, y): (usize, usize),
     above: &[f32],
     row: &[f32],
@@ -217,9 +228,9 @@ fn push_point(
     // step pulled off the edge (a line running along the border came out 0.3–0.5 px off, and
     // its 3D segment up to 60σ away).
     let beside_frame = if along_u {
-        x == 1 || x + 2 == map.width
+        x == 1 || x + 2 == band.width
     } else {
-        y == 1 || y + 2 == map.height
+        y == 1 || y + 2 == band.height
     };
     if beside_frame {
         return;
@@ -236,8 +247,8 @@ fn push_point(
     } else {
         (x as f32, y as f32 + s)
     };
-    map.index[y * map.width + x] = map.points.len() as u32;
-    map.points.push(EdgePoint {
+    band.index[(y - band.first_row) * band.width + x] = band.points.len() as u32;
+    band.points.push(EdgePoint {
         x: x as u32,
         y: y as u32,
         u,
@@ -257,21 +268,73 @@ fn empty_map(w: usize, h: usize) -> EdgeMap {
     }
 }
 
+/// Bands of the suppression per thread of the compute pool: bands are searched on the pool's
+/// threads at once, each computing its own gradient rows (two more than it suppresses), and
+/// put together in row order, so the points, their order and the index are those of a single
+/// pass to the bit. A few per thread let a thread that frees up take a share of what is left;
+/// on a pool of one thread the image is one band, the single pass itself.
+const BANDS_PER_THREAD: usize = 4;
+/// The fewest rows a band is given: below it the two extra gradient rows cost more than a
+/// second thread gains.
+const MIN_BAND_ROWS: usize = 32;
+
+/// Rows per band of an image `height` rows high on the current pool.
+fn band_rows(height: usize) -> usize {
+    let threads = rayon::current_num_threads();
+    if threads <= 1 {
+        return height;
+    }
+    height
+        .div_ceil(threads * BANDS_PER_THREAD)
+        .max(MIN_BAND_ROWS)
+}
+
+/// The image's map from its bands' points (in row order) and the index their bands filled
+/// with band-local numbers: each band's numbers are moved on by the points before it.
+fn join_bands(w: usize, h: usize, mut index: Vec<u32>, bands: Vec<Vec<EdgePoint>>) -> EdgeMap {
+    let total: usize = bands.iter().map(Vec::len).sum();
+    let mut bands = bands.into_iter();
+    // The first band's points are the start of the image's, where they lie: a single band,
+    // one thread's pass, is not copied at all.
+    let mut points = bands.next().unwrap_or_default();
+    points.reserve_exact(total - points.len());
+    for band in bands {
+        let offset = points.len() as u32;
+        for p in &band {
+            index[pixel_of(p, w)] += offset;
+        }
+        points.extend(band);
+    }
+    EdgeMap {
+        width: w,
+        height: h,
+        points,
+        index,
+    }
+}
+
 /// Step 1 and 2: the local maxima of the gradient magnitude of at least `low_gradient`.
 pub fn non_maximum_suppression(gradient: &Gradient, low_gradient: f32) -> EdgeMap {
     let (w, h) = (gradient.width, gradient.height);
-    let mut map = empty_map(w, h);
     if w < 3 || h < 3 {
-        return map;
+        return empty_map(w, h);
     }
     let m = &gradient.magnitude;
     // A noiseless flat image has magnitude 0 everywhere: never an edge, whatever the threshold.
     let low = low_gradient.max(f32::MIN_POSITIVE);
+    let mut index = vec![NO_POINT; w * h];
+    let mut band = Band {
+        width: w,
+        height: h,
+        first_row: 0,
+        points: Vec::new(),
+        index: &mut index,
+    };
     for y in 1..h - 1 {
         let r = |k: usize| &m[k * w..(k + 1) * w];
         let g = y * w..(y + 1) * w;
         suppress_row(
-            &mut map,
+            &mut band,
             y,
             r(y - 1),
             r(y),
@@ -281,7 +344,8 @@ pub fn non_maximum_suppression(gradient: &Gradient, low_gradient: f32) -> EdgeMa
             low,
         );
     }
-    map
+    let points = band.points;
+    join_bands(w, h, index, vec![points])
 }
 
 /// [`gradient::gradient`] and [`non_maximum_suppression`] in one pass over the smoothed image,
@@ -293,20 +357,63 @@ pub fn edge_points(smoothed: &[f32], width: usize, height: usize, low_gradient: 
 
 /// [`edge_points`], and [`gradient::background_magnitude`] of the same image from the
 /// magnitudes the pass computes anyway (the same sample, so the same value to the bit),
-/// instead of a second pass of its own over the image.
+/// instead of a second pass of its own over the image. Bands of rows run on the compute
+/// pool at once ([`band_rows`]).
 pub fn edge_points_and_background(
     smoothed: &[f32],
     width: usize,
     height: usize,
     low_gradient: f32,
 ) -> (EdgeMap, f32) {
+    use rayon::prelude::*;
     let (w, h) = (width, height);
-    let mut map = empty_map(w, h);
     if w < 3 || h < 3 || smoothed.len() != w * h {
-        return (map, 0.0);
+        return (empty_map(w, h), 0.0);
     }
-    let mut background = gradient::BackgroundHistogram::new();
     let low = low_gradient.max(f32::MIN_POSITIVE);
+    let mut index = vec![NO_POINT; w * h];
+    let rows_per_band = band_rows(h);
+    let bands: Vec<(Vec<EdgePoint>, gradient::BackgroundHistogram)> = index
+        .par_chunks_mut(rows_per_band * w)
+        .enumerate()
+        .map(|(b, rows)| {
+            let first_row = b * rows_per_band;
+            let rows_here = rows.len() / w;
+            let mut band = Band {
+                width: w,
+                height: h,
+                first_row,
+                points: Vec::new(),
+                index: rows,
+            };
+            let background =
+                suppress_band(smoothed, &mut band, first_row..first_row + rows_here, low);
+            (band.points, background)
+        })
+        .collect();
+    let mut background = gradient::BackgroundHistogram::new();
+    let mut points = Vec::with_capacity(bands.len());
+    for (band_points, band_background) in bands {
+        background.merge(&band_background);
+        points.push(band_points);
+    }
+    (join_bands(w, h, index, points), background.median())
+}
+
+/// The fused gradient and suppression of the rows `rows` of the image (those inside its
+/// one-pixel frame), into `band`; the background's sample of those rows.
+fn suppress_band(
+    smoothed: &[f32],
+    band: &mut Band,
+    rows: std::ops::Range<usize>,
+    low: f32,
+) -> gradient::BackgroundHistogram {
+    let (w, h) = (band.width, band.height);
+    let mut background = gradient::BackgroundHistogram::new();
+    let (first, last) = (rows.start.max(1), rows.end.min(h - 1));
+    if first >= last {
+        return background;
+    }
     // Ring of three rows: gradient row y lives in slot y % 3; row 0 and h-1 stay zero.
     let mut gu = vec![0.0f32; 3 * w];
     let mut gv = vec![0.0f32; 3 * w];
@@ -328,16 +435,16 @@ pub fn edge_points_and_background(
             );
         }
     };
-    fill(0, &mut gu, &mut gv, &mut mag);
-    fill(1, &mut gu, &mut gv, &mut mag);
-    for y in 1..h - 1 {
+    fill(first - 1, &mut gu, &mut gv, &mut mag);
+    fill(first, &mut gu, &mut gv, &mut mag);
+    for y in first..last {
         fill(y + 1, &mut gu, &mut gv, &mut mag);
         let slot = |k: usize| (k % 3) * w..(k % 3 + 1) * w;
         if gradient::BackgroundHistogram::samples_row(y) {
             background.add_row(&mag[slot(y)]);
         }
         suppress_row(
-            &mut map,
+            band,
             y,
             &mag[slot(y - 1)],
             &mag[slot(y)],
@@ -347,7 +454,7 @@ pub fn edge_points_and_background(
             low,
         );
     }
-    (map, background.median())
+    background
 }
 
 /// Step 3: keeps the points connected (8-connectivity) to a point of at least `high_gradient`.
@@ -562,10 +669,23 @@ mod tests {
     #[test]
     fn the_block_wise_suppression_and_hysteresis_find_the_reference_points_exactly() {
         // Noise quantised to whole grey levels (so that neighbours tie and plateaus occur),
-        // widths on and off the block size, thresholds from everything to almost nothing.
+        // widths on and off the block size, heights on and off the bands' (the fused pass's
+        // bands put together: a last band of one row, of two, several bands), thresholds from
+        // everything to almost nothing.
         let mut rng = trinocular_synth::Rng::new(0x2545_f491_4f6c_dd1d);
         let mut next = move || rng.next_u64();
         let mut selective = false;
+        let mut several_bands = false;
+        // The fused pass is one band on a pool of one thread, and bands put together on more.
+        let pools: Vec<rayon::ThreadPool> = [1, 2, 3]
+            .into_iter()
+            .map(|threads| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("pool")
+            })
+            .collect();
         for (w, h) in [
             (3, 3),
             (5, 4),
@@ -574,6 +694,10 @@ mod tests {
             (33, 20),
             (64, 31),
             (101, 47),
+            (40, 65),
+            (29, 66),
+            (23, 130),
+            (37, 200),
         ] {
             for smoothing in [0.0, 0.7] {
                 let px = (0..w * h).map(|_| (next() % 24) as f32).collect();
@@ -589,6 +713,15 @@ mod tests {
                     );
                     let (fused, background) = edge_points_and_background(&smoothed, w, h, low);
                     assert_eq!(fused, reference, "fused, {w}x{h}");
+                    for (threads, pool) in (1..).zip(&pools) {
+                        let bands = pool.install(|| h.div_ceil(band_rows(h)));
+                        let (banded, banded_background) =
+                            pool.install(|| edge_points_and_background(&smoothed, w, h, low));
+                        let at = format!("{w}x{h}, {threads} threads, {bands} bands");
+                        assert_eq!(banded, reference, "{at}");
+                        assert_eq!(banded_background.to_bits(), background.to_bits(), "{at}");
+                        several_bands |= bands > 2;
+                    }
                     // The background's median of the full gradient's magnitudes, every
                     // fourth pixel of every fourth row from (1, 1).
                     let mut sample = BackgroundHistogram::new();
@@ -623,6 +756,10 @@ mod tests {
             }
         }
         assert!(selective, "some case keeps some points and drops others");
+        assert!(
+            several_bands,
+            "some image is searched in three bands or more"
+        );
     }
 
     #[test]

@@ -265,6 +265,15 @@ impl BackgroundHistogram {
         }
     }
 
+    /// Adds another sample's counts (a histogram is the same whatever order its pixels came
+    /// in, so bands of an image sampled apart and merged give the whole image's).
+    pub fn merge(&mut self, other: &BackgroundHistogram) {
+        for (mine, theirs) in self.bins.iter_mut().zip(&other.bins) {
+            *mine += theirs;
+        }
+        self.count += other.count;
+    }
+
     /// The median, to within one bin (its centre); 0 when nothing was added.
     pub fn median(&self) -> f32 {
         if self.count == 0 {

@@ -18,6 +18,13 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("pool")
+}
+
 /// The medians of extraction's stages, as printed.
 fn stage_medians(stages: [Vec<f64>; 5]) -> String {
     let [smooth, edges, chain, polygon, total] = stages.map(median);
@@ -55,10 +62,7 @@ fn main() {
             once.edge_points, once.chains, once.smoothing_sigma_px
         );
         for threads in [1usize, 2] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .expect("pool");
+            let pool = pool(threads);
             let mut stages: [Vec<f64>; 5] = Default::default();
             pool.install(|| {
                 for _ in 0..runs {
@@ -80,10 +84,7 @@ fn main() {
     let params = Params::default();
     let options = Options::default();
     for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
+        let pool = pool(threads);
         let mut stages: [Vec<f64>; 5] = Default::default();
         let mut triplet: [Vec<f64>; 7] = Default::default();
         pool.install(|| {

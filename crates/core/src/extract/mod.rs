@@ -272,31 +272,19 @@ struct ChainPieces {
 /// [`PIXELS_PER_PARALLEL_CHAIN`] allows) makes.
 fn fit_pieces(
     chains: &chain::Chains,
-    map: &edges::EdgeMap,
-    smoothed: &ends::Smoothed,
-    camera: Option<&Camera>,
-    trim: usize,
-    params: &Params,
+    on: &FitOn,
     checkpoint: Checkpoint,
 ) -> Result<ChainPieces, Stopped> {
     use rayon::prelude::*;
-    let pixels = map.width * map.height;
+    let pixels = on.map.width * on.map.height;
     if rayon::current_num_threads() <= 1 || chains.chains.len() > pixels / PIXELS_PER_PARALLEL_CHAIN
     {
-        return fit_block(
-            &chains.chains,
-            map,
-            smoothed,
-            camera,
-            trim,
-            params,
-            checkpoint,
-        );
+        return fit_block(&chains.chains, on, checkpoint);
     }
     let blocks: Vec<ChainPieces> = chains
         .chains
         .par_chunks(CHAINS_PER_CHECK)
-        .map(|block| fit_block(block, map, smoothed, camera, trim, params, checkpoint))
+        .map(|block| fit_block(block, on, checkpoint))
         .collect::<Result<_, Stopped>>()?;
     let mut all = ChainPieces {
         pending: Vec::with_capacity(blocks.iter().map(|b| b.pending.len()).sum()),
@@ -326,18 +314,30 @@ fn fit_pieces(
     Ok(all)
 }
 
+/// What the chains are fitted on: the edge points they index, the smoothed image their ends
+/// are refined on, the lens undone, the points trimmed at a corner, the parameters.
+struct FitOn<'a> {
+    map: &'a edges::EdgeMap,
+    smoothed: ends::Smoothed<'a>,
+    camera: Option<&'a Camera>,
+    trim: usize,
+    params: &'a Params,
+}
+
 /// [`fit_pieces`] of one block of chains, its pieces numbered from 0; asks `checkpoint`
 /// every [`CHAINS_PER_CHECK`] chains.
-#[allow(clippy::too_many_arguments)]
 fn fit_block(
     block: &[chain::Chain],
-    map: &edges::EdgeMap,
-    smoothed: &ends::Smoothed,
-    camera: Option<&Camera>,
-    trim: usize,
-    params: &Params,
+    on: &FitOn,
     checkpoint: Checkpoint,
 ) -> Result<ChainPieces, Stopped> {
+    let FitOn {
+        map,
+        ref smoothed,
+        camera,
+        trim,
+        params,
+    } = *on;
     let undistort = |u: f32, v: f32| {
         let p = Point2::new(f64::from(u), f64::from(v));
         camera.map_or(p, |c| c.undistort(p))
@@ -729,15 +729,17 @@ pub fn extract_until(
         per_chain,
     } = fit_pieces(
         &chains,
-        &map,
-        &ends::Smoothed {
-            pixels: &smoothed,
-            width: w,
-            height: h,
+        &FitOn {
+            map: &map,
+            smoothed: ends::Smoothed {
+                pixels: &smoothed,
+                width: w,
+                height: h,
+            },
+            camera,
+            trim: corner_trim(smoothing),
+            params,
         },
-        camera,
-        corner_trim(smoothing),
-        params,
         checkpoint,
     )?;
     meetings.extend(junction_meetings(&chains, &map, &per_chain));

@@ -4,7 +4,9 @@
 #   1. extraction, one 512x512 and one 1024x1024 image, one thread: ours (criterion median)
 #      against OpenCV's GaussianBlur + Canny and OpenCV's LSD (tools/peer_opencv.py, same
 #      images), as ratios;
-#   2. a whole 512x512 triplet end to end (extract x3, match, reconstruct) on two threads;
+#   2. a whole 512x512 triplet end to end (extract x3, match, reconstruct) on one thread and
+#      two, and where its time goes: extraction's stages and the match's, on each
+#      (examples/profile_extract.rs);
 #   3. match/600 and match/10000 on one thread (criterion medians), per segment;
 #   4. the stages of match/600 (medians of `stats` over 2000 runs) and a perf profile of the
 #      match: where the time goes by function, and a flame graph SVG when inferno is installed
@@ -22,7 +24,7 @@ trap 'rm -rf "$dir"' EXIT
 median_ms() { python3 -c "import json,sys; print('%.3f' % (json.load(open(sys.argv[1]))['median']['point_estimate'] / 1e6))" "$1"; }
 
 echo "== building (release)"
-cargo build --release --quiet --example bench_images --example profile_match
+cargo build --release --quiet --example bench_images --example profile_match --example profile_extract
 ./target/release/examples/bench_images "$dir" >/dev/null
 cargo bench --quiet --bench extract -- 'extract/|images/512' >/dev/null 2>&1
 cargo bench --quiet --bench matching -- 'match/' >/dev/null 2>&1
@@ -52,6 +54,7 @@ echo "== 2. a 512x512 triplet end to end (medians, ms)"
 for threads in 1 2; do
   echo "- images/512/$threads-threads: $(median_ms "target/criterion/images/512_${threads}-threads/new/estimates.json") ms (goal on two threads: <= 4 ms)"
 done
+./target/release/examples/profile_extract 512 200 | sed 's/^/- /'
 
 echo
 echo "== 3. matching, one thread (medians)"

@@ -879,11 +879,17 @@ pub fn shared_shift_covariance(
         return out;
     }
     let u = d / length;
-    let across = (nalgebra::Matrix3::identity() - u * u.transpose()) * (sigma_m * sigma_m);
+    let across = crate::geometry::line::across_projector(&u) * (sigma_m * sigma_m);
     for (r, c) in [(0, 0), (0, 3), (3, 0), (3, 3)] {
         out.fixed_view_mut::<3, 3>(r, c).copy_from(&across);
     }
     out
+}
+
+/// What a segment's answer reports, and the gate judges: the estimate's own covariance and
+/// the shift of σ `shift_sigma_m` its three views share.
+fn reported_covariance(est: &Line3Estimate, shift_sigma_m: f64) -> nalgebra::Matrix6<f64> {
+    est.covariance + shared_shift_covariance(&est.start, &est.end, shift_sigma_m)
 }
 
 /// The largest and smallest variance across the line of a 3x3 covariance whose part along
@@ -1113,7 +1119,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     // What the answer reports, and the gate judges, adds the shift every view shares
     // ([`SHARED_SHIFT_PX`]): the direction is untouched by it, the position is not.
     let shift_sigma_m = shared_shift_sigma_m(rig, &centre, &est.start, &est.end);
-    let reported = est.covariance + shared_shift_covariance(&est.start, &est.end, shift_sigma_m);
+    let reported = reported_covariance(&est, shift_sigma_m);
     let direction_var = principal_variances(&est.direction_covariance(), &basis);
     let direction_sigma_deg = direction_var.0.sqrt().to_degrees();
     if direction_sigma_deg > params.max_direction_sigma_deg {
@@ -1936,8 +1942,7 @@ fn assemble(
             triplet: first_triplet,
             triplets: (first_triplet..output.triplets.len() as u32).collect(),
             residual_px: est.residual_px,
-            covariance: est.covariance
-                + shared_shift_covariance(&est.start, &est.end, quality.shift_sigma_m),
+            covariance: reported_covariance(&est, quality.shift_sigma_m),
             shift_sigma_m: quality.shift_sigma_m,
             direction_sigma_deg: quality.direction_sigma_deg,
             position_sigma_m: quality.position_sigma_m,

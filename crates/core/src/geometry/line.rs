@@ -112,7 +112,8 @@ pub fn midpoint_covariance(
     j * covariance * j.transpose()
 }
 
-fn across_projector(u: &Vector3<f64>) -> Matrix3<f64> {
+/// The projector across the unit direction `u`: a vector's part perpendicular to the line.
+pub(crate) fn across_projector(u: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() - u * u.transpose()
 }
 

@@ -479,7 +479,7 @@ fn merge(items: &[Item], group: &[usize], gate: Option<&MapGate>) -> Option<MapS
         let mid = line.line.c + line.line.d * mid_t;
         g.shift_per_metre * (mid - nearest_rig).norm()
     });
-    let shared = (Matrix3::identity() - line.line.d * line.line.d.transpose()) * (shift * shift);
+    let shared = crate::geometry::line::across_projector(&line.line.d) * (shift * shift);
     // Across the line at parameter t, as reported and gated: the fused line's and the shift.
     let across =
         |t: f64| basis * at(t) * line.covariance * at(t).transpose() * basis.transpose() + shared;

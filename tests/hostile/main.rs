@@ -669,10 +669,31 @@ fn small_findings_get_clear_errors_on_both_transports() {
         .await;
         assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
         assert!(status.message().contains("invalid protobuf"));
+        // A calibration whose cameras are sent as a number: the field it breaks is named, in
+        // the message and as a BadRequest violation, as for any input error.
+        let status = raw_grpc_call(
+            server.running.grpc_addr,
+            "/trinocular.v1.Trinocular/Match",
+            vec![0x0a, 0x02, 0x08, 0x05],
+        )
+        .await;
+        assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+        assert!(
+            status
+                .message()
+                .starts_with("calibration.cameras: invalid protobuf"),
+            "{}",
+            status.message()
+        );
+        let violations = tonic_types::StatusExt::get_details_bad_request(&status)
+            .expect("a BadRequest detail")
+            .field_violations;
+        assert_eq!(violations.len(), 1, "{violations:?}");
+        assert_eq!(violations[0].field, "calibration.cameras");
         assert!(server
             .service
             .metrics_text()
-            .contains("trinocular_grpc_malformed_messages 1"));
+            .contains("trinocular_grpc_malformed_messages 2"));
 
         // Calibration values no camera has: the field is named.
         let example: Value = serde_json::from_str(&api::to_json(&example_request())).unwrap();

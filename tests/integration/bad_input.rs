@@ -224,7 +224,9 @@ fn empty_lists_give_an_empty_result() {
 #[test]
 fn malformed_json_is_an_error_not_a_panic() {
     let err = api::from_json::<pb::MatchRequest>("request", "{\"calibration\": [1,").unwrap_err();
-    assert_eq!(err.field, "request");
+    assert_eq!(err.field, "calibration");
+    let err = api::from_json::<pb::MatchRequest>("request", "{\"calibration\": [1,").unwrap_err();
+    assert!(err.message.contains("line 1 column 17"), "{}", err.message);
     let err = api::from_json::<pb::MatchRequest>("request", "{\"calibration\": 5}").unwrap_err();
     assert!(err.message.contains("invalid JSON"), "{}", err.message);
 }

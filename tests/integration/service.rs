@@ -199,10 +199,37 @@ fn bad_input_is_invalid_argument_naming_the_field_on_both_transports() {
         assert_eq!(body["error"]["code"], "INVALID_ARGUMENT");
         assert_eq!(body["error"]["field"], "calibration.cameras[2].projection");
 
-        for (content_type, bytes) in [
-            ("application/json", b"{\"calibration\": [1, 2".to_vec()),
-            ("application/x-protobuf", vec![0x0a, 0xff, 0xff, 0xff]),
-            ("application/json", vec![0xff, 0xfe]),
+        // A body that does not parse: the field where it stops, or the request when it
+        // stops nowhere in particular.
+        for (content_type, bytes, field) in [
+            (
+                "application/json",
+                b"{\"calibration\": [1, 2".to_vec(),
+                "calibration",
+            ),
+            (
+                "application/json",
+                b"{\"calibration\": {\"cameras\": [{\"width\": -1}]}}".to_vec(),
+                "calibration.cameras[0].width",
+            ),
+            (
+                "application/json",
+                b"{\"options\": {\"maxDirectionSigmaDeg\": \"x\"}}".to_vec(),
+                "options.max_direction_sigma_deg",
+            ),
+            (
+                "application/json",
+                b"{\"calibration\": ".to_vec(),
+                "calibration",
+            ),
+            ("application/json", b"[".to_vec(), "request"),
+            (
+                "application/x-protobuf",
+                vec![0x0a, 0xff, 0xff, 0xff],
+                "calibration",
+            ),
+            ("application/x-protobuf", vec![0x00], "request"),
+            ("application/json", vec![0xff, 0xfe], "request"),
         ] {
             let reply = http
                 .post(&url)
@@ -213,7 +240,7 @@ fn bad_input_is_invalid_argument_naming_the_field_on_both_transports() {
                 .unwrap();
             assert_eq!(reply.status(), 400, "{content_type}");
             let body: serde_json::Value = reply.json_body().await;
-            assert_eq!(body["error"]["field"], "request");
+            assert_eq!(body["error"]["field"], field, "{body}");
         }
         running.shutdown().await;
     });

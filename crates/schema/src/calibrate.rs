@@ -46,8 +46,7 @@ pub fn calibrate_request_from_json(text: &str) -> Result<pb::CalibrateRequest, I
             }
         }
     }
-    serde_json::from_value(value)
-        .map_err(|e| InputError::new("request", format!("invalid JSON: {e}")))
+    crate::located::from_json_value("request", value)
 }
 
 /// A checked `CalibrateRequest`.

@@ -1,5 +1,5 @@
 //! The gRPC codec: prost's, except that a request that does not decode is the caller's
-//! fault — INVALID_ARGUMENT naming the request, logged and counted — where tonic answers
+//! fault — INVALID_ARGUMENT naming the field it breaks, logged and counted — where tonic answers
 //! INTERNAL, which reads as our bug and goes unseen.
 
 use std::marker::PhantomData;
@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use tonic::codec::{BufferSettings, Codec, DecodeBuf, Decoder};
 use tonic::{Code, Status};
 use tonic_prost::{ProstCodec, ProstDecoder, ProstEncoder};
+use tonic_types::{ErrorDetails, StatusExt};
 
 /// Messages that did not decode since the process started (a metric).
 static MALFORMED: AtomicU64 = AtomicU64::new(0);
@@ -63,12 +64,15 @@ where
                 return status;
             }
             MALFORMED.fetch_add(1, Ordering::Relaxed);
-            let message = super::truncated(
-                format!("request: invalid protobuf: {}", status.message()),
-                super::MAX_ERROR_MESSAGE_BYTES,
-            );
-            tracing::info!(transport = "grpc", code = ?Code::InvalidArgument, error = %message, "malformed message");
-            Status::invalid_argument(message)
+            let error = super::protobuf_error("request", &status.message());
+            tracing::info!(transport = "grpc", code = ?Code::InvalidArgument, error = %error, "malformed message");
+            // As every input error is answered (the server's `grpc::status`): `field: message`,
+            // and the field as a `google.rpc.BadRequest` violation.
+            Status::with_error_details(
+                Code::InvalidArgument,
+                error.to_string(),
+                ErrorDetails::with_bad_request_violation(error.field, error.message),
+            )
         })
     }
 

@@ -18,6 +18,7 @@ pub mod calibration_files;
 pub mod codec;
 pub(crate) mod convert;
 mod fast_json;
+pub mod located;
 pub mod session;
 
 pub use calibrate::{calibrate_request_from_json, LEGACY_PATTERN_TO_RIG};
@@ -28,6 +29,7 @@ pub use convert::{
     MAX_SEGMENTS_PER_LIST,
 };
 pub use fast_json::match_request_from_json;
+pub use located::protobuf_error;
 
 /// The schema as an encoded `FileDescriptorSet`, for gRPC server reflection.
 pub const FILE_DESCRIPTOR_SET: &[u8] =
@@ -76,9 +78,11 @@ pub fn truncated(mut text: String, max: usize) -> String {
     text
 }
 
-/// Parses a message from proto3 JSON, naming the message in the error.
+/// Parses a message from proto3 JSON; the error names the field where parsing stopped, under
+/// `what` (the message's own name, or `request` for a whole request, whose fields are named
+/// from its root).
 pub fn from_json<T: serde::de::DeserializeOwned>(what: &str, text: &str) -> Result<T, InputError> {
-    serde_json::from_str(text).map_err(|e| InputError::new(what, format!("invalid JSON: {e}")))
+    serde_json::from_str(text).map_err(|e| located::json_error::<T>(what, text, &e))
 }
 
 /// Serialises a message as pretty proto3 JSON (the CLI's and the HTTP API's one format).

@@ -616,7 +616,7 @@ fn decode_body_with<T: Message + Default>(
     read_json: impl FnOnce(&str) -> Result<T, InputError>,
 ) -> Result<T, InputError> {
     if protobuf {
-        T::decode(body).map_err(|e| InputError::new("request", format!("invalid protobuf: {e}")))
+        T::decode(body).map_err(|e| trinocular_schema::protobuf_error("request", &e))
     } else {
         std::str::from_utf8(body)
             .map_err(|_| InputError::new("request", "the body is not UTF-8 JSON"))

@@ -460,39 +460,74 @@ fn suppress_band(
 /// Step 3: keeps the points connected (8-connectivity) to a point of at least `high_gradient`.
 /// Consumes the map: the kept points are compacted in place and its index updated, so no
 /// second image-sized buffer is needed.
+///
+/// The flood marks a kept point in its own index entry (the top bit) and walks pixels, not
+/// points: a neighbour's pixel is known from the offset it was found at, so the flood reads
+/// only the index (three rows of it about the current pixel, in cache) and never the 28-byte
+/// points, and needs no array of flags beside it. A pixel's eight neighbours are read at fixed
+/// offsets when every point lies off the image's border, as suppression leaves them; a map
+/// built otherwise is flooded through the clamped neighbourhood.
 pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
-    let w = map.width;
-    let mut keep = vec![false; map.points.len()];
+    const KEPT: u32 = 1 << 31;
+    let (w, h) = (map.width, map.height);
+    // Point numbers must leave the top bit free (an index of 2³¹ points is 8 GiB of them).
+    assert!(map.points.len() < KEPT as usize, "too many edge points");
+    let interior = map.points.iter().all(|p| {
+        let (x, y) = (p.x as usize, p.y as usize);
+        x >= 1 && y >= 1 && x + 1 < w && y + 1 < h
+    });
     let mut stack: Vec<usize> = Vec::new();
     for i in 0..map.points.len() {
-        if map.points[i].magnitude < high_gradient || keep[i] {
+        let p = &map.points[i];
+        let seed = pixel_of(p, w);
+        if p.magnitude < high_gradient || map.index[seed] & KEPT != 0 {
             continue;
         }
-        keep[i] = true;
-        stack.push(i);
-        while let Some(j) = stack.pop() {
-            let q = &map.points[j];
-            let (x, y) = (q.x as usize, q.y as usize);
-            let visit = |k: u32| {
-                if k != NO_POINT && !keep[k as usize] {
-                    keep[k as usize] = true;
-                    stack.push(k as usize);
+        map.index[seed] |= KEPT;
+        stack.push(seed);
+        while let Some(at) = stack.pop() {
+            let mut visit = |k: usize| {
+                let entry = map.index[k];
+                if entry != NO_POINT && entry & KEPT == 0 {
+                    map.index[k] = entry | KEPT;
+                    stack.push(k);
                 }
             };
-            map.for_each_neighbour(x, y, visit);
+            if interior {
+                for k in [
+                    at - w - 1,
+                    at - w,
+                    at - w + 1,
+                    at - 1,
+                    at + 1,
+                    at + w - 1,
+                    at + w,
+                    at + w + 1,
+                ] {
+                    visit(k);
+                }
+            } else {
+                let (x, y) = (at % w, at / w);
+                for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                    for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                        if (nx, ny) != (x, y) {
+                            visit(ny * w + nx);
+                        }
+                    }
+                }
+            }
         }
     }
     let mut kept = 0usize;
-    for (i, &keep_it) in keep.iter().enumerate() {
+    for i in 0..map.points.len() {
         let p = map.points[i];
         let pixel = pixel_of(&p, w);
-        if keep_it {
-            map.points[kept] = p;
-            map.index[pixel] = kept as u32;
-            kept += 1;
-        } else {
-            map.index[pixel] = NO_POINT;
-        }
+        // Written whether kept or not (a dropped point is overwritten by the next kept one):
+        // no branch on a flag that is set for four points in ten, in no pattern.
+        let keep_it = map.index[pixel] & KEPT != 0;
+        map.points[kept] = p;
+        map.index[pixel] = if keep_it { kept as u32 } else { NO_POINT };
+        kept += usize::from(keep_it);
     }
     map.points.truncate(kept);
     // The points grew by doubling: up to half their capacity is slack, which on a noisy
@@ -760,6 +795,56 @@ mod tests {
             several_bands,
             "some image is searched in three bands or more"
         );
+    }
+
+    /// A map with points on the image's border (no suppression makes one, a caller could):
+    /// flooded through the clamped neighbourhood, it keeps what the reference keeps.
+    #[test]
+    fn hysteresis_of_points_on_the_border_is_the_references() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut on_border = 0;
+        for (w, h) in [(1, 1), (1, 7), (7, 1), (2, 2), (5, 4), (16, 9)] {
+            for _ in 0..40 {
+                let mut map = EdgeMap {
+                    width: w,
+                    height: h,
+                    points: Vec::new(),
+                    index: vec![NO_POINT; w * h],
+                };
+                for y in 0..h {
+                    for x in 0..w {
+                        if next() % 3 != 0 {
+                            map.index[y * w + x] = map.points.len() as u32;
+                            on_border +=
+                                usize::from(x == 0 || y == 0 || x + 1 == w || y + 1 == h);
+                            map.points.push(EdgePoint {
+                                x: x as u32,
+                                y: y as u32,
+                                u: x as f32,
+                                v: y as f32,
+                                gu: 1.0,
+                                gv: 0.0,
+                                magnitude: (next() % 10) as f32,
+                            });
+                        }
+                    }
+                }
+                for high in [0.0, 8.0, 9.0, 10.0] {
+                    assert_eq!(
+                        hysteresis(map.clone(), high),
+                        reference_hysteresis(map.clone(), high),
+                        "{w}x{h} {high}"
+                    );
+                }
+            }
+        }
+        assert!(on_border > 100);
     }
 
     #[test]

@@ -346,6 +346,8 @@ fn fit_block(
     let mut pending: Vec<Pending> = Vec::new();
     let mut meetings = Vec::new();
     let mut per_chain: Vec<Vec<ChainPiece>> = Vec::with_capacity(block.len());
+    // A chain's point numbers and positions, in buffers the block's chains share.
+    let (mut ids, mut points): (Vec<u32>, Vec<Point2<f64>>) = (Vec::new(), Vec::new());
     for (n, c) in block.iter().enumerate() {
         if n % CHAINS_PER_CHECK == 0 {
             checkpoint.before("extract")?;
@@ -356,15 +358,14 @@ fn fit_block(
         } else {
             0
         };
-        let mut ids = c.points.clone();
+        ids.clear();
+        ids.extend_from_slice(&c.points);
         ids.rotate_left(rotation);
-        let points: Vec<Point2<f64>> = ids
-            .iter()
-            .map(|&i| {
-                let p = &map.points[i as usize];
-                undistort(p.u, p.v)
-            })
-            .collect();
+        points.clear();
+        points.extend(ids.iter().map(|&i| {
+            let p = &map.points[i as usize];
+            undistort(p.u, p.v)
+        }));
         let mut mine = Vec::new();
         let pieces = polygon::approximate(&points, c.closed, params.max_deviation_px, trim);
         // An end is free unless it is a vertex shared with a neighbouring piece kept.

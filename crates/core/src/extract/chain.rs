@@ -15,6 +15,11 @@
 use super::edges::EdgeMap;
 
 const NONE: u32 = u32::MAX;
+/// From this many points up, each point's best neighbours are looked up on the pool's
+/// threads, in tasks of [`POINTS_PER_TASK`]; below it the lookups cost less than collecting
+/// them in order from several tasks (docs/PERFORMANCE.md).
+const PARALLEL_POINTS: usize = 1 << 16;
+const POINTS_PER_TASK: usize = 1 << 14;
 
 /// A chain: indices into [`EdgeMap::points`], in walking order.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -75,7 +80,17 @@ fn best_neighbours(map: &EdgeMap, p: usize) -> (u32, u32) {
 /// their first point's pixel (row-major), so the result is deterministic.
 pub fn link(map: &EdgeMap) -> Chains {
     let n = map.points.len();
-    let (forward, backward): (Vec<u32>, Vec<u32>) = (0..n).map(|p| best_neighbours(map, p)).unzip();
+    let (forward, backward): (Vec<u32>, Vec<u32>) =
+        if n >= PARALLEL_POINTS && rayon::current_num_threads() > 1 {
+            use rayon::prelude::*;
+            (0..n)
+                .into_par_iter()
+                .with_min_len(POINTS_PER_TASK)
+                .map(|p| best_neighbours(map, p))
+                .unzip()
+        } else {
+            (0..n).map(|p| best_neighbours(map, p)).unzip()
+        };
     let mut next = vec![NONE; n];
     let mut previous = vec![NONE; n];
     for p in 0..n {
@@ -178,6 +193,48 @@ mod tests {
             map.points.push(p);
         }
         map
+    }
+
+    /// A map large enough to look its neighbours up on several threads links the same
+    /// chains and junctions as on one.
+    #[test]
+    fn a_large_map_links_the_same_on_any_pool() {
+        let (w, h) = (400usize, 300usize);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let mut points = Vec::new();
+        for y in 1..h - 1 {
+            for x in 1..w - 1 {
+                if next() % 4 != 0 {
+                    let angle = (next() % 628) as f32 / 100.0;
+                    let jitter = |r: u64| (r % 100) as f32 / 250.0 - 0.2;
+                    points.push((
+                        x as f32 + jitter(next()),
+                        y as f32 + jitter(next()),
+                        5.0 * angle.cos(),
+                        5.0 * angle.sin(),
+                    ));
+                }
+            }
+        }
+        let map = map_of(w, h, &points);
+        assert!(map.points.len() >= PARALLEL_POINTS);
+        let on = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| link(&map))
+        };
+        let one = on(1);
+        assert!(one.chains.len() > 1000 && !one.junctions.is_empty());
+        assert_eq!(on(2), one);
+        assert_eq!(on(3), one);
     }
 
     #[test]

@@ -200,22 +200,15 @@ mod tests {
     #[test]
     fn a_large_map_links_the_same_on_any_pool() {
         let (w, h) = (400usize, 300usize);
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = trinocular_synth::Rng::new(0x9e37_79b9_7f4a_7c15);
         let mut points = Vec::new();
         for y in 1..h - 1 {
             for x in 1..w - 1 {
-                if next() % 4 != 0 {
-                    let angle = (next() % 628) as f32 / 100.0;
-                    let jitter = |r: u64| (r % 100) as f32 / 250.0 - 0.2;
+                if rng.below(4) != 0 {
+                    let angle = rng.range(0.0, std::f64::consts::TAU) as f32;
                     points.push((
-                        x as f32 + jitter(next()),
-                        y as f32 + jitter(next()),
+                        x as f32 + rng.symmetric(0.2) as f32,
+                        y as f32 + rng.symmetric(0.2) as f32,
                         5.0 * angle.cos(),
                         5.0 * angle.sin(),
                     ));

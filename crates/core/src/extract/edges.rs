@@ -50,17 +50,7 @@ impl EdgeMap {
         if x >= 1 && y >= 1 && x + 1 < w && y + 1 < h {
             // Suppression leaves the border without points, so every point has its eight
             // neighbours in the image: read them at fixed offsets, without clamping.
-            let at = y * w + x;
-            for k in [
-                at - w - 1,
-                at - w,
-                at - w + 1,
-                at - 1,
-                at + 1,
-                at + w - 1,
-                at + w,
-                at + w + 1,
-            ] {
+            for k in neighbour_pixels(y * w + x, w) {
                 visit(self.index[k]);
             }
         } else {
@@ -494,16 +484,7 @@ pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
                 }
             };
             if interior {
-                for k in [
-                    at - w - 1,
-                    at - w,
-                    at - w + 1,
-                    at - 1,
-                    at + 1,
-                    at + w - 1,
-                    at + w,
-                    at + w + 1,
-                ] {
+                for k in neighbour_pixels(at, w) {
                     visit(k);
                 }
             } else {
@@ -534,6 +515,22 @@ pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
     // image is the largest buffer of the whole extraction.
     map.points.shrink_to_fit();
     map
+}
+
+/// The eight pixels about pixel `at` of an image `w` pixels wide, in row-major order; `at`
+/// must lie off the image's border.
+#[inline(always)]
+fn neighbour_pixels(at: usize, w: usize) -> [usize; 8] {
+    [
+        at - w - 1,
+        at - w,
+        at - w + 1,
+        at - 1,
+        at + 1,
+        at + w - 1,
+        at + w,
+        at + w + 1,
+    ]
 }
 
 /// Row-major index of a point's pixel.
@@ -801,13 +798,7 @@ mod tests {
     /// flooded through the clamped neighbourhood, it keeps what the reference keeps.
     #[test]
     fn hysteresis_of_points_on_the_border_is_the_references() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = trinocular_synth::Rng::new(0x2545_f491_4f6c_dd1d);
         let mut on_border = 0;
         for (w, h) in [(1, 1), (1, 7), (7, 1), (2, 2), (5, 4), (16, 9)] {
             for _ in 0..40 {
@@ -819,10 +810,9 @@ mod tests {
                 };
                 for y in 0..h {
                     for x in 0..w {
-                        if next() % 3 != 0 {
+                        if rng.below(3) != 0 {
                             map.index[y * w + x] = map.points.len() as u32;
-                            on_border +=
-                                usize::from(x == 0 || y == 0 || x + 1 == w || y + 1 == h);
+                            on_border += usize::from(x == 0 || y == 0 || x + 1 == w || y + 1 == h);
                             map.points.push(EdgePoint {
                                 x: x as u32,
                                 y: y as u32,
@@ -830,7 +820,7 @@ mod tests {
                                 v: y as f32,
                                 gu: 1.0,
                                 gv: 0.0,
-                                magnitude: (next() % 10) as f32,
+                                magnitude: rng.below(10) as f32,
                             });
                         }
                     }

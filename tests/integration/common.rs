@@ -222,3 +222,21 @@ pub async fn grpc_channel(addr: std::net::SocketAddr) -> tonic::transport::Chann
         .await
         .unwrap()
 }
+
+/// Asserts that `status` is INVALID_ARGUMENT naming `field`, as every input error is answered
+/// over gRPC: the message starts with it, and it is the one `google.rpc.BadRequest` field
+/// violation of the status's details (tonic-types reads it).
+pub fn assert_invalid_argument_naming(status: &tonic::Status, field: &str) {
+    assert_eq!(status.code(), tonic::Code::InvalidArgument, "{status:?}");
+    assert!(
+        status.message().starts_with(&format!("{field}: ")),
+        "{}",
+        status.message()
+    );
+    let violations = tonic_types::StatusExt::get_details_bad_request(status)
+        .expect("a BadRequest detail")
+        .field_violations;
+    assert_eq!(violations.len(), 1, "{violations:?}");
+    assert_eq!(violations[0].field, field);
+    assert!(!violations[0].description.is_empty());
+}

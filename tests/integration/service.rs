@@ -166,21 +166,7 @@ fn bad_input_is_invalid_argument_naming_the_field_on_both_transports() {
 
         let mut grpc = grpc_client(&running).await;
         let status = grpc.r#match(request.clone()).await.unwrap_err();
-        assert_eq!(status.code(), tonic::Code::InvalidArgument);
-        assert!(
-            status
-                .message()
-                .starts_with("calibration.cameras[2].projection"),
-            "{}",
-            status.message()
-        );
-        // The field, as a google.rpc.BadRequest field violation (tonic-types reads it).
-        let violations = tonic_types::StatusExt::get_details_bad_request(&status)
-            .expect("a BadRequest detail")
-            .field_violations;
-        assert_eq!(violations.len(), 1, "{violations:?}");
-        assert_eq!(violations[0].field, "calibration.cameras[2].projection");
-        assert!(!violations[0].description.is_empty());
+        crate::common::assert_invalid_argument_naming(&status, "calibration.cameras[2].projection");
 
         let http = reqwest::Client::new();
         let url = format!("http://{}/v1/match", running.http_addr);

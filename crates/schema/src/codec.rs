@@ -8,7 +8,6 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use tonic::codec::{BufferSettings, Codec, DecodeBuf, Decoder};
 use tonic::{Code, Status};
 use tonic_prost::{ProstCodec, ProstDecoder, ProstEncoder};
-use tonic_types::{ErrorDetails, StatusExt};
 
 /// Messages that did not decode since the process started (a metric).
 static MALFORMED: AtomicU64 = AtomicU64::new(0);
@@ -66,13 +65,7 @@ where
             MALFORMED.fetch_add(1, Ordering::Relaxed);
             let error = super::protobuf_error("request", &status.message());
             tracing::info!(transport = "grpc", code = ?Code::InvalidArgument, error = %error, "malformed message");
-            // As every input error is answered (the server's `grpc::status`): `field: message`,
-            // and the field as a `google.rpc.BadRequest` violation.
-            Status::with_error_details(
-                Code::InvalidArgument,
-                error.to_string(),
-                ErrorDetails::with_bad_request_violation(error.field, error.message),
-            )
+            error.to_status()
         })
     }
 

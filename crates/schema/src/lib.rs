@@ -18,7 +18,7 @@ pub mod calibration_files;
 pub mod codec;
 pub(crate) mod convert;
 mod fast_json;
-pub mod located;
+mod located;
 pub mod session;
 
 pub use calibrate::{calibrate_request_from_json, LEGACY_PATTERN_TO_RIG};
@@ -62,6 +62,21 @@ impl InputError {
             field: truncated(field.into(), MAX_ERROR_FIELD_BYTES),
             message: truncated(message.into(), MAX_ERROR_MESSAGE_BYTES),
         }
+    }
+}
+
+impl InputError {
+    /// The gRPC status of this error, as every input error is answered: INVALID_ARGUMENT with
+    /// `field: message`, and the field as a `google.rpc.BadRequest` field violation (the richer
+    /// error model's standard detail), so a client reads which field is at fault without
+    /// parsing the message. Made here, where the codec's decoding errors are made too.
+    pub fn to_status(&self) -> tonic::Status {
+        use tonic_types::{ErrorDetails, StatusExt};
+        tonic::Status::with_error_details(
+            tonic::Code::InvalidArgument,
+            self.to_string(),
+            ErrorDetails::with_bad_request_violation(self.field.clone(), self.message.clone()),
+        )
     }
 }
 

@@ -6,7 +6,6 @@ use std::time::Duration;
 
 use tonic::codegen::http::request::Parts;
 use tonic::{Request, Response, Status};
-use tonic_types::{ErrorDetails, StatusExt};
 
 use crate::service::auth::Caller;
 use crate::service::sessions::map_to_pb;
@@ -31,11 +30,7 @@ impl GrpcApi {
 /// the observation layer to log and count ([`crate::observe`]).
 pub fn status(e: &ServiceError) -> Status {
     let mut status = match e {
-        ServiceError::Input(input) => Status::with_error_details(
-            e.code(),
-            e.to_string(),
-            ErrorDetails::with_bad_request_violation(input.field.clone(), input.message.clone()),
-        ),
+        ServiceError::Input(input) => input.to_status(),
         _ => Status::new(e.code(), e.to_string()),
     };
     status.set_source(Arc::new(e.clone()));

@@ -47,21 +47,10 @@ impl EdgeMap {
     #[inline(always)]
     pub fn for_each_neighbour(&self, x: usize, y: usize, mut visit: impl FnMut(u32)) {
         let (w, h) = (self.width, self.height);
-        if x >= 1 && y >= 1 && x + 1 < w && y + 1 < h {
-            // Suppression leaves the border without points, so every point has its eight
-            // neighbours in the image: read them at fixed offsets, without clamping.
-            for k in neighbour_pixels(y * w + x, w) {
-                visit(self.index[k]);
-            }
-        } else {
-            for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-                for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                    if (nx, ny) != (x, y) {
-                        visit(self.index[ny * w + nx]);
-                    }
-                }
-            }
-        }
+        // Suppression leaves the border without points, so a point has its eight neighbours
+        // in the image: read at fixed offsets, without clamping.
+        let off_border = x >= 1 && y >= 1 && x + 1 < w && y + 1 < h;
+        for_each_neighbour_pixel(y * w + x, (w, h), off_border, |k| visit(self.index[k]));
     }
 
     /// The point at pixel `(x, y)`, if any.
@@ -476,27 +465,14 @@ pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
         map.index[seed] |= KEPT;
         stack.push(seed);
         while let Some(at) = stack.pop() {
-            let mut visit = |k: usize| {
+            let visit = |k: usize| {
                 let entry = map.index[k];
                 if entry != NO_POINT && entry & KEPT == 0 {
                     map.index[k] = entry | KEPT;
                     stack.push(k);
                 }
             };
-            if interior {
-                for k in neighbour_pixels(at, w) {
-                    visit(k);
-                }
-            } else {
-                let (x, y) = (at % w, at / w);
-                for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
-                    for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                        if (nx, ny) != (x, y) {
-                            visit(ny * w + nx);
-                        }
-                    }
-                }
-            }
+            for_each_neighbour_pixel(at, (w, h), interior, visit);
         }
     }
     let mut kept = 0usize;
@@ -517,20 +493,39 @@ pub fn hysteresis(mut map: EdgeMap, high_gradient: f32) -> EdgeMap {
     map
 }
 
-/// The eight pixels about pixel `at` of an image `w` pixels wide, in row-major order; `at`
-/// must lie off the image's border.
+/// Calls `visit` with each of the eight pixels about pixel `at` of a `w` × `h` image that lie
+/// in the image, in row-major order: at fixed offsets when the caller knows `at` is
+/// `off_border` (no clamping, no division), else through the clamped neighbourhood.
 #[inline(always)]
-fn neighbour_pixels(at: usize, w: usize) -> [usize; 8] {
-    [
-        at - w - 1,
-        at - w,
-        at - w + 1,
-        at - 1,
-        at + 1,
-        at + w - 1,
-        at + w,
-        at + w + 1,
-    ]
+fn for_each_neighbour_pixel(
+    at: usize,
+    (w, h): (usize, usize),
+    off_border: bool,
+    mut visit: impl FnMut(usize),
+) {
+    if off_border {
+        for k in [
+            at - w - 1,
+            at - w,
+            at - w + 1,
+            at - 1,
+            at + 1,
+            at + w - 1,
+            at + w,
+            at + w + 1,
+        ] {
+            visit(k);
+        }
+    } else {
+        let (x, y) = (at % w, at / w);
+        for ny in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+            for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                if (nx, ny) != (x, y) {
+                    visit(ny * w + nx);
+                }
+            }
+        }
+    }
 }
 
 /// Row-major index of a point's pixel.

@@ -30,6 +30,7 @@
 //! distortion.
 
 use nalgebra::{Matrix3, Matrix4, Vector3};
+use yaml_rust2::parser::{Event, EventReceiver, Parser};
 use yaml_rust2::{Yaml, YamlLoader};
 
 use super::{pb, InputError};
@@ -255,12 +256,75 @@ fn yaml_doc(text: &str, file: &str) -> Result<Yaml, InputError> {
         .filter(|l| !l.starts_with("%YAML"))
         .collect::<Vec<_>>()
         .join("\n");
+    let nodes = expanded_nodes(&cleaned).map_err(|e| bad(file, format!("not YAML: {e}")))?;
+    if nodes > MAX_YAML_NODES {
+        return Err(bad(
+            file,
+            format!(
+                "the document expands to more than {MAX_YAML_NODES} nodes (each YAML alias \
+                 repeats what its anchor names): not a calibration file"
+            ),
+        ));
+    }
     let mut docs =
         YamlLoader::load_from_str(&cleaned).map_err(|e| bad(file, format!("not YAML: {e}")))?;
     if docs.is_empty() {
         return Err(bad(file, "empty"));
     }
     Ok(docs.swap_remove(0))
+}
+
+/// Most nodes a YAML calibration file may expand to. A calibration of three cameras is a few
+/// hundred; the loader copies an alias's whole subtree wherever the alias stands, so a few
+/// hundred bytes of nested aliases ("billion laughs") expand to billions of nodes — gigabytes
+/// built before any field is read.
+const MAX_YAML_NODES: u64 = 100_000;
+
+/// The number of nodes `text` holds once every alias is replaced by what its anchor names, in
+/// one pass over the parser's events (which build nothing): what the loader would build.
+fn expanded_nodes(text: &str) -> Result<u64, yaml_rust2::ScanError> {
+    #[derive(Default)]
+    struct Count {
+        /// The expanded size of each anchor seen, by anchor id.
+        anchors: std::collections::HashMap<usize, u64>,
+        /// The open collections: their anchor id and their expanded size so far.
+        open: Vec<(usize, u64)>,
+        total: u64,
+    }
+    impl Count {
+        fn node(&mut self, anchor: usize, size: u64) {
+            if anchor > 0 {
+                self.anchors.insert(anchor, size);
+            }
+            match self.open.last_mut() {
+                Some((_, parent)) => *parent = parent.saturating_add(size),
+                None => self.total = self.total.saturating_add(size),
+            }
+        }
+    }
+    impl EventReceiver for Count {
+        fn on_event(&mut self, event: Event) {
+            match event {
+                Event::Scalar(_, _, anchor, _) => self.node(anchor, 1),
+                Event::SequenceStart(anchor, _) | Event::MappingStart(anchor, _) => {
+                    self.open.push((anchor, 1))
+                }
+                Event::SequenceEnd | Event::MappingEnd => {
+                    if let Some((anchor, size)) = self.open.pop() {
+                        self.node(anchor, size);
+                    }
+                }
+                Event::Alias(anchor) => {
+                    let size = self.anchors.get(&anchor).copied().unwrap_or(1);
+                    self.node(0, size);
+                }
+                _ => {}
+            }
+        }
+    }
+    let mut count = Count::default();
+    Parser::new_from_str(text).load(&mut count, true)?;
+    Ok(count.total)
 }
 
 fn number(y: &Yaml) -> Option<f64> {
@@ -1223,6 +1287,60 @@ projection_matrix:
         assert_eq!(
             "matlab".parse::<CalibrationFormat>().unwrap_err().field,
             "format"
+        );
+    }
+
+    /// "Billion laughs": nine levels of ten aliases each, 400 bytes that the loader would
+    /// expand to a billion nodes (gigabytes, for many seconds) — refused from the parser's
+    /// events, before anything is built; a file whose aliases stay small still imports.
+    #[test]
+    fn aliases_that_expand_past_the_bound_are_refused_before_loading() {
+        let letters = "abcdefghij";
+        let mut bomb = String::from("a: &a [x, x, x, x, x, x, x, x, x, x]\n");
+        for (i, name) in letters.chars().enumerate().skip(1) {
+            let previous = &letters[i - 1..i];
+            let items = vec![format!("*{previous}"); 10].join(", ");
+            bomb.push_str(&format!("{name}: &{name} [{items}]\n"));
+        }
+        bomb.push_str("cam0: *j\n");
+        assert!(bomb.len() < 500);
+        let started = std::time::Instant::now();
+        for format in [CalibrationFormat::Kalibr, CalibrationFormat::OpenCvYaml] {
+            let e = import(format, &[&bomb]).unwrap_err();
+            assert_eq!(e.field, "file");
+            assert!(e.message.contains("alias"), "{}", e.message);
+        }
+        let e = import(CalibrationFormat::Ros, &[&bomb, ROS_RIGHT, ROS_THIRD]).unwrap_err();
+        assert!(e.message.contains("alias"), "{}", e.message);
+        // A bound on the work, not a speed measurement: the loader would take minutes.
+        assert!(started.elapsed() < std::time::Duration::from_secs(10));
+        // Level k (a = 1) is a list of ten of level k - 1: (10^(k+1) - 1) / 9 nodes. The
+        // document: its mapping, eleven keys, the ten levels and cam0's copy of the last.
+        let level = |k: u32| (10u64.pow(k + 1) - 1) / 9;
+        let expected = 1 + 11 + (1..=10).map(level).sum::<u64>() + level(10);
+        assert_eq!(expanded_nodes(&bomb).unwrap(), expected);
+        assert!(expected > 10_000_000_000);
+
+        // The same chain with its distortion written once and named twice.
+        let shared = KALIBR
+            .replacen(
+                "distortion_coeffs: [-0.294719, 0.08601, -0.0003228, -0.0000501]",
+                "distortion_coeffs: &d [-0.294719, 0.08601, -0.0003228, -0.0000501]",
+                1,
+            )
+            .replacen(
+                "distortion_coeffs: [-0.28, 0.079, 0.0001, -0.0002]",
+                "distortion_coeffs: *d",
+                1,
+            );
+        let calibration = import(CalibrationFormat::Kalibr, &[&shared]).unwrap();
+        assert_eq!(
+            calibration.cameras[2].distortion,
+            calibration.cameras[0].distortion
+        );
+        assert_eq!(
+            expanded_nodes(KALIBR).unwrap(),
+            expanded_nodes(&shared).unwrap()
         );
     }
 }

@@ -363,27 +363,44 @@ fn status_of(stream: &mut TcpStream, within: Duration) -> u16 {
         .unwrap_or(0)
 }
 
+/// An upload that declares `length` bytes and sends `sent` of them from a thread of its own
+/// (a refusal may close the connection under the writer), left open.
+fn upload_in_background(addr: std::net::SocketAddr, length: usize, sent: usize) -> TcpStream {
+    let stream = stalled_upload(addr, length, 0);
+    let mut writer = stream.try_clone().unwrap();
+    std::thread::spawn(move || {
+        let _ = writer.write_all(&vec![b' '; sent]);
+    });
+    stream
+}
+
 #[test]
-fn stalled_uploads_hold_no_more_than_the_body_budget_and_time_out() {
+fn uploads_hold_what_they_sent_of_the_body_budget_and_time_out() {
     runtime().block_on(async {
         let mut limits = limits();
         limits.max_message_bytes = 8 << 20;
         limits.max_body_bytes_in_flight = 16 << 20;
-        limits.connections.body_timeout = Duration::from_secs(1);
+        limits.connections.body_timeout = Duration::from_secs(4);
         let server = Server::start(limits).await;
         let addr = server.running.http_addr;
         let example = example_request();
-        let started = Instant::now();
-        // Two declared 7 MiB bodies hold all but 2 MiB of the budget; a third is refused before
-        // a byte of its body is read.
-        let mut held: Vec<TcpStream> = (0..2).map(|_| stalled_upload(addr, 7 << 20, 10)).collect();
+        let json: Value = serde_json::from_str(&api::to_json(&example)).unwrap();
+        // Idle uploads that declare the largest body and send nothing more hold nothing: one
+        // connection announcing the budget used to refuse every other upload until its body
+        // timed out.
+        let mut idle: Vec<TcpStream> = (0..4).map(|_| stalled_upload(addr, 8 << 20, 10)).collect();
+        let mut chunked = TcpStream::connect(addr).unwrap();
+        write!(
+            chunked,
+            "POST /v1/match HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+             transfer-encoding: chunked\r\n\r\n"
+        )
+        .unwrap();
         tokio::time::sleep(Duration::from_millis(100)).await;
-        let mut third = stalled_upload(addr, 8 << 20, 10);
-        let status =
-            tokio::task::spawn_blocking(move || status_of(&mut third, Duration::from_secs(1)))
-                .await
-                .unwrap();
-        assert_eq!(status, 429, "refused at once");
+        let (code, body) = post_json(&server.http("/v1/match"), &json).await;
+        assert_eq!(code, 200, "{body}");
+        normal_match(&server, &example).await;
+        let idle_started = Instant::now();
         // Larger than the limit by declaration: 413 without reading it.
         let mut huge = stalled_upload(addr, 9 << 20, 10);
         let status =
@@ -391,10 +408,25 @@ fn stalled_uploads_hold_no_more_than_the_body_budget_and_time_out() {
                 .await
                 .unwrap();
         assert_eq!(status, 413);
-        // Meanwhile a normal Match over gRPC is answered within its share of what is left...
-        normal_match(&server, &example).await;
-        // ...but a gRPC message draws on the same budget: 3 MiB, more than is free, is refused
-        // from its 5-byte prefix, before tonic gathers it.
+        // Uploads that have sent their bytes hold them: two of 7 MiB hold all but 2 MiB...
+        let mut sending: Vec<TcpStream> = (0..2)
+            .map(|_| upload_in_background(addr, 8 << 20, 7 << 20))
+            .collect();
+        let settled = Instant::now();
+        while settled.elapsed() < Duration::from_secs(2) {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        // ...so a third is refused once its bytes pass what is left, before the rest is read...
+        let mut third = upload_in_background(addr, 8 << 20, 3 << 20);
+        let status =
+            tokio::task::spawn_blocking(move || status_of(&mut third, Duration::from_secs(2)))
+                .await
+                .unwrap();
+        assert_eq!(
+            status, 429,
+            "refused when the bytes it sent pass the budget"
+        );
+        // ...and a gRPC message draws on the same budget: 3 MiB is refused as its bytes come.
         let refused = raw_grpc_call(
             server.running.grpc_addr,
             "/trinocular.v1.Trinocular/Match",
@@ -407,21 +439,23 @@ fn stalled_uploads_hold_no_more_than_the_body_budget_and_time_out() {
             "{refused:?}"
         );
         assert!(refused.message().contains("bod"), "{}", refused.message());
-        // The stalled ones time out after body_timeout.
+        // Every stalled upload times out after body_timeout: the idle ones and the two that
+        // stopped 1 MiB short.
+        idle.append(&mut sending);
         let statuses = tokio::task::spawn_blocking(move || {
-            held.iter_mut()
-                .map(|s| status_of(s, Duration::from_secs(3)))
+            idle.iter_mut()
+                .map(|s| status_of(s, Duration::from_secs(6)))
                 .collect::<Vec<_>>()
         })
         .await
         .unwrap();
-        assert_eq!(statuses, vec![408, 408]);
-        assert!(started.elapsed() < Duration::from_secs(3));
-        // The budget is back: a normal Match over HTTP goes through.
-        let json: Value = serde_json::from_str(&api::to_json(&example)).unwrap();
+        assert_eq!(statuses, vec![408; 6]);
+        assert!(idle_started.elapsed() < Duration::from_secs(8));
+        drop(chunked);
+        // The budget is back: a normal Match over HTTP goes through...
         let (code, body) = post_json(&server.http("/v1/match"), &json).await;
         assert_eq!(code, 200, "{body}");
-        // And the same 3 MiB over gRPC are read and refused for what they are, not their size.
+        // ...and the same 3 MiB over gRPC are read and refused for what they are, not their size.
         let garbage = raw_grpc_call(
             server.running.grpc_addr,
             "/trinocular.v1.Trinocular/Match",

@@ -2,15 +2,15 @@
 //!
 //! tonic gathers a whole message before it decodes it, and one connection carries up to 64
 //! calls: without a budget, a few connections could make it buffer gigabytes of 32 MiB
-//! messages. HTTP reserves a body's bytes from [`Service::reserve_body`] before it reads it;
-//! gRPC has no Content-Length, but every message starts with a 5-byte prefix giving its length.
-//! So this layer watches each request body go by and, at each prefix, reserves that many bytes
-//! before tonic reads the message: refused, the call ends with RESOURCE_EXHAUSTED at once,
-//! like an HTTP upload past the budget. The bytes are returned when the call is answered, as
-//! HTTP's are: the decoded message, about as large, lives until then. The refusal goes into
-//! the answer's extensions as the service's error, as every other refusal's does, for the
-//! observation layer to log (at debug: an overload) and count (tonic keeps only the code and
-//! message of a status that fails a body).
+//! messages. So this layer watches each request body go by and takes each frame's bytes from
+//! the service's body budget ([`BodyMeter`]) before tonic gathers them: refused, the call ends
+//! with RESOURCE_EXHAUSTED at once, like an HTTP upload past the budget. A body holds what it
+//! has sent, not what its 5-byte length prefix announces (a prefix of 32 MiB followed by
+//! nothing holds nothing), and gives it back when the call is answered, as HTTP's do: the
+//! decoded message, about as large, lives until then. The refusal goes into the answer's
+//! extensions as the service's error, as every other refusal's does, for the observation
+//! layer to log (at debug: an overload) and count (tonic keeps only the code and message of a
+//! status that fails a body).
 
 use std::future::Future;
 use std::pin::Pin;
@@ -22,10 +22,7 @@ use prost::bytes::Bytes;
 use tonic::body::Body;
 
 use crate::grpc::status;
-use crate::service::{BodyReservation, Service, ServiceError};
-
-/// Bytes of a gRPC message prefix: a compression flag, then the length (big-endian u32).
-const PREFIX_BYTES: usize = 5;
+use crate::service::{BodyMeter, Service, ServiceError};
 
 /// Wraps every gRPC call's request body in a [`BudgetedBody`].
 #[derive(Clone)]
@@ -58,10 +55,9 @@ pub struct BodyBudget<S> {
 }
 
 /// What one call's body did, shared by the body as it reads and the call until it is answered.
-#[derive(Default)]
 struct Call {
-    /// The reservations of its messages.
-    reservations: Vec<BodyReservation>,
+    /// The budget its bytes took.
+    meter: BodyMeter,
     /// Why the budget refused it.
     refused: Option<ServiceError>,
 }
@@ -86,12 +82,11 @@ where
 
     fn call(&mut self, request: tonic::codegen::http::Request<Body>) -> Self::Future {
         let (parts, body) = request.into_parts();
-        let held = Held::default();
-        let body = Body::new(BudgetedBody::new(
-            body,
-            Arc::clone(&self.service),
-            Arc::clone(&held),
-        ));
+        let held = Arc::new(Mutex::new(Call {
+            meter: self.service.body_meter(),
+            refused: None,
+        }));
+        let body = Body::new(BudgetedBody::new(body, Arc::clone(&held)));
         let answer = self
             .inner
             .call(tonic::codegen::http::Request::from_parts(parts, body));
@@ -111,78 +106,32 @@ where
     }
 }
 
-/// A request body that reserves each message's bytes as its prefix goes by.
+/// A request body whose bytes are taken from the budget as they go by.
 pub struct BudgetedBody {
     inner: Body,
-    service: Arc<Service>,
-    prefix: [u8; PREFIX_BYTES],
-    prefix_seen: usize,
-    /// Bytes of the current message still to come after its prefix.
-    message_left: u64,
-    /// What this call's messages reserved, returned when it is answered.
+    /// The call's meter, whose bytes are given back when it is answered.
     held: Held,
     /// Refused: the call has its error, nothing more is read.
     refused: bool,
 }
 
 impl BudgetedBody {
-    fn new(inner: Body, service: Arc<Service>, held: Held) -> BudgetedBody {
+    fn new(inner: Body, held: Held) -> BudgetedBody {
         BudgetedBody {
             inner,
-            service,
-            prefix: [0; PREFIX_BYTES],
-            prefix_seen: 0,
-            message_left: 0,
             held,
             refused: false,
         }
     }
 
-    /// Follows `data` through the message framing, reserving each message as its prefix ends.
-    fn account(&mut self, mut data: &[u8]) -> Result<(), tonic::Status> {
-        while !data.is_empty() {
-            if self.message_left > 0 {
-                let n = (self.message_left.min(data.len() as u64)) as usize;
-                self.message_left -= n as u64;
-                data = &data[n..];
-                continue;
-            }
-            let n = (PREFIX_BYTES - self.prefix_seen).min(data.len());
-            self.prefix[self.prefix_seen..self.prefix_seen + n].copy_from_slice(&data[..n]);
-            self.prefix_seen += n;
-            data = &data[n..];
-            if self.prefix_seen < PREFIX_BYTES {
-                continue;
-            }
-            self.prefix_seen = 0;
-            let length = u32::from_be_bytes([
-                self.prefix[1],
-                self.prefix[2],
-                self.prefix[3],
-                self.prefix[4],
-            ]);
-            self.message_left = u64::from(length);
-            // A message over the limit is refused by tonic from the same prefix, unread.
-            let max = self.service.limits().max_message_bytes;
-            let length = length as usize;
-            if length == 0 || length > max {
-                continue;
-            }
-            match self.service.reserve_body(length) {
-                Ok(reservation) => self
-                    .held
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .reservations
-                    .push(reservation),
-                Err(e) => {
-                    let refused = status(&e);
-                    self.held.lock().unwrap_or_else(|e| e.into_inner()).refused = Some(e);
-                    return Err(refused);
-                }
-            }
-        }
-        Ok(())
+    /// Takes `bytes` more from the budget for this call.
+    fn account(&mut self, bytes: usize) -> Result<(), tonic::Status> {
+        let mut call = self.held.lock().unwrap_or_else(|e| e.into_inner());
+        call.meter.add(bytes).map_err(|e| {
+            let refused = status(&e);
+            call.refused = Some(e);
+            refused
+        })
     }
 }
 
@@ -202,7 +151,7 @@ impl http_body::Body for BudgetedBody {
             other => return other,
         };
         if let Some(data) = frame.data_ref() {
-            if let Err(status) = self.account(data) {
+            if let Err(status) = self.account(data.len()) {
                 self.refused = true;
                 return Poll::Ready(Some(Err(status)));
             }
@@ -238,47 +187,39 @@ mod tests {
         Arc::new(Service::new(limits, store, std::time::Duration::from_secs(60)).unwrap())
     }
 
-    fn prefixed(length: u32) -> Vec<u8> {
-        let mut bytes = vec![0u8];
-        bytes.extend_from_slice(&length.to_be_bytes());
-        bytes
+    fn body(service: &Arc<Service>) -> BudgetedBody {
+        let held = Arc::new(Mutex::new(Call {
+            meter: service.body_meter(),
+            refused: None,
+        }));
+        BudgetedBody::new(Body::empty(), held)
     }
 
     #[test]
-    fn each_message_is_reserved_at_its_prefix_even_split_across_frames() {
+    fn a_call_holds_the_bytes_it_sent_and_gives_them_back_with_its_answer() {
         let service = service(1 << 20, 1 << 20);
-        let mut body = BudgetedBody::new(Body::empty(), Arc::clone(&service), Held::default());
-        let mut stream = prefixed(300_000);
-        stream.extend(vec![7u8; 300_000]);
-        stream.extend(prefixed(200_000));
-        stream.extend(vec![7u8; 10]);
-        // Fed in awkward pieces: a prefix cut in two, a message cut anywhere.
-        for piece in stream.chunks(3) {
-            body.account(piece).unwrap();
+        // A prefix announcing the largest message, then nothing: it holds five bytes' worth.
+        let mut idle = body(&service);
+        idle.account(5).unwrap();
+        // Bytes sent a few at a time are counted exactly, not a KiB per piece.
+        let mut trickle = body(&service);
+        for _ in 0..100_000 {
+            trickle.account(3).unwrap();
         }
-        assert_eq!(body.held.lock().unwrap().reservations.len(), 2);
-        assert_eq!(body.message_left, 200_000 - 10);
-        // 300,000 + 200,000 bytes of the 1 MiB budget are held: 600,000 more are not free.
-        let mut other = BudgetedBody::new(Body::empty(), Arc::clone(&service), Held::default());
-        let refused = other.account(&prefixed(600_000)).unwrap_err();
+        assert_eq!(trickle.held.lock().unwrap().meter.received(), 300_000);
+        // 300,000 bytes and one KiB of the 1 MiB budget are held: 760,000 more are not free.
+        let mut other = body(&service);
+        other.account(700_000).unwrap();
+        let refused = other.account(60_000).unwrap_err();
         assert_eq!(refused.code(), tonic::Code::ResourceExhausted);
         assert!(refused.message().contains("bod"), "{}", refused.message());
         assert!(matches!(
             other.held.lock().unwrap().refused,
             Some(ServiceError::BodiesInFlight { .. })
         ));
-        // Dropped with its answer, the first call gives its bytes back.
-        drop(body);
-        let mut again = BudgetedBody::new(Body::empty(), service, Held::default());
-        again.account(&prefixed(600_000)).unwrap();
-        assert_eq!(again.held.lock().unwrap().reservations.len(), 1);
-    }
-
-    #[test]
-    fn a_message_over_the_limit_is_left_to_tonic_to_refuse() {
-        let service = service(1 << 20, 1000);
-        let mut body = BudgetedBody::new(Body::empty(), service, Held::default());
-        body.account(&prefixed(u32::MAX)).unwrap();
-        assert!(body.held.lock().unwrap().reservations.is_empty());
+        // Answered, the trickle gives its bytes back.
+        drop(trickle);
+        other.account(60_000).unwrap();
+        drop(idle);
     }
 }

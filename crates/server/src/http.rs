@@ -29,7 +29,7 @@
 
 use std::convert::Infallible;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
@@ -124,10 +124,10 @@ fn route(parts: &Parts) -> Option<&'static str> {
 const DRAIN_BEFORE_REFUSING: usize = 64 << 10;
 
 /// Authentication ([`Caller`]), then admission before a body is read: a request that
-/// declares a body larger than the limit gets 413, one that needs a compute slot when none is free gets 429, and every body
-/// reserves its bytes (declared, or the largest message when not declared) from the
-/// service's body budget — 429 when the bodies in flight hold it all. Refused requests cost
-/// no body reading and no memory.
+/// declares a body larger than the limit gets 413, and one that needs a compute slot when
+/// none is free gets 429, at no cost of body reading or memory. Every body then takes its
+/// bytes from the service's body budget as they arrive ([`MeteredBody`]) — 429 when the
+/// bodies being received hold it all — and gives them back with the answer.
 async fn admit(
     State(service): State<Arc<Service>>,
     mut request: axum::extract::Request,
@@ -176,13 +176,82 @@ async fn admit(
             max_jobs: service.limits().max_jobs,
         });
     }
-    let reservation = match service.reserve_body(declared.unwrap_or(max)) {
-        Ok(r) => r,
-        Err(e) => return refuse(e),
-    };
+    let call = Arc::new(Mutex::new(MeteredCall {
+        meter: service.body_meter(),
+        refused: None,
+    }));
+    let request = request.map(|body| {
+        axum::body::Body::new(MeteredBody {
+            inner: body,
+            call: Arc::clone(&call),
+            refused: false,
+        })
+    });
     let response = next.run(request).await;
-    drop(reservation);
-    response
+    // The handler failed to read a body the budget refused: the refusal is the answer.
+    let refused = call
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .refused
+        .take();
+    match refused {
+        Some(e) => refuse(e),
+        None => response,
+    }
+}
+
+/// What a request's body took from the budget, held until its answer is made.
+struct MeteredCall {
+    meter: crate::service::BodyMeter,
+    /// Why the budget refused the body.
+    refused: Option<ServiceError>,
+}
+
+/// A request body whose bytes are taken from the body budget as they arrive: a body holds
+/// what it has sent, not what it declares, so a client that declares a large body (or sends a
+/// chunked one) and stalls holds nothing while it waits for the body timeout.
+struct MeteredBody {
+    inner: axum::body::Body,
+    call: Arc<Mutex<MeteredCall>>,
+    /// Refused: the error was given, nothing more is read.
+    refused: bool,
+}
+
+impl http_body::Body for MeteredBody {
+    type Data = Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Bytes>, axum::Error>>> {
+        use std::task::Poll;
+        if self.refused {
+            return Poll::Ready(None);
+        }
+        let frame = match Pin::new(&mut self.inner).poll_frame(cx) {
+            Poll::Ready(Some(Ok(frame))) => frame,
+            other => return other,
+        };
+        if let Some(data) = frame.data_ref() {
+            let mut call = self.call.lock().unwrap_or_else(|e| e.into_inner());
+            if let Err(e) = call.meter.add(data.len()) {
+                call.refused = Some(e.clone());
+                drop(call);
+                self.refused = true;
+                return Poll::Ready(Some(Err(axum::Error::new(e))));
+            }
+        }
+        Poll::Ready(Some(Ok(frame)))
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.refused || self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
 }
 
 async fn ready(State(service): State<Arc<Service>>) -> Response {

@@ -61,8 +61,8 @@ pub struct Limits {
     /// Longest a request may run: its deadline when it gives none, and the cap on the one it
     /// gives. Past it the answer is DEADLINE_EXCEEDED and the work stops.
     pub max_request_time: std::time::Duration,
-    /// Bytes of request bodies held at once (HTTP: reserved from Content-Length, or the
-    /// largest message when it is not given, before the body is read); past it,
+    /// Bytes of request bodies held at once, on both transports, each body's bytes taken as
+    /// they arrive and before they are gathered ([`BodyMeter`]); past it,
     /// RESOURCE_EXHAUSTED / 429 at once.
     pub max_body_bytes_in_flight: usize,
     /// Working memory of the compute jobs at once, bytes: each reserves its estimate
@@ -161,8 +161,50 @@ pub const MAX_EVENT_STREAMS: usize = 256;
 /// The default of the sessions one API key may hold at once.
 pub const MAX_SESSIONS_PER_KEY: usize = 1000;
 
-/// A reservation of request-body bytes, returned when dropped.
-pub struct BodyReservation(#[allow(dead_code)] tokio::sync::OwnedSemaphorePermit);
+/// A request body's share of the body budget ([`Limits::max_body_bytes_in_flight`]), taken
+/// as its bytes arrive and given back when dropped (with the answer: the decoded message, about
+/// as large, lives until then). A body holds what it has sent, never what it announces: a
+/// client that declares 32 MiB, or sends a chunked body, and then stalls holds nothing, where
+/// a reservation of the announced size let one idle connection refuse every other upload for
+/// the body timeout.
+pub struct BodyMeter {
+    bodies: Arc<tokio::sync::Semaphore>,
+    limit_bytes: usize,
+    received: u64,
+    /// One KiB per permit, merged.
+    held: Option<tokio::sync::OwnedSemaphorePermit>,
+}
+
+impl BodyMeter {
+    /// Takes the budget for `bytes` more of the body, or refuses when the bodies being
+    /// received hold it all (their own bytes, counted exactly: a body sent a byte at a time
+    /// holds one KiB per KiB sent, not one per piece).
+    pub fn add(&mut self, bytes: usize) -> Result<(), ServiceError> {
+        self.received = self.received.saturating_add(bytes as u64);
+        let held = self.held.as_ref().map_or(0, |p| p.num_permits()) as u64;
+        let needed = self.received.div_ceil(1024).saturating_sub(held);
+        if needed == 0 {
+            return Ok(());
+        }
+        let refused = ServiceError::BodiesInFlight {
+            limit_bytes: self.limit_bytes,
+        };
+        let needed = u32::try_from(needed).map_err(|_| refused.clone())?;
+        let permit = Arc::clone(&self.bodies)
+            .try_acquire_many_owned(needed)
+            .map_err(|_| refused)?;
+        match &mut self.held {
+            Some(held) => held.merge(permit),
+            None => self.held = Some(permit),
+        }
+        Ok(())
+    }
+
+    /// Bytes counted so far.
+    pub fn received(&self) -> u64 {
+        self.received
+    }
+}
 
 /// Why a service could not start.
 #[derive(Debug, thiserror::Error)]
@@ -236,16 +278,14 @@ impl Service {
         self.keys.caller(authorization)
     }
 
-    /// Reserves `bytes` of the request-body budget, or refuses at once when the bodies in
-    /// flight hold it all: before a body is read, so a crowd of slow uploads cannot hold more
-    /// memory than the budget.
-    pub fn reserve_body(&self, bytes: usize) -> Result<BodyReservation, ServiceError> {
-        let total = self.limits.max_body_bytes_in_flight;
-        let kib = bytes.min(total).div_ceil(1024).max(1) as u32;
-        Arc::clone(&self.bodies)
-            .try_acquire_many_owned(kib)
-            .map(BodyReservation)
-            .map_err(|_| ServiceError::BodiesInFlight { limit_bytes: total })
+    /// A new body's meter on the request-body budget: it holds nothing until bytes arrive.
+    pub fn body_meter(&self) -> BodyMeter {
+        BodyMeter {
+            bodies: Arc::clone(&self.bodies),
+            limit_bytes: self.limits.max_body_bytes_in_flight,
+            received: 0,
+            held: None,
+        }
     }
 
     /// Whether every compute slot is taken now: a request that would need one is refused

@@ -584,7 +584,7 @@ impl Service {
                 (Some((registration, stored)), _) => {
                     match self
                         .store
-                        .append_named(&session_id, &stored, name.as_deref())
+                        .append_named(&session_id, &stored, name.as_deref(), &info.record)
                         .await?
                     {
                         Appended::New(index) => Outcome::Stored {

@@ -383,14 +383,24 @@ impl SessionStore for EmbeddedStore {
         id: &str,
         capture: &[u8],
         name: Option<&str>,
+        matched: &SessionRecord,
     ) -> Result<Appended, StoreError> {
         let id = id.to_string();
         let capture = capture.to_vec();
         let name = name.map(|n| name_key(&id, n));
+        let matched = encode_record(matched);
         self.write(move |inner, t, now, changed| {
             let meta = inner
                 .live(t, &id, now, changed)?
                 .ok_or_else(|| not_found(&id))?;
+            let same = t
+                .sessions
+                .get(id.as_str())
+                .map_err(|e| inner.fail("read", e))?
+                .is_some_and(|record| record.value() == matched.as_slice());
+            if !same {
+                return Err(not_found(&id));
+            }
             if let Some(name) = &name {
                 if let Some(found) = inner.named(t, &id, name)? {
                     inner.touch(t, &id, meta, now, changed)?;

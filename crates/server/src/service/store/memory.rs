@@ -109,9 +109,13 @@ impl SessionStore for MemoryStore {
         id: &str,
         capture: &[u8],
         name: Option<&str>,
+        matched: &SessionRecord,
     ) -> Result<Appended, StoreError> {
         let mut sessions = self.live();
-        let s = sessions.get_mut(id).ok_or_else(|| not_found(id))?;
+        let s = sessions
+            .get_mut(id)
+            .filter(|s| s.record == *matched)
+            .ok_or_else(|| not_found(id))?;
         s.last_used_unix_ms = self.now_unix_ms();
         if let Some(&index) = name.and_then(|n| s.names.get(n)) {
             return Ok(Appended::Existing {

@@ -83,15 +83,20 @@ pub trait SessionStore: Send + Sync {
     async fn list(&self) -> Result<Vec<SessionInfo>, StoreError>;
     /// Removes the session and its captures.
     async fn delete(&self, id: &str) -> Result<(), StoreError>;
-    /// Appends a capture in one atomic step and returns its index (0, 1, 2, ...); refreshes
-    /// the TTL. Concurrent appends (from any replica) each get their own index.
+    /// Appends a capture to the session as it is now (its record read first), in one atomic
+    /// step, and returns its index (0, 1, 2, ...); refreshes the TTL. Concurrent appends (from
+    /// any replica) each get their own index.
     async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
-        match self.append_named(id, capture, None).await? {
+        let record = self.get(id).await?.record;
+        match self.append_named(id, capture, None, &record).await? {
             Appended::New(index) | Appended::Existing { index, .. } => Ok(index),
         }
     }
-    /// [`SessionStore::append_capture`] under the client's `name` for the capture, in the
-    /// same atomic step: when the session already holds a capture of that name (a retry, or
+    /// Appends a capture under the client's `name` for it, in one atomic step, to the session
+    /// whose record is `matched` — the one the capture was matched and placed against. A
+    /// session deleted meanwhile and created again under the same id with another record
+    /// (other options, another calibration) is another session: [`StoreError::NotFound`],
+    /// nothing written. When the session already holds a capture of that name (a retry, or
     /// the same capture sent twice at once to two replicas), nothing is written and that
     /// capture comes back. Names are the session's: they go with it.
     async fn append_named(
@@ -99,6 +104,7 @@ pub trait SessionStore: Send + Sync {
         id: &str,
         capture: &[u8],
         name: Option<&str>,
+        matched: &SessionRecord,
     ) -> Result<Appended, StoreError>;
     /// The capture the session holds under `name`, with its index; refreshes the TTL.
     async fn named_capture(
@@ -330,7 +336,9 @@ pub(crate) mod contract {
     pub async fn named_captures(store: &dyn SessionStore) {
         let missing = StoreError::NotFound { id: "nope".into() };
         assert_eq!(
-            store.append_named("nope", b"x", Some("n")).await,
+            store
+                .append_named("nope", b"x", Some("n"), &record("nope"))
+                .await,
             Err(missing.clone())
         );
         assert_eq!(store.named_capture("nope", "n").await, Err(missing));
@@ -338,18 +346,24 @@ pub(crate) mod contract {
         store.create(&record("n2")).await.unwrap();
         assert_eq!(store.named_capture("n1", "first").await, Ok(None));
         assert_eq!(
-            store.append_named("n1", b"one", Some("first")).await,
+            store
+                .append_named("n1", b"one", Some("first"), &record("n1"))
+                .await,
             Ok(Appended::New(0))
         );
         assert_eq!(store.append_capture("n1", b"unnamed").await, Ok(1));
         assert_eq!(
-            store.append_named("n1", b"two", Some("second")).await,
+            store
+                .append_named("n1", b"two", Some("second"), &record("n1"))
+                .await,
             Ok(Appended::New(2))
         );
         // Sent again under a name the session holds: nothing written, the first comes back
         // (whatever the bytes: comparing them is the caller's business).
         assert_eq!(
-            store.append_named("n1", b"one again", Some("first")).await,
+            store
+                .append_named("n1", b"one again", Some("first"), &record("n1"))
+                .await,
             Ok(Appended::Existing {
                 index: 0,
                 capture: b"one".to_vec()
@@ -363,7 +377,9 @@ pub(crate) mod contract {
         // Another session's names are its own.
         assert_eq!(store.named_capture("n2", "first").await, Ok(None));
         assert_eq!(
-            store.append_named("n2", b"other", Some("first")).await,
+            store
+                .append_named("n2", b"other", Some("first"), &record("n2"))
+                .await,
             Ok(Appended::New(0))
         );
         // A session created again under the same id starts without names.
@@ -371,7 +387,29 @@ pub(crate) mod contract {
         store.create(&record("n1")).await.unwrap();
         assert_eq!(store.named_capture("n1", "first").await, Ok(None));
         assert_eq!(
-            store.append_named("n1", b"fresh", Some("first")).await,
+            store
+                .append_named("n1", b"fresh", Some("first"), &record("n1"))
+                .await,
+            Ok(Appended::New(0))
+        );
+        // A capture matched against a session that was deleted and created again under its id
+        // with other options is refused as for a session that is gone: it was placed with the
+        // old options, and would put their 3D segments in the new session's map.
+        store.delete("n2").await.unwrap();
+        let other = SessionRecord {
+            options: b"other options".to_vec(),
+            ..record("n2")
+        };
+        store.create(&other).await.unwrap();
+        assert_eq!(
+            store
+                .append_named("n2", b"late", Some("late"), &record("n2"))
+                .await,
+            Err(StoreError::NotFound { id: "n2".into() })
+        );
+        assert_eq!(store.captures("n2").await.unwrap().len(), 0);
+        assert_eq!(
+            store.append_named("n2", b"new", None, &other).await,
             Ok(Appended::New(0))
         );
         store.delete("n1").await.unwrap();
@@ -388,12 +426,18 @@ pub(crate) mod contract {
     {
         store.create(&record("idle")).await.unwrap();
         store.create(&record("busy")).await.unwrap();
-        store.append_named("idle", b"x", Some("k")).await.unwrap();
+        store
+            .append_named("idle", b"x", Some("k"), &record("idle"))
+            .await
+            .unwrap();
         let step = ttl / 3;
         for i in 0..5 {
             pass(step).await;
             let name = format!("b{i}");
-            store.append_named("busy", b"y", Some(&name)).await.unwrap();
+            store
+                .append_named("busy", b"y", Some(&name), &record("busy"))
+                .await
+                .unwrap();
         }
         // More than the TTL has passed since "idle" was last used; "busy" was used throughout.
         let gone = StoreError::NotFound { id: "idle".into() };

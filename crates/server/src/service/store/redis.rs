@@ -50,12 +50,13 @@ return 1
 "#;
 
 /// `KEYS[1]` the session hash, `KEYS[2]` its captures, `KEYS[3]` its names; `ARGV[1]` the
-/// capture, `ARGV[2]` the TTL in ms, `ARGV[3]` the capture's name ('' for none).
-/// {0, index, false} when appended (the list's new length - 1); {1, index, capture} when the
-/// session holds a capture of that name already (then nothing is written); {-1, 0, false} if
-/// there is no session (nothing written either).
+/// capture, `ARGV[2]` the TTL in ms, `ARGV[3]` the capture's name ('' for none), `ARGV[4]` the
+/// record the capture was matched against. {0, index, false} when appended (the list's new
+/// length - 1); {1, index, capture} when the session holds a capture of that name already
+/// (then nothing is written); {-1, 0, false} if there is no session with that record — none,
+/// or one created again under the id (nothing written either).
 const APPEND: &str = r#"
-if redis.call('EXISTS', KEYS[1]) == 0 then return {-1, 0, false} end
+if redis.call('HGET', KEYS[1], 'record') ~= ARGV[4] then return {-1, 0, false} end
 local t = redis.call('TIME')
 local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
 redis.call('HSET', KEYS[1], 'last_used', now)
@@ -402,6 +403,7 @@ impl SessionStore for RedisStore {
         id: &str,
         capture: &[u8],
         name: Option<&str>,
+        matched: &SessionRecord,
     ) -> Result<Appended, StoreError> {
         let mut invocation = self.scripts.append.key(self.session_key(id));
         invocation
@@ -409,7 +411,8 @@ impl SessionStore for RedisStore {
             .key(self.names_key(id))
             .arg(capture)
             .arg(self.ttl_ms)
-            .arg(name.unwrap_or(""));
+            .arg(name.unwrap_or(""))
+            .arg(encode_record(matched));
         let answer: (i64, u64, Option<Vec<u8>>) = self
             .call(|mut c| async move { invocation.invoke_async(&mut c).await })
             .await?;
@@ -592,7 +595,9 @@ mod tests {
         };
         // Each capture sent to both replicas at once, as a client's retry may race its first
         // attempt: one of the two stores it, the other answers with it.
+        let record = a.get("retried").await.unwrap().record;
         let send_all = |s: Arc<RedisStore>, replica: u8| {
+            let record = record.clone();
             tokio::spawn(async move {
                 let mut got = Vec::new();
                 for i in 0..100u16 {
@@ -600,7 +605,7 @@ mod tests {
                     let payload = format!("{replica}:{i}").into_bytes();
                     got.push((
                         i,
-                        s.append_named("retried", &payload, Some(&name))
+                        s.append_named("retried", &payload, Some(&name), &record)
                             .await
                             .unwrap(),
                     ));

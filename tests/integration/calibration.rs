@@ -158,6 +158,21 @@ fn the_shipped_sample_pictures_calibrate_to_their_cameras() {
             view + 1
         );
     }
+    // The request's extraction options are the detector's: segments of 500 px or more leave
+    // no square's side, and the pattern is not found (they were checked and then ignored).
+    let mut long_only = req.clone();
+    long_only.options = Some(pb::CalibrateOptions {
+        distortion: None,
+        extract: Some(pb::ExtractOptions {
+            min_segment_px: Some(500.0),
+            ..Default::default()
+        }),
+    });
+    let e = api::calibrate::calibrate_request(&long_only, &Default::default())
+        .expect("valid")
+        .run()
+        .expect_err("no segment of a square's side is 500 px long");
+    assert!(e.field.starts_with("images.images["), "{e}");
 }
 
 #[test]

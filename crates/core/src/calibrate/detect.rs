@@ -570,12 +570,23 @@ pub fn detect_until(
     pattern: &CalibrationPattern,
     checkpoint: Checkpoint,
 ) -> Result<Detection, DetectError> {
+    detect_with(image, pattern, &Params::default(), checkpoint)
+}
+
+/// [`detect_until`] with the segments extracted by `params` (a request's extraction options):
+/// its thresholds, deviation and shortest segment as given. The detector's quads were tuned on
+/// corners rounded by 1 px of smoothing, so where `params` leave the smoothing to be chosen
+/// per image (as the matcher does) the detector keeps that scale instead.
+pub fn detect_with(
+    image: &GreyImage,
+    pattern: &CalibrationPattern,
+    params: &Params,
+    checkpoint: Checkpoint,
+) -> Result<Detection, DetectError> {
     pattern.check()?;
-    // The detector's quads were tuned on corners rounded by 1 px of smoothing: it keeps that
-    // scale whatever the image, rather than the matcher's choice per image.
     let params = Params {
-        smoothing_sigma_px: Some(DETECTION_SMOOTHING_PX),
-        ..Params::default()
+        smoothing_sigma_px: params.smoothing_sigma_px.or(Some(DETECTION_SMOOTHING_PX)),
+        ..params.clone()
     };
     let extraction = extract::extract_until(image, None, &params, checkpoint)?;
     let segments = &extraction.segments.segments;

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::matching::RunError;
 use super::{Service, ServiceError};
-use trinocular_core::calibrate::detect::{detect_until, DetectError};
+use trinocular_core::calibrate::detect::{detect_with, DetectError};
 use trinocular_core::calibrate::estimate::{estimate_camera, CameraFit};
 use trinocular_core::checkpoint::{Checkpoint, Stopped};
 use trinocular_core::extract::DecodeLimits;
@@ -88,15 +88,14 @@ impl RunCalibration for CalibrateInput {
                     .par_iter()
                     .enumerate()
                     .map(|(i, image)| {
-                        let found = detect_until(image, &self.pattern, checkpoint).map_err(
-                            |e| match e {
+                        let found = detect_with(image, &self.pattern, &self.extract, checkpoint)
+                            .map_err(|e| match e {
                                 DetectError::Stopped(Stopped { stage }) => {
                                     RunError::Stopped { stage }
                                 }
                                 e => InputError::new(format!("images.images[{i}]"), e.to_string())
                                     .into(),
-                            },
-                        )?;
+                            })?;
                         let (points_3d, points_2d) = found
                             .points
                             .iter()

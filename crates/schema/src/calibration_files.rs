@@ -327,6 +327,24 @@ fn expanded_nodes(text: &str) -> Result<u64, yaml_rust2::ScanError> {
     Ok(count.total)
 }
 
+/// `s` as a YAML double-quoted scalar: a camera's name written as it is, whatever YAML would
+/// make of it bare (`a: b`, `# note`, `*alias`, a leading space). Control characters never
+/// reach here: a calibration's names are refused with them.
+fn yaml_string(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('"');
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            c if c.is_control() => out.push_str(&format!("\\u{:04x}", c as u32)),
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
 fn number(y: &Yaml) -> Option<f64> {
     match y {
         Yaml::Integer(i) => Some(*i as f64),
@@ -509,7 +527,10 @@ mod kalibr {
                 list(c.distortion[..4].iter().copied())
             ));
             out.push_str(&format!("  resolution: [{}, {}]\n", c.width, c.height));
-            out.push_str(&format!("  rostopic: /{}\n", c.name));
+            out.push_str(&format!(
+                "  rostopic: {}\n",
+                yaml_string(&format!("/{}", c.name))
+            ));
         }
         out
     }
@@ -933,7 +954,7 @@ mod ros {
                      projection_matrix:\n  rows: 3\n  cols: 4\n  data: {}\n",
                     c.width,
                     c.height,
-                    c.name,
+                    yaml_string(&c.name),
                     list(row_major(k)),
                     list(c.distortion),
                     list(row_major(&r)),
@@ -1241,6 +1262,33 @@ projection_matrix:
         {
             same_file(a, b);
         }
+    }
+
+    /// A camera's name is written as a quoted string: names YAML would read as structure come
+    /// back as they were, and a name of more than one line is refused before anything is
+    /// written (an exported file held `image_width: 9999` as a key of its own).
+    #[test]
+    fn names_round_trip_whatever_yaml_would_make_of_them_and_lines_are_refused() {
+        let mut calibration = import(CalibrationFormat::Kalibr, &[KALIBR]).unwrap();
+        let names = [
+            "cam: [evil] # not a comment",
+            "*alias \"quoted\" \\ back",
+            " lead",
+        ];
+        for (camera, name) in calibration.cameras.iter_mut().zip(names) {
+            camera.name = name.to_string();
+        }
+        for format in [CalibrationFormat::Kalibr, CalibrationFormat::Ros] {
+            let written = export(format, &calibration).unwrap();
+            let files: Vec<&str> = written.iter().map(String::as_str).collect();
+            let again = import(format, &files).unwrap();
+            let names_again: Vec<&str> = again.cameras.iter().map(|c| c.name.as_str()).collect();
+            assert_eq!(names_again, names, "{format:?}");
+        }
+        calibration.cameras[1].name = "cam2\nimage_width: 9999".to_string();
+        let e = export(CalibrationFormat::Ros, &calibration).unwrap_err();
+        assert_eq!(e.field, "calibration.cameras[1].name");
+        assert!(e.message.contains("U+000A"), "{}", e.message);
     }
 
     #[test]

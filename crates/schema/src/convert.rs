@@ -55,6 +55,16 @@ fn check_camera_fields(i: usize, cam: &pb::Camera) -> Result<(), InputError> {
             format!("{chars} characters; at most {MAX_CAMERA_NAME_CHARS}"),
         ));
     }
+    // A name is written into the calibration files exported and into logs, a line each.
+    if let Some(c) = cam.name.chars().find(|c| c.is_control()) {
+        return Err(InputError::new(
+            at("name"),
+            format!(
+                "holds the control character U+{:04X}; names are one line of text",
+                c as u32
+            ),
+        ));
+    }
     if let Some(d) = &cam.distortion {
         for (field, value, max) in [
             ("k1", d.k1, MAX_RADIAL),

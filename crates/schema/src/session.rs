@@ -241,6 +241,15 @@ pub fn check_create_session(request: &pb::CreateSessionRequest) -> Result<(), In
             format!("longer than {MAX_NAME_CHARS} characters"),
         ));
     }
+    if let Some(c) = name.chars().find(|c| c.is_control()) {
+        return Err(InputError::new(
+            "name",
+            format!(
+                "holds the control character U+{:04X}; a name is one line of text",
+                c as u32
+            ),
+        ));
+    }
     rig_from_calibration(calibration.as_ref())?;
     match_params(options.as_ref())
         .check()
@@ -872,5 +881,21 @@ mod tests {
             let back = pose_from_pb(Some(&pose_to_pb(&iso)), "p").unwrap();
             prop_assert!((back.to_homogeneous() - iso.to_homogeneous()).abs().max() < 1e-12);
         }
+    }
+
+    #[test]
+    fn a_session_name_is_one_line_of_text() {
+        let request = |name: &str| pb::CreateSessionRequest {
+            name: name.to_string(),
+            ..Default::default()
+        };
+        for bad in ["two\nlines", "nul\0", "tab\there"] {
+            let e = check_create_session(&request(bad)).unwrap_err();
+            assert_eq!(e.field, "name", "{bad:?}");
+            assert!(e.message.contains("control character"), "{}", e.message);
+        }
+        // Past the name, the next field is checked: the calibration, missing here.
+        let e = check_create_session(&request("kitchen, 2nd floor <b>")).unwrap_err();
+        assert!(e.field.starts_with("calibration"), "{}", e.field);
     }
 }

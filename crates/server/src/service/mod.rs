@@ -427,12 +427,40 @@ pub(crate) async fn within<T, E: Into<ServiceError>>(
     job: impl std::future::Future<Output = Result<Result<T, E>, PoolError>>,
     timeout: std::time::Duration,
 ) -> Result<T, ServiceError> {
-    match tokio::time::timeout(timeout, job).await {
+    within_what_is_left(job, timeout, timeout).await
+}
+
+/// [`within`] for the last stage of a request whose `deadline` has partly gone on the stages
+/// before: the job gets what is `left` of it, and a timeout names the request's deadline, not
+/// the remainder (an AddCapture given 120 ms said "the deadline of 3 ms passed").
+pub(crate) async fn within_what_is_left<T, E: Into<ServiceError>>(
+    job: impl std::future::Future<Output = Result<Result<T, E>, PoolError>>,
+    left: std::time::Duration,
+    deadline: std::time::Duration,
+) -> Result<T, ServiceError> {
+    match tokio::time::timeout(left, job).await {
         Ok(done) => done
             .map_err(ServiceError::from)
             .and_then(|r| r.map_err(Into::into)),
         Err(_) => Err(ServiceError::DeadlineExceeded {
-            timeout_ms: timeout.as_millis() as u64,
+            timeout_ms: deadline.as_millis() as u64,
         }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn a_timeout_names_the_requests_deadline_not_what_was_left_of_it() {
+        let never = std::future::pending::<Result<Result<(), ServiceError>, PoolError>>();
+        let left = std::time::Duration::from_millis(5);
+        let deadline = std::time::Duration::from_millis(120);
+        let e = within_what_is_left(never, left, deadline)
+            .await
+            .unwrap_err();
+        assert_eq!(e, ServiceError::DeadlineExceeded { timeout_ms: 120 });
+        assert!(e.to_string().contains("120 ms"), "{e}");
     }
 }

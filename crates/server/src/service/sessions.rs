@@ -576,10 +576,9 @@ impl Service {
                 };
                 Ok::<_, ServiceError>((placed, response))
             });
-            let left = self
-                .deadline(timeout)
-                .saturating_sub(self.clock.since(started));
-            let (placed, response) = super::within(job, left).await?;
+            let deadline = self.deadline(timeout);
+            let left = deadline.saturating_sub(self.clock.since(started));
+            let (placed, response) = super::within_what_is_left(job, left, deadline).await?;
             let outcome = match (placed, earlier) {
                 (Some((registration, stored)), _) => {
                     match self

@@ -710,6 +710,20 @@ fn curl_style_multipart_uploads_match_images() {
             .unwrap();
         assert_eq!(unknown.status(), 400);
         assert_eq!(unknown.json_body().await["error"]["field"], "picture");
+        // A part sent twice is refused, not silently replaced by the second.
+        let twice = http
+            .post(&url)
+            .multipart(form(&[0, 1, 2, 1], None))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(twice.status(), 400);
+        let body = twice.json_body().await;
+        assert_eq!(body["error"]["field"], "image2");
+        assert!(
+            body["error"]["message"].as_str().unwrap().contains("twice"),
+            "{body}"
+        );
         running.shutdown().await;
     });
 }

@@ -1034,13 +1034,29 @@ impl Upload {
             String::from_utf8(bytes.to_vec()).map_err(|_| bad(field, "is not UTF-8 JSON".into()))
         };
         let mut upload = Upload::default();
+        let mut seen: Vec<String> = Vec::new();
         loop {
             let field = match parts.next_field().await {
                 Ok(Some(field)) => field,
                 Ok(None) => break,
                 Err(e) => return Err(body_error(&e, e.status(), e.body_text(), max_bytes)),
             };
-            let name = field.name().unwrap_or_default().to_string();
+            let Some(name) = field.name().map(str::to_string) else {
+                return Err(bad(
+                    "part",
+                    "a part has no name (Content-Disposition: form-data; name=\"...\")".into(),
+                ));
+            };
+            // One value per part: a second would silently replace the first.
+            let part = if name == LEGACY_PATTERN_TO_RIG {
+                "pattern_to_rig"
+            } else {
+                name.as_str()
+            };
+            if seen.iter().any(|s| s == part) {
+                return Err(bad(&name, "given twice: send each part once".into()));
+            }
+            seen.push(part.to_string());
             let bytes = field
                 .bytes()
                 .await

@@ -340,11 +340,18 @@ fn correspondences_calibrate_and_degenerate_ones_are_refused_naming_the_field() 
     // Fewer than six points.
     let e = calibrate_points(correspondences(&all[..5])).unwrap_err();
     assert!(e.starts_with("correspondences.points_2d[0]: "), "{e}");
-    // NaN.
+    // NaN, and numbers no camera or pattern has, named to the point.
     let mut nan = correspondences(&all);
     nan.points_2d[1].points[7].v = f64::NAN;
     let e = calibrate_points(nan).unwrap_err();
-    assert!(e.starts_with("correspondences.points_2d[1]: "), "{e}");
+    assert!(
+        e.starts_with("correspondences.points_2d[1].points[7]: "),
+        "{e}"
+    );
+    let mut huge = correspondences(&all);
+    huge.points_3d[3].x = 1e308;
+    let e = calibrate_points(huge).unwrap_err();
+    assert!(e.starts_with("correspondences.points_3d[3]: "), "{e}");
     // Lists that do not pair up.
     let mut short = correspondences(&all);
     short.points_2d[2].points.pop();

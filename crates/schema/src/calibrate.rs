@@ -176,6 +176,12 @@ pub fn calibrate_request(
     })
 }
 
+/// Largest image coordinate of a correspondence, pixels: far beyond any image, far below where
+/// the estimate's products of coordinates lose their meaning.
+const MAX_CORRESPONDENCE_PX: f64 = 1e6;
+/// Largest reference point coordinate, metres.
+const MAX_CORRESPONDENCE_M: f64 = 1e6;
+
 fn correspondences(c: &pb::Correspondences) -> Result<CalibrateSource, InputError> {
     let pb::Correspondences {
         points_3d,
@@ -205,6 +211,34 @@ fn correspondences(c: &pb::Correspondences) -> Result<CalibrateSource, InputErro
             return Err(InputError::new(
                 format!("correspondences.points_2d[{i}].width"),
                 "the camera's image size is needed (width and height, pixels)",
+            ));
+        }
+        for (j, p) in list.points.iter().enumerate() {
+            if !(p.u.is_finite() && p.v.is_finite())
+                || p.u.abs().max(p.v.abs()) > MAX_CORRESPONDENCE_PX
+            {
+                return Err(InputError::new(
+                    format!("correspondences.points_2d[{i}].points[{j}]"),
+                    format!(
+                        "({}, {}): coordinates must be finite pixels within \
+                         ±{MAX_CORRESPONDENCE_PX}",
+                        p.u, p.v
+                    ),
+                ));
+            }
+        }
+    }
+    for (j, p) in points_3d.iter().enumerate() {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite())
+            || p.x.abs().max(p.y.abs()).max(p.z.abs()) > MAX_CORRESPONDENCE_M
+        {
+            return Err(InputError::new(
+                format!("correspondences.points_3d[{j}]"),
+                format!(
+                    "({}, {}, {}): coordinates must be finite metres within \
+                     ±{MAX_CORRESPONDENCE_M}",
+                    p.x, p.y, p.z
+                ),
             ));
         }
     }

@@ -435,6 +435,15 @@ mod kalibr {
 
     pub(super) fn read(text: &str) -> Result<Vec<FileCamera>, InputError> {
         let doc = yaml_doc(text, "file")?;
+        // A chain of more cameras is another rig: which three would be meant is not ours to
+        // guess.
+        if !doc["cam3"].is_badvalue() {
+            return Err(bad(
+                "cam3",
+                "a camchain of more than three cameras: Trinocular's rig is three; keep cam0, \
+                 cam1 and cam2 (re-chained if the three are not the first)",
+            ));
+        }
         let mut cameras = Vec::new();
         let mut from_first = Matrix4::identity();
         for n in 0..3 {
@@ -484,6 +493,15 @@ mod kalibr {
                     for (j, x) in v.into_iter().enumerate() {
                         t[(i, j)] = x;
                     }
+                }
+                // A rigid transform's last row; its rotation part is checked with the
+                // calibration (the nearest rotation, within NEAR_RIGID).
+                let last = [t[(3, 0)], t[(3, 1)], t[(3, 2)], t[(3, 3)] - 1.0];
+                if last.iter().any(|x| x.abs() > 1e-9) {
+                    return Err(bad(
+                        format!("{}[3]", field("T_cn_cnm1")),
+                        "must be [0, 0, 0, 1]: a rigid transform",
+                    ));
                 }
                 from_first = t * from_first;
             }
@@ -1314,6 +1332,12 @@ projection_matrix:
         assert!(e.message.contains("equidistant"), "{}", e.message);
         let e = import(CalibrationFormat::Kalibr, &["cam0: {}"]).unwrap_err();
         assert!(e.field.starts_with("cam0."), "{}", e.field);
+        let four = format!("{KALIBR}cam3:\n  camera_model: pinhole\n");
+        let e = import(CalibrationFormat::Kalibr, &[&four]).unwrap_err();
+        assert_eq!(e.field, "cam3");
+        let skewed = KALIBR.replacen("  - [0.0, 0.0, 0.0, 1.0]", "  - [0.0, 0.0, 0.0, 0.999]", 1);
+        let e = import(CalibrationFormat::Kalibr, &[&skewed]).unwrap_err();
+        assert_eq!(e.field, "cam1.T_cn_cnm1[3]");
         let e = import(CalibrationFormat::Ros, &[ROS_LEFT]).unwrap_err();
         assert_eq!(e.field, "files");
         let e = import(CalibrationFormat::OpenCvXml, &["<a/>"]).unwrap_err();

@@ -139,14 +139,14 @@ struct ServeArgs {
         skip_serializing_if = "Option::is_none"
     )]
     max_message_mib: Option<usize>,
-    /// Largest image, pixels (default 12,000,000).
+    /// Largest image, pixels (default 3,000,000).
     #[arg(long)]
     #[serde(
         rename = "limits.max_image_pixels",
         skip_serializing_if = "Option::is_none"
     )]
     max_image_pixels: Option<u64>,
-    /// The compute jobs' working memory at once, MiB (default 1024): each request reserves
+    /// The compute jobs' working memory at once, MiB (default 320): each request reserves
     /// its estimate (36 bytes per image pixel, 512 per segment) before it runs.
     #[arg(long)]
     #[serde(
@@ -161,8 +161,9 @@ struct ServeArgs {
         skip_serializing_if = "Option::is_none"
     )]
     max_segments_per_list: Option<usize>,
-    /// Where sessions live: `embedded` (default: a file under --data-dir, no server needed)
-    /// or `redis://HOST:PORT[/DB]` (shared by replicas).
+    /// Where sessions live: `embedded` (default: a file under --data-dir, no server needed),
+    /// `memory` (in the process, gone when it stops) or `redis://HOST:PORT[/DB]` (shared by
+    /// replicas).
     #[arg(long)]
     #[serde(rename = "store.url", skip_serializing_if = "Option::is_none")]
     store: Option<String>,
@@ -585,6 +586,45 @@ fn main() -> ExitCode {
         Err(Failure::Other(e)) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    /// The defaults `serve --help` states are the configuration's own (it said 12,000,000
+    /// pixels and 1024 MiB where the service used 3,000,000 and 320).
+    #[test]
+    fn serve_help_states_the_configured_defaults() {
+        let mut command = Cli::command();
+        let serve = command.find_subcommand_mut("serve").expect("serve");
+        let help = serve.render_long_help().to_string();
+        let limits = trinocular_server::config::Config::default().limits;
+        let thousands = |n: u64| {
+            let digits = n.to_string();
+            let mut out = String::new();
+            for (i, c) in digits.chars().enumerate() {
+                if i > 0 && (digits.len() - i).is_multiple_of(3) {
+                    out.push(',');
+                }
+                out.push(c);
+            }
+            out
+        };
+        for stated in [
+            format!("(default {})", thousands(limits.max_image_pixels)),
+            format!("(default {}):", limits.max_working_mib),
+            format!("(default {})", limits.max_message_mib),
+            format!(
+                "(default {})",
+                thousands(limits.max_segments_per_list as u64)
+            ),
+            "`memory`".to_string(),
+        ] {
+            assert!(help.contains(&stated), "{stated} not in:\n{help}");
         }
     }
 }

@@ -19,7 +19,7 @@
 //! max_image_pixels = 3000000
 //! max_segments_per_list = 100000
 //! max_request_ms = 60000   # a request's deadline when it gives none, and the cap on its own
-//! max_bodies_mib = 32      # request bodies held at once, reserved before they are read
+//! max_bodies_mib = 32      # request bodies held at once, taken as their bytes arrive
 //! max_working_mib = 320    # the compute jobs' working memory, reserved from an estimate
 //! [log]
 //! json = false
@@ -180,7 +180,8 @@ pub struct LimitsConfig {
     pub max_segments_per_list: usize,
     /// Longest a request may run, milliseconds (its deadline when it gives none).
     pub max_request_ms: u64,
-    /// Request bodies held at once, MiB (reserved before they are read).
+    /// Request bodies held at once, MiB (each body's bytes taken as they arrive, before they
+    /// are gathered).
     pub max_bodies_mib: usize,
     /// The compute jobs' working memory at once, MiB (each reserves its estimate first).
     pub max_working_mib: u64,

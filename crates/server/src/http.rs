@@ -29,7 +29,7 @@
 
 use std::convert::Infallible;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use axum::body::Bytes;
 use axum::extract::rejection::QueryRejection;
@@ -48,6 +48,7 @@ use prost::Message;
 use serde::Deserialize;
 
 use crate::http_server::timed_out_body;
+use crate::metered_body::{Metered, MeteredBody};
 use crate::observe;
 use crate::service::auth::Caller;
 use crate::service::metrics::grpc_code_name;
@@ -176,81 +177,17 @@ async fn admit(
             max_jobs: service.limits().max_jobs,
         });
     }
-    let call = Arc::new(Mutex::new(MeteredCall {
-        meter: service.body_meter(),
-        refused: None,
-    }));
+    let metered = Metered::new(&service);
     let request = request.map(|body| {
-        axum::body::Body::new(MeteredBody {
-            inner: body,
-            call: Arc::clone(&call),
-            refused: false,
-        })
+        axum::body::Body::new(MeteredBody::new(body, metered.clone(), |e| {
+            axum::Error::new(e.clone())
+        }))
     });
     let response = next.run(request).await;
     // The handler failed to read a body the budget refused: the refusal is the answer.
-    let refused = call
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .refused
-        .take();
-    match refused {
+    match metered.refusal() {
         Some(e) => refuse(e),
         None => response,
-    }
-}
-
-/// What a request's body took from the budget, held until its answer is made.
-struct MeteredCall {
-    meter: crate::service::BodyMeter,
-    /// Why the budget refused the body.
-    refused: Option<ServiceError>,
-}
-
-/// A request body whose bytes are taken from the body budget as they arrive: a body holds
-/// what it has sent, not what it declares, so a client that declares a large body (or sends a
-/// chunked one) and stalls holds nothing while it waits for the body timeout.
-struct MeteredBody {
-    inner: axum::body::Body,
-    call: Arc<Mutex<MeteredCall>>,
-    /// Refused: the error was given, nothing more is read.
-    refused: bool,
-}
-
-impl http_body::Body for MeteredBody {
-    type Data = Bytes;
-    type Error = axum::Error;
-
-    fn poll_frame(
-        mut self: Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<Option<Result<http_body::Frame<Bytes>, axum::Error>>> {
-        use std::task::Poll;
-        if self.refused {
-            return Poll::Ready(None);
-        }
-        let frame = match Pin::new(&mut self.inner).poll_frame(cx) {
-            Poll::Ready(Some(Ok(frame))) => frame,
-            other => return other,
-        };
-        if let Some(data) = frame.data_ref() {
-            let mut call = self.call.lock().unwrap_or_else(|e| e.into_inner());
-            if let Err(e) = call.meter.add(data.len()) {
-                call.refused = Some(e.clone());
-                drop(call);
-                self.refused = true;
-                return Poll::Ready(Some(Err(axum::Error::new(e))));
-            }
-        }
-        Poll::Ready(Some(Ok(frame)))
-    }
-
-    fn is_end_stream(&self) -> bool {
-        self.refused || self.inner.is_end_stream()
-    }
-
-    fn size_hint(&self) -> http_body::SizeHint {
-        self.inner.size_hint()
     }
 }
 

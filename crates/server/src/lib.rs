@@ -2,8 +2,8 @@
 //! configuration, with the gRPC and HTTP transports on top.
 //!
 //! ```text
-//! serve ─▶ server ─▶ grpc, grpc_body, http, http_server, observe, tls, ui    (transports)
-//!    │                          │
+//! serve ─▶ server ─▶ grpc, grpc_body, http, http_server, metered_body, observe, tls, ui
+//!    │                          │                                          (transports)
 //!    │                          ▼
 //!    └──── config ─────▶ service: Match, sessions, Calibrate, pool,  (use cases)
 //!                        stores, errors, metrics, auth
@@ -21,6 +21,7 @@ pub mod grpc;
 pub mod grpc_body;
 pub mod http;
 pub mod http_server;
+pub mod metered_body;
 pub mod observe;
 pub mod serve;
 pub mod server;

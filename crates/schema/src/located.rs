@@ -28,11 +28,26 @@ pub fn json_error<T: DeserializeOwned>(
     error: &serde_json::Error,
 ) -> InputError {
     let mut reader = serde_json::Deserializer::from_str(text);
-    let path = match serde_path_to_error::deserialize::<_, T>(&mut reader) {
+    let mut path = match serde_path_to_error::deserialize::<_, T>(&mut reader) {
         Err(e) => field_path(e.path()),
         Ok(_) => String::new(),
     };
-    InputError::new(within(what, &path), format!("invalid JSON: {error}"))
+    // A key given twice (or a second member of a oneof: `segments` and `images`) fails in
+    // its parent, before the path reaches it: the key is the field to name.
+    let message = error.to_string();
+    if let Some(key) = message
+        .strip_prefix("duplicate field `")
+        .and_then(|rest| rest.split_once('`'))
+        .map(|(key, _)| snake_case(key))
+    {
+        if !path.ends_with(&key) {
+            if !path.is_empty() {
+                path.push('.');
+            }
+            path.push_str(&key);
+        }
+    }
+    InputError::new(within(what, &path), format!("invalid JSON: {message}"))
 }
 
 /// `value` as a `T`, the error naming the field where it does not fit, under `what`.
@@ -149,6 +164,15 @@ mod tests {
         assert_eq!(
             field_of_json(r#"{"calibration": {"cameras": [{}, {"width": "wide"}]}}"#),
             "calibration.cameras[1].width"
+        );
+        // A key given twice, or two members of one oneof, name the second.
+        assert_eq!(
+            field_of_json(r#"{"segments": {"lists": []}, "images": {"images": []}}"#),
+            "images"
+        );
+        assert_eq!(
+            field_of_json(r#"{"calibration": {"cameras": [{"name": "a", "name": "b"}]}}"#),
+            "calibration.cameras[0].name"
         );
         // Either spelling of a field is named by the schema's name.
         for key in ["maxDirectionSigmaDeg", "max_direction_sigma_deg"] {

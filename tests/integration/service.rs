@@ -805,6 +805,10 @@ fn each_request_is_counted_once_under_its_transport_route_and_code() {
             serde_json::from_str(&http.get(url("/v2/nothing")).send().await.unwrap().text().await.unwrap())
                 .unwrap();
         assert_eq!(nowhere["error"]["code"], "NOT_FOUND", "{nowhere}");
+        // A long path is not repeated whole (it was, into the answer and every log line).
+        let long = format!("/v2/{}", "a".repeat(20_000));
+        let answer = http.get(url(&long)).send().await.unwrap().text().await.unwrap();
+        assert!(answer.len() < 1000 && answer.contains('…'), "{} bytes", answer.len());
         let wrong = http.delete(url("/v1/match")).send().await.unwrap();
         assert_eq!(status(wrong), 405);
         let wrong: serde_json::Value =

@@ -336,8 +336,21 @@ async fn openapi() -> Response {
 async fn not_found(uri: axum::http::Uri) -> Response {
     error_response(&ServiceError::NotFound {
         field: "path".into(),
-        what: format!("route {}", uri.path()),
+        what: format!("route {}", shown_path(uri.path())),
     })
+}
+
+/// Most characters of a request's path an error repeats: a 60,000-character path was echoed
+/// whole, into the answer and every log line.
+const MAX_SHOWN_PATH_CHARS: usize = 128;
+
+/// `path` as an error shows it: at most [`MAX_SHOWN_PATH_CHARS`] characters, then "…".
+pub(crate) fn shown_path(path: &str) -> String {
+    let mut shown: String = path.chars().take(MAX_SHOWN_PATH_CHARS).collect();
+    if shown.len() < path.len() {
+        shown.push('…');
+    }
+    shown
 }
 
 async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> Response {

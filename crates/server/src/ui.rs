@@ -110,7 +110,7 @@ fn serve(path: &str, cache: &'static str) -> Response {
             .into_response(),
         None => crate::http::error_response(&ServiceError::NotFound {
             field: "path".into(),
-            what: format!("file /ui/{path}"),
+            what: format!("file /ui/{}", crate::http::shown_path(&path)),
         }),
     }
 }
@@ -163,7 +163,7 @@ async fn session_events(
             if !woken {
                 continue;
             }
-            match service.session_captures(&caller, &id).await {
+            match service.watched_session_captures(&caller, &id).await {
                 Ok(captures) if captures != known => {
                     known = captures;
                     if send.send(captures_event(known)).await.is_err() {

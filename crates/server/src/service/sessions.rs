@@ -335,10 +335,22 @@ impl Service {
     }
 
     /// A session's capture count, from its stored record alone (nothing decoded): what a live
-    /// view reads at each change.
+    /// view reads when it opens (a use of the session, which keeps it alive).
     pub async fn session_captures(&self, caller: &Caller, id: &str) -> Result<u64, ServiceError> {
         check_id(id)?;
         Ok(self.store.get(&store_id(caller, id)).await?.captures)
+    }
+
+    /// [`Service::session_captures`] for an open live view's later looks: they read the session
+    /// without refreshing its idle TTL, so a watched session nobody uses still expires (and
+    /// the view is told `gone`).
+    pub async fn watched_session_captures(
+        &self,
+        caller: &Caller,
+        id: &str,
+    ) -> Result<u64, ServiceError> {
+        check_id(id)?;
+        Ok(self.store.peek(&store_id(caller, id)).await?.captures)
     }
 
     /// The caller's sessions, a page at a time: at most `page_size` (0: the default, 100;

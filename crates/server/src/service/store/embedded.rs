@@ -334,6 +334,21 @@ impl SessionStore for EmbeddedStore {
         .await
     }
 
+    async fn peek(&self, id: &str) -> Result<SessionInfo, StoreError> {
+        let id = id.to_string();
+        self.write(move |inner, t, now, changed| {
+            let meta = inner
+                .live(t, &id, now, changed)?
+                .ok_or_else(|| not_found(&id))?;
+            Ok(SessionInfo {
+                record: inner.record(t, &id)?,
+                captures: meta.1,
+                last_used_unix_ms: meta.0,
+            })
+        })
+        .await
+    }
+
     async fn list(&self) -> Result<Vec<SessionInfo>, StoreError> {
         self.write(move |inner, t, now, changed| {
             let mut live = Vec::new();

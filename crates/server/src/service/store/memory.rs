@@ -93,6 +93,10 @@ impl SessionStore for MemoryStore {
         Ok(info(s))
     }
 
+    async fn peek(&self, id: &str) -> Result<SessionInfo, StoreError> {
+        self.live().get(id).map(info).ok_or_else(|| not_found(id))
+    }
+
     async fn list(&self) -> Result<Vec<SessionInfo>, StoreError> {
         Ok(self.live().values().map(info).collect())
     }

@@ -79,6 +79,11 @@ pub trait SessionStore: Send + Sync {
     async fn create(&self, record: &SessionRecord) -> Result<(), StoreError>;
     /// The session; refreshes its idle TTL.
     async fn get(&self, id: &str) -> Result<SessionInfo, StoreError>;
+    /// The session as [`SessionStore::get`] reads it, without refreshing its idle TTL: what a
+    /// live view's periodic look reads, so that a watched session still expires when nobody
+    /// uses it (a forgotten browser tab kept its session, and its place in the key's quota,
+    /// alive for ever).
+    async fn peek(&self, id: &str) -> Result<SessionInfo, StoreError>;
     /// The live sessions, sorted by id (does not refresh their TTL).
     async fn list(&self) -> Result<Vec<SessionInfo>, StoreError>;
     /// Removes the session and its captures.
@@ -432,6 +437,9 @@ pub(crate) mod contract {
             .unwrap();
         let step = ttl / 3;
         for i in 0..5 {
+            // Watched but not used: a peek reads it and does not keep it alive.
+            let peeked = store.peek("idle").await;
+            assert!(i > 2 || peeked.is_ok(), "{peeked:?}");
             pass(step).await;
             let name = format!("b{i}");
             store

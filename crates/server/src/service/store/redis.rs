@@ -340,6 +340,26 @@ impl SessionStore for RedisStore {
         self.info(id, &record, last_used, captures)
     }
 
+    async fn peek(&self, id: &str) -> Result<SessionInfo, StoreError> {
+        let (session, captures) = (self.session_key(id), self.captures_key(id));
+        let ((record, last_used), count): ((Option<Vec<u8>>, Option<u64>), u64) = self
+            .call(|mut c| {
+                let (session, captures) = (session.clone(), captures.clone());
+                async move {
+                    redis::pipe()
+                        .hmget(&session, &["record", "last_used"])
+                        .llen(&captures)
+                        .query_async(&mut c)
+                        .await
+                }
+            })
+            .await?;
+        match (record, last_used) {
+            (Some(record), Some(last_used)) => self.info(id, &record, last_used, count),
+            _ => Err(not_found(id)),
+        }
+    }
+
     async fn list(&self) -> Result<Vec<SessionInfo>, StoreError> {
         let sessions = self.sessions_key();
         let mut ids: Vec<String> = self

@@ -10,7 +10,9 @@
 //! sent at once (the service's change broadcast); one made through another replica behind the
 //! same store is seen within [`RECHECK`]. A stream lasts at most [`STREAM_LIFETIME`] (the
 //! browser reconnects by itself) and a replica holds at most
-//! [`crate::service::MAX_EVENT_STREAMS`] of them.
+//! [`crate::service::MAX_EVENT_STREAMS`] of them, one API key at most
+//! [`crate::service::MAX_EVENT_STREAMS_PER_KEY`]. Its looks after the first read the session
+//! without refreshing its idle TTL: watching a session is not using it.
 
 use std::convert::Infallible;
 use std::pin::Pin;
@@ -110,7 +112,7 @@ fn serve(path: &str, cache: &'static str) -> Response {
             .into_response(),
         None => crate::http::error_response(&ServiceError::NotFound {
             field: "path".into(),
-            what: format!("file /ui/{}", crate::http::shown_path(&path)),
+            what: format!("file /ui/{}", crate::http::shown_path(path)),
         }),
     }
 }
@@ -126,10 +128,9 @@ async fn session_events(
         Ok(captures) => captures,
         Err(e) => return crate::http::error_response(&e),
     };
-    let Some(permit) = service.open_event_stream() else {
-        return crate::http::error_response(&ServiceError::TooManyStreams {
-            limit: crate::service::MAX_EVENT_STREAMS,
-        });
+    let permit = match service.open_event_stream(&caller) {
+        Ok(permit) => permit,
+        Err(e) => return crate::http::error_response(&e),
     };
     let (send, receive) = tokio::sync::mpsc::channel::<Event>(4);
     let stored_id = crate::service::auth::store_id(&caller, &id);

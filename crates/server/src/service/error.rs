@@ -18,9 +18,13 @@ pub enum ServiceError {
     /// Every compute slot is taken: retry after a moment.
     #[error("the service is busy ({max_jobs} jobs queued or running); retry later")]
     Busy { max_jobs: usize },
-    /// As many live-view streams are open on this replica as it serves: retry after a moment.
-    #[error("{limit} live views are open on this replica already; retry later")]
-    TooManyStreams { limit: usize },
+    /// As many live-view streams are open on this replica as it serves, or as the caller's
+    /// API key may hold (`per_key`): retry after a moment, or close some.
+    #[error(
+        "{limit} live views are open {} already; retry later",
+        if *per_key { "for this API key" } else { "on this replica" }
+    )]
+    TooManyStreams { limit: usize, per_key: bool },
     /// No API key, or not a valid one.
     #[error("{message}")]
     Unauthenticated { message: String },

@@ -23,8 +23,9 @@ pub mod priority;
 pub mod sessions;
 pub mod store;
 
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use matching::{RunError, RunMatch};
 use trinocular_core::extract::DecodeLimits;
@@ -149,6 +150,8 @@ pub struct Service {
     changes: tokio::sync::broadcast::Sender<String>,
     /// Live-view streams open now, at most [`MAX_EVENT_STREAMS`].
     event_streams: Arc<tokio::sync::Semaphore>,
+    /// Live-view streams open now by API key, each at most [`MAX_EVENT_STREAMS_PER_KEY`].
+    event_streams_by_key: StreamsByKey,
 }
 
 /// Session changes a slow live view may fall behind by before it is told to catch up (it then
@@ -157,6 +160,33 @@ const CHANGES_BUFFERED: usize = 256;
 /// Live-view streams (`GET /v1/sessions/{id}/events`) open at once on one replica: each holds
 /// a task and reads its session's record when told of a change or once a second.
 pub const MAX_EVENT_STREAMS: usize = 256;
+/// Live-view streams one API key may hold open at once on a replica, when the service has
+/// keys: an eighth of [`MAX_EVENT_STREAMS`], so that no key can take them all.
+pub const MAX_EVENT_STREAMS_PER_KEY: usize = 32;
+
+/// Live-view streams open by API key.
+type StreamsByKey = Arc<Mutex<HashMap<String, usize>>>;
+
+/// One open live-view stream's places (on the replica, and in its key's share), given back
+/// when it is dropped.
+pub struct EventStream {
+    tenant: Option<(StreamsByKey, String)>,
+    _replica: Option<tokio::sync::OwnedSemaphorePermit>,
+}
+
+impl Drop for EventStream {
+    fn drop(&mut self) {
+        if let Some((open, tenant)) = &self.tenant {
+            let mut open = open.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(held) = open.get_mut(tenant) {
+                *held -= 1;
+                if *held == 0 {
+                    open.remove(tenant);
+                }
+            }
+        }
+    }
+}
 
 /// The default of the sessions one API key may hold at once.
 pub const MAX_SESSIONS_PER_KEY: usize = 1000;
@@ -228,6 +258,7 @@ impl Service {
             max_sessions_per_key: MAX_SESSIONS_PER_KEY,
             changes: tokio::sync::broadcast::channel(CHANGES_BUFFERED).0,
             event_streams: Arc::new(tokio::sync::Semaphore::new(MAX_EVENT_STREAMS)),
+            event_streams_by_key: Arc::default(),
             bodies: Arc::new(tokio::sync::Semaphore::new(body_kib)),
             working: memory::WorkingMemory::new(limits.max_working_bytes),
             pool: ComputePool::new(limits.threads, limits.max_jobs)?,
@@ -247,9 +278,42 @@ impl Service {
         self.changes.subscribe()
     }
 
-    /// A place for one more live-view stream, or none when [`MAX_EVENT_STREAMS`] are open.
-    pub fn open_event_stream(&self) -> Option<tokio::sync::OwnedSemaphorePermit> {
-        Arc::clone(&self.event_streams).try_acquire_owned().ok()
+    /// A place for one more live-view stream of `caller`, held until dropped: refused when
+    /// [`MAX_EVENT_STREAMS`] are open on this replica, or, when the service has API keys, when
+    /// the caller's key holds [`MAX_EVENT_STREAMS_PER_KEY`] of them (one key opening 256
+    /// streams, which reconnect by themselves, locked every other key out of live views).
+    pub fn open_event_stream(&self, caller: &auth::Caller) -> Result<EventStream, ServiceError> {
+        let tenant = match &caller.tenant {
+            Some(tenant) => {
+                let mut open = self
+                    .event_streams_by_key
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner());
+                let held = open.entry(tenant.clone()).or_insert(0);
+                if *held >= MAX_EVENT_STREAMS_PER_KEY {
+                    return Err(ServiceError::TooManyStreams {
+                        limit: MAX_EVENT_STREAMS_PER_KEY,
+                        per_key: true,
+                    });
+                }
+                *held += 1;
+                Some((Arc::clone(&self.event_streams_by_key), tenant.clone()))
+            }
+            None => None,
+        };
+        // Dropped on the refusal below, it gives the key's place back.
+        let mut stream = EventStream {
+            tenant,
+            _replica: None,
+        };
+        let replica = Arc::clone(&self.event_streams)
+            .try_acquire_owned()
+            .map_err(|_| ServiceError::TooManyStreams {
+                limit: MAX_EVENT_STREAMS,
+                per_key: false,
+            })?;
+        stream._replica = Some(replica);
+        Ok(stream)
     }
 
     fn session_changed(&self, stored_id: &str) {
@@ -451,6 +515,68 @@ pub(crate) async fn within_what_is_left<T, E: Into<ServiceError>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_api_key_can_take_every_live_view() {
+        let store: Arc<dyn store::SessionStore> = Arc::new(store::memory::MemoryStore::new(
+            std::time::Duration::from_secs(60),
+        ));
+        let service = Service::new(
+            Limits {
+                threads: 1,
+                ..Limits::default()
+            },
+            store,
+            std::time::Duration::from_secs(60),
+        )
+        .unwrap();
+        let caller = |tenant: Option<&str>| auth::Caller {
+            tenant: tenant.map(str::to_string),
+        };
+        let alice = caller(Some("alice"));
+        let mut held: Vec<EventStream> = (0..MAX_EVENT_STREAMS_PER_KEY)
+            .map(|_| service.open_event_stream(&alice).unwrap())
+            .collect();
+        let refused = service.open_event_stream(&alice).err().unwrap();
+        assert_eq!(
+            refused,
+            ServiceError::TooManyStreams {
+                limit: MAX_EVENT_STREAMS_PER_KEY,
+                per_key: true
+            }
+        );
+        assert!(
+            refused.to_string().contains("for this API key"),
+            "{refused}"
+        );
+        // Another key still gets its own; one of alice's closed gives her a place back.
+        held.push(service.open_event_stream(&caller(Some("bob"))).unwrap());
+        held.swap_remove(0);
+        held.push(service.open_event_stream(&alice).unwrap());
+        // Without keys the replica's bound is the only one.
+        let anyone = caller(None);
+        while held.len() < MAX_EVENT_STREAMS {
+            held.push(service.open_event_stream(&anyone).unwrap());
+        }
+        assert_eq!(
+            service.open_event_stream(&anyone).err(),
+            Some(ServiceError::TooManyStreams {
+                limit: MAX_EVENT_STREAMS,
+                per_key: false
+            })
+        );
+        // A key refused by the replica's bound gets back the place in its share it took.
+        let bob = caller(Some("bob"));
+        let refused = service.open_event_stream(&bob).err().unwrap();
+        assert!(matches!(
+            refused,
+            ServiceError::TooManyStreams { per_key: false, .. }
+        ));
+        let open = service.event_streams_by_key.lock().unwrap().clone();
+        assert_eq!(open.get("bob"), Some(&1));
+        drop(held);
+        assert!(service.event_streams_by_key.lock().unwrap().is_empty());
+    }
 
     #[tokio::test]
     async fn a_timeout_names_the_requests_deadline_not_what_was_left_of_it() {

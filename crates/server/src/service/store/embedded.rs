@@ -68,6 +68,28 @@ struct Tables<'t> {
 }
 
 impl EmbeddedStore {
+    /// A live session, its idle TTL refreshed when `touch` ([`SessionStore::get`]) and not
+    /// otherwise ([`SessionStore::peek`]).
+    async fn read(&self, id: &str, touch: bool) -> Result<SessionInfo, StoreError> {
+        let id = id.to_string();
+        self.write(move |inner, t, now, changed| {
+            let meta = inner
+                .live(t, &id, now, changed)?
+                .ok_or_else(|| not_found(&id))?;
+            let last_used = if touch {
+                inner.touch(t, &id, meta, now, changed)?
+            } else {
+                meta.0
+            };
+            Ok(SessionInfo {
+                record: inner.record(t, &id)?,
+                captures: meta.1,
+                last_used_unix_ms: last_used,
+            })
+        })
+        .await
+    }
+
     /// Opens (creating if needed) `data_dir/trinocular.redb`. A file another process holds is
     /// [`StoreError::Unavailable`] naming the path.
     pub async fn open(data_dir: &Path, ttl: Duration) -> Result<EmbeddedStore, StoreError> {
@@ -319,34 +341,11 @@ impl SessionStore for EmbeddedStore {
     }
 
     async fn get(&self, id: &str) -> Result<SessionInfo, StoreError> {
-        let id = id.to_string();
-        self.write(move |inner, t, now, changed| {
-            let meta = inner
-                .live(t, &id, now, changed)?
-                .ok_or_else(|| not_found(&id))?;
-            let last_used = inner.touch(t, &id, meta, now, changed)?;
-            Ok(SessionInfo {
-                record: inner.record(t, &id)?,
-                captures: meta.1,
-                last_used_unix_ms: last_used,
-            })
-        })
-        .await
+        self.read(id, true).await
     }
 
     async fn peek(&self, id: &str) -> Result<SessionInfo, StoreError> {
-        let id = id.to_string();
-        self.write(move |inner, t, now, changed| {
-            let meta = inner
-                .live(t, &id, now, changed)?
-                .ok_or_else(|| not_found(&id))?;
-            Ok(SessionInfo {
-                record: inner.record(t, &id)?,
-                captures: meta.1,
-                last_used_unix_ms: meta.0,
-            })
-        })
-        .await
+        self.read(id, false).await
     }
 
     async fn list(&self) -> Result<Vec<SessionInfo>, StoreError> {

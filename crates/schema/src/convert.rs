@@ -45,6 +45,21 @@ const MAX_TANGENTIAL: f64 = 1.0;
 /// it overflows.
 const MAX_TRANSLATION_M: f64 = 1e6;
 
+/// Refuses a name (`field`) holding a control character: names are written into exported
+/// calibration files and logs, a line each.
+pub(crate) fn one_line(field: &str, name: &str) -> Result<(), InputError> {
+    match name.chars().find(|c| c.is_control()) {
+        Some(c) => Err(InputError::new(
+            field,
+            format!(
+                "holds the control character U+{:04X}; a name is one line of text",
+                c as u32
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
 /// A camera's name, distortion and translation within bounds (see the constants above).
 fn check_camera_fields(i: usize, cam: &pb::Camera) -> Result<(), InputError> {
     let at = |field: &str| format!("calibration.cameras[{i}].{field}");
@@ -55,16 +70,7 @@ fn check_camera_fields(i: usize, cam: &pb::Camera) -> Result<(), InputError> {
             format!("{chars} characters; at most {MAX_CAMERA_NAME_CHARS}"),
         ));
     }
-    // A name is written into the calibration files exported and into logs, a line each.
-    if let Some(c) = cam.name.chars().find(|c| c.is_control()) {
-        return Err(InputError::new(
-            at("name"),
-            format!(
-                "holds the control character U+{:04X}; names are one line of text",
-                c as u32
-            ),
-        ));
-    }
+    one_line(&at("name"), &cam.name)?;
     if let Some(d) = &cam.distortion {
         for (field, value, max) in [
             ("k1", d.k1, MAX_RADIAL),

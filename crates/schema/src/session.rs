@@ -241,15 +241,7 @@ pub fn check_create_session(request: &pb::CreateSessionRequest) -> Result<(), In
             format!("longer than {MAX_NAME_CHARS} characters"),
         ));
     }
-    if let Some(c) = name.chars().find(|c| c.is_control()) {
-        return Err(InputError::new(
-            "name",
-            format!(
-                "holds the control character U+{:04X}; a name is one line of text",
-                c as u32
-            ),
-        ));
-    }
+    crate::convert::one_line("name", name)?;
     rig_from_calibration(calibration.as_ref())?;
     match_params(options.as_ref())
         .check()

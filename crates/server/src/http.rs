@@ -1419,12 +1419,7 @@ mod tests {
     #[tokio::test]
     async fn every_documented_route_is_served() {
         use tower::ServiceExt;
-        let store = Arc::new(crate::service::store::memory::MemoryStore::new(
-            Duration::from_secs(60),
-        ));
-        let service =
-            Arc::new(Service::new(Default::default(), store, Duration::from_secs(60)).unwrap());
-        let app = router(service);
+        let app = router(Service::in_memory(Default::default()));
         for (method, path) in declared_routes() {
             let uri = path
                 .replace("{id}", "0123456789abcdef0123456789abcdef")

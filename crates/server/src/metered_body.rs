@@ -40,7 +40,8 @@ impl Metered {
     }
 
     /// Bytes of the body counted so far.
-    pub fn received(&self) -> u64 {
+    #[cfg(test)]
+    fn received(&self) -> u64 {
         self.lock().meter.received()
     }
 
@@ -118,20 +119,16 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::service::{store, Limits};
+    use crate::service::Limits;
 
     fn service(budget: usize) -> Arc<Service> {
-        let limits = Limits {
+        Service::in_memory(Limits {
             threads: 1,
             max_jobs: 1,
             max_message_bytes: budget,
             max_body_bytes_in_flight: budget,
             ..Limits::default()
-        };
-        let store: Arc<dyn store::SessionStore> = Arc::new(store::memory::MemoryStore::new(
-            std::time::Duration::from_secs(60),
-        ));
-        Arc::new(Service::new(limits, store, std::time::Duration::from_secs(60)).unwrap())
+        })
     }
 
     type Body = MeteredBody<axum::body::Body, axum::Error>;

@@ -537,13 +537,8 @@ mod tests {
     /// every segment is still found where it lies.
     #[test]
     fn a_crowd_of_long_segments_grows_the_windows_not_the_entries() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 511.0
-        };
+        let mut rng = trinocular_synth::Rng::new(0x2545_f491_4f6c_dd1d);
+        let mut next = || rng.range(0.0, 511.0);
         let segs: Vec<RectSegment> = (0..3000)
             .map(|_| seg(next(), next(), next(), next()))
             .filter(|s| s.len > 1.0)

@@ -171,7 +171,7 @@ type StreamsByKey = Arc<Mutex<HashMap<String, usize>>>;
 /// when it is dropped.
 pub struct EventStream {
     tenant: Option<(StreamsByKey, String)>,
-    _replica: Option<tokio::sync::OwnedSemaphorePermit>,
+    _replica: tokio::sync::OwnedSemaphorePermit,
 }
 
 impl Drop for EventStream {
@@ -283,6 +283,13 @@ impl Service {
     /// the caller's key holds [`MAX_EVENT_STREAMS_PER_KEY`] of them (one key opening 256
     /// streams, which reconnect by themselves, locked every other key out of live views).
     pub fn open_event_stream(&self, caller: &auth::Caller) -> Result<EventStream, ServiceError> {
+        // Dropped on a refusal of the key below, the replica's place is given back.
+        let replica = Arc::clone(&self.event_streams)
+            .try_acquire_owned()
+            .map_err(|_| ServiceError::TooManyStreams {
+                limit: MAX_EVENT_STREAMS,
+                per_key: false,
+            })?;
         let tenant = match &caller.tenant {
             Some(tenant) => {
                 let mut open = self
@@ -301,19 +308,10 @@ impl Service {
             }
             None => None,
         };
-        // Dropped on the refusal below, it gives the key's place back.
-        let mut stream = EventStream {
+        Ok(EventStream {
             tenant,
-            _replica: None,
-        };
-        let replica = Arc::clone(&self.event_streams)
-            .try_acquire_owned()
-            .map_err(|_| ServiceError::TooManyStreams {
-                limit: MAX_EVENT_STREAMS,
-                per_key: false,
-            })?;
-        stream._replica = Some(replica);
-        Ok(stream)
+            _replica: replica,
+        })
     }
 
     fn session_changed(&self, stored_id: &str) {
@@ -340,6 +338,14 @@ impl Service {
     /// metadata), or UNAUTHENTICATED.
     pub fn caller(&self, authorization: Option<&str>) -> Result<auth::Caller, ServiceError> {
         self.keys.caller(authorization)
+    }
+
+    /// A service on a memory store with a minute's session TTL, for unit tests.
+    #[cfg(test)]
+    pub(crate) fn in_memory(limits: Limits) -> Arc<Service> {
+        let ttl = std::time::Duration::from_secs(60);
+        let store = Arc::new(store::memory::MemoryStore::new(ttl));
+        Arc::new(Service::new(limits, store, ttl).expect("a test service"))
     }
 
     /// A new body's meter on the request-body budget: it holds nothing until bytes arrive.
@@ -518,18 +524,10 @@ mod tests {
 
     #[test]
     fn no_api_key_can_take_every_live_view() {
-        let store: Arc<dyn store::SessionStore> = Arc::new(store::memory::MemoryStore::new(
-            std::time::Duration::from_secs(60),
-        ));
-        let service = Service::new(
-            Limits {
-                threads: 1,
-                ..Limits::default()
-            },
-            store,
-            std::time::Duration::from_secs(60),
-        )
-        .unwrap();
+        let service = Service::in_memory(Limits {
+            threads: 1,
+            ..Limits::default()
+        });
         let caller = |tenant: Option<&str>| auth::Caller {
             tenant: tenant.map(str::to_string),
         };

@@ -147,6 +147,7 @@ fn main() {
             "defects.clutter_fraction" => realistic.clutter_fraction = value,
             "defects.states_noise" => realistic.states_noise = value != 0.0,
             "list_push_px" => params.list_push_px = value,
+            "list_shift_px" => params.list_shift_px = value,
             "poses" => poses = value.max(1.0) as usize,
             other => panic!("unknown parameter {other}"),
         }

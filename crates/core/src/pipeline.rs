@@ -585,11 +585,18 @@ fn prepare(
         let noise = s
             .noise
             .unwrap_or_else(|| LineNoise::for_list(params.line_noise_px, (q - p).norm()));
+        // A list that states a segment's noise has said all it knows about it.
+        let systematic_px = if s.noise.is_none() {
+            params.list_shift_px
+        } else {
+            0.0
+        };
         observed.push(LineObservation {
             view,
             start: p,
             end: q,
             noise,
+            systematic_px,
         });
     }
     (out, observed)
@@ -889,7 +896,9 @@ pub fn shared_shift_covariance(
 /// What a segment's answer reports, and the gate judges: the estimate's own covariance and
 /// the shift of σ `shift_sigma_m` its three views share.
 fn reported_covariance(est: &Line3Estimate, shift_sigma_m: f64) -> nalgebra::Matrix6<f64> {
-    est.covariance + shared_shift_covariance(&est.start, &est.end, shift_sigma_m)
+    est.covariance
+        + est.systematic_covariance
+        + shared_shift_covariance(&est.start, &est.end, shift_sigma_m)
 }
 
 /// The largest and smallest variance across the line of a 3x3 covariance whose part along
@@ -1113,6 +1122,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
         est.start = start + u * trim_start;
         est.end = end - u * trim_end;
         est.covariance = blend * est.covariance * blend.transpose();
+        est.systematic_covariance = blend * est.systematic_covariance * blend.transpose();
     }
     let (e1, e2) = crate::geometry::across_basis(&u);
     let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
@@ -1965,6 +1975,7 @@ mod tests {
             start: nalgebra::Point3::new(x, -0.2, z),
             end: nalgebra::Point3::new(x, 0.2, z),
             covariance: nalgebra::Matrix6::identity() * 1e-6,
+            systematic_covariance: nalgebra::Matrix6::zeros(),
             chi2,
             dof: 2,
             residual_px: 0.05,

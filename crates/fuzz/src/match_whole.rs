@@ -133,9 +133,9 @@ pub(crate) struct Extra {
 
 #[derive(Arbitrary, Debug)]
 pub(crate) struct Options {
-    /// Each of the eighteen numeric options, from 0 to 4 times its default (steps of 1/64).
-    scaled: [Option<u8>; 18],
-    /// One option set to any number (index modulo 18).
+    /// Each of the nineteen numeric options, from 0 to 4 times its default (steps of 1/64).
+    scaled: [Option<u8>; 19],
+    /// One option set to any number (index modulo 19).
     raw: Option<(u8, f64)>,
     validate: Option<bool>,
     include_uncertain: Option<bool>,
@@ -143,7 +143,7 @@ pub(crate) struct Options {
 
 /// The numeric options, as (default, setter): the order of `Options::scaled`.
 type Setter = fn(&mut pb::MatchOptions, f64);
-const NUMERIC: [(f64, Setter); 18] = [
+const NUMERIC: [(f64, Setter); 19] = [
     (0.3, |o, v| o.depth_min_m = Some(v)),
     (15.0, |o, v| o.depth_max_m = Some(v)),
     (2.0, |o, v| o.tolerance_px = Some(v)),
@@ -156,6 +156,7 @@ const NUMERIC: [(f64, Setter); 18] = [
     (1.5, |o, v| o.max_residual_px = Some(v)),
     (0.3, |o, v| o.line_noise_px = Some(v)),
     (1.63, |o, v| o.list_push_px = Some(v)),
+    (0.1, |o, v| o.list_shift_px = Some(v)),
     (180.0, |o, v| o.max_direction_sigma_deg = Some(v)),
     (2.0, |o, v| o.vertex_reach_px = Some(v)),
     (5.0, |o, v| o.gate_direction_deg = Some(v)),

@@ -178,6 +178,7 @@ fn main() {
         gate_confidence: Some(0.95),
         include_uncertain: Some(true),
         list_push_px: Some(1.63),
+        list_shift_px: Some(0.1),
     };
     let full = pb::MatchRequest {
         calibration: Some(calibration_krt.clone()),

@@ -37,6 +37,11 @@ pub struct LineObservation {
     pub start: Point2<f64>,
     pub end: Point2<f64>,
     pub noise: LineNoise,
+    /// σ of a shift of this view's line across itself that `noise` leaves out, pixels: an
+    /// error the view's other lines share, which no disagreement between the views shows.
+    /// The χ² ignores it; the covariance of the estimate's report
+    /// ([`Line3Estimate::systematic_covariance`]) carries it.
+    pub systematic_px: f64,
 }
 
 /// A maximum-likelihood 3D segment with its first-order uncertainty, rig frame.
@@ -48,6 +53,10 @@ pub struct Line3Estimate {
     /// Covariance of `(start, end)` stacked (metres²). Across the line it is the propagated
     /// image-line noise; along it, the endpoints' own spread (see [`estimate_line`]).
     pub covariance: Matrix6<f64>,
+    /// Covariance of `(start, end)` from each view's [`LineObservation::systematic_px`]: the
+    /// views' lines shifted independently, each across itself. Not in `covariance`, whose χ²
+    /// tests it would loosen; what is reported adds it.
+    pub systematic_covariance: Matrix6<f64>,
     /// Sum of squared normalised image residuals at the optimum, and its degrees of freedom
     /// (2 per observation, less the line's 4): a χ² variable when the observations are images
     /// of one line with the stated noise.
@@ -271,6 +280,43 @@ fn linear_start(
     Some((x0, dir))
 }
 
+/// The covariance of the line's four parameters (pivot `x0`, along `d`; `h_inv` the inverse
+/// normal matrix in those parameters) that
+/// independent shifts of each view's lines by their `systematic_px` add, first order: a shift
+/// δ of view v's lines across the line's image moves each of their virtual points' residuals
+/// by δ, and the optimum by −H⁻¹·Σ jᵢ·δ/σᵢ². `None` when no observation has one.
+fn systematic_parameter_covariance(
+    cameras: &[&Camera; 3],
+    obs: &[LineObservation],
+    points: &[(usize, VirtualPoints)],
+    x0: &Vector3<f64>,
+    d: &Vector3<f64>,
+    h_inv: &nalgebra::Matrix4<f64>,
+) -> Option<nalgebra::Matrix4<f64>> {
+    if !obs.iter().any(|o| o.systematic_px > 0.0) {
+        return None;
+    }
+    let (e1, e2) = across_basis(d);
+    let mut per_view = [Vector4::<f64>::zeros(); 3];
+    let shifted = obs
+        .iter()
+        .zip(points)
+        .filter(|(o, _)| o.systematic_px > 0.0);
+    for (o, (view, pts)) in shifted {
+        let image = ImageOfLine::new(cameras[*view].projection(), x0, d, (&e1, &e2))?;
+        for &(q, sigma) in pts {
+            let (_, j) = image.distance_and_gradient(q);
+            per_view[*view] += j * (o.systematic_px / (sigma * sigma));
+        }
+    }
+    let mut cov = nalgebra::Matrix4::<f64>::zeros();
+    for g in per_view {
+        let s = h_inv * g;
+        cov += s * s.transpose();
+    }
+    Some(cov)
+}
+
 /// The maximum-likelihood 3D line of image-line observations in the three views, with its
 /// covariance, its χ² and its extent.
 ///
@@ -437,6 +483,8 @@ pub fn estimate_line_through(
     let h_inv = h.try_inverse()?;
     h_inv.cholesky()?;
     let line_cov = shift * h_inv * shift.transpose();
+    let systematic_line_cov =
+        systematic_parameter_covariance(cameras, obs, &points, &x0, &d, &line_cov);
     let (t_start, t_end) = if first_sign >= 0.0 {
         (lo, hi)
     } else {
@@ -472,6 +520,12 @@ pub fn estimate_line_through(
         1.0
     };
     let mut covariance = j * line_cov * j.transpose() * posterior;
+    let systematic_covariance = systematic_line_cov
+        .map(|c| {
+            let c = j * c * j.transpose();
+            (c + c.transpose()) * 0.5
+        })
+        .unwrap_or_else(Matrix6::zeros);
     // Along the line: how far an end moves when its image end moves by end_sigma_px — far
     // for a line that recedes from the camera, whose rays meet it at a grazing angle (the
     // middle view of three, as the median takes the middle end) — and the spread of the
@@ -529,6 +583,7 @@ pub fn estimate_line_through(
         start,
         end,
         covariance,
+        systematic_covariance,
         chi2,
         dof,
         residual_px: (sum_px / n_obs as f64).sqrt(),

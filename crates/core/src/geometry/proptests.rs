@@ -168,7 +168,7 @@ proptest! {
             .map(|v| {
                 let c = cams[v];
                 let (a, b) = (c.undistort(c.project(&p).unwrap()), c.undistort(c.project(&q).unwrap()));
-                LineObservation { view: v, start: a, end: b, noise: LineNoise::for_list(0.3, (b - a).norm()) }
+                LineObservation { view: v, start: a, end: b, noise: LineNoise::for_list(0.3, (b - a).norm()), systematic_px: 0.0 }
             })
             .collect();
         prop_assume!(obs.iter().all(|o| (o.end - o.start).norm() > 5.0));
@@ -263,6 +263,7 @@ fn noisy_images(
             start: m - d * len / 2.0,
             end: m + d * len / 2.0,
             noise,
+            systematic_px: 0.0,
         });
     }
     Some(obs)
@@ -433,6 +434,7 @@ fn direction_uncertainty_grows_for_short_and_receding_segments() {
                     start: p,
                     end: q,
                     noise,
+                    systematic_px: 0.0,
                 }
             })
             .collect();
@@ -519,4 +521,59 @@ fn a_known_vertex_narrows_a_short_segments_direction_and_stays_calibrated() {
     // direction: at the median, at least a fifth narrower.
     assert!(median_ratio < 0.8, "median ratio {median_ratio}");
     assert!(share(narrower) > 0.95, "narrower for {}", share(narrower));
+}
+
+/// Each view's line shifted across itself by an independent N(0, δ²), and by nothing else:
+/// the spread of the estimates' midpoints is what `systematic_covariance` says it is.
+#[test]
+fn the_systematic_covariance_describes_independent_shifts_of_the_views() {
+    use trinocular_synth::Rng;
+    let r = uneven_triangle();
+    let cams = [r.camera(0), r.camera(1), r.camera(2)];
+    let mut rng = Rng::new(5);
+    let (a, b) = (Point3::new(-0.3, 0.2, 3.0), Point3::new(0.4, 0.1, 3.4));
+    let delta = 0.2;
+    let exact: Vec<LineObservation> = (0..3)
+        .map(|v| {
+            let (p, q) = (cams[v].project(&a).unwrap(), cams[v].project(&b).unwrap());
+            LineObservation {
+                view: v,
+                start: p,
+                end: q,
+                noise: LineNoise::for_list(0.3, (q - p).norm()),
+                systematic_px: delta,
+            }
+        })
+        .collect();
+    let reference = estimate_line(&cams, &exact, 1.0).expect("determined");
+    let mut scatter = Matrix3::<f64>::zeros();
+    let trials = 4000;
+    let mid = nalgebra::center(&reference.start, &reference.end);
+    for _ in 0..trials {
+        let obs: Vec<LineObservation> = exact
+            .iter()
+            .map(|o| {
+                let d = (o.end - o.start).normalize();
+                let shift = nalgebra::Vector2::new(-d.y, d.x) * (delta * rng.normal());
+                LineObservation {
+                    start: o.start + shift,
+                    end: o.end + shift,
+                    ..*o
+                }
+            })
+            .collect();
+        let est = estimate_line(&cams, &obs, 1.0).expect("determined");
+        let m = nalgebra::center(&est.start, &est.end) - mid;
+        scatter += m * m.transpose() / trials as f64;
+    }
+    let u = reference.direction();
+    let across = super::line::across_projector(&u);
+    let measured = across * scatter * across;
+    let predicted = super::line::midpoint_covariance(
+        &reference.start,
+        &reference.end,
+        &reference.systematic_covariance,
+    );
+    let (m, p) = (measured.trace(), predicted.trace());
+    assert!((m / p - 1.0).abs() < 0.1, "measured {m:e}, predicted {p:e}");
 }

@@ -60,10 +60,17 @@ pub struct MatchParams {
     pub neighbour_radius_px: f64,
     /// Largest RMS reprojection residual of a reconstructed 3D segment, pixels.
     pub max_residual_px: f64,
-    /// 1σ noise across the line at each endpoint of a segment whose list does not say how
-    /// precise it is (`LineNoise::from_endpoint_sigma`), pixels. Extracted segments carry
-    /// their own, measured from their edge points.
+    /// Noise of a segment whose list does not say how precise it is: its line is taken for a
+    /// fit to one independent point per 2 px, each off by this, pixels (`LineNoise::for_list`).
+    /// Extracted segments carry their own, measured from their edge points.
     pub line_noise_px: f64,
+    /// σ of a shift of such a list segment's line across itself, independent from view to
+    /// view, that `line_noise_px`'s model leaves out, pixels: a detector's systematic error,
+    /// which no number of points averages away (OpenCV LSD's lines are off by about 0.1 px at
+    /// every length). The reported covariance and the gate count it; the χ² tests, which
+    /// compare the views with one another, do not (`LineObservation::systematic_px`). 0 for
+    /// exact lines.
+    pub list_shift_px: f64,
     /// How hard a neighbour of opposite contrast pushes the lines of a list that does not
     /// state its noise, at full strength, pixels: the matcher moves them back
     /// (`segment::Repulsion`; the default is OpenCV LSD's, measured). 0 for lists whose
@@ -107,6 +114,7 @@ impl Default for MatchParams {
             max_residual_px: 1.5,
             line_noise_px: 0.3,
             list_push_px: crate::segment::CrowdingModel::LSD_PUSH_PX,
+            list_shift_px: MatchParams::LIST_SHIFT_PX,
             max_direction_sigma_deg: 180.0,
             vertex_reach_px: MatchParams::VERTEX_REACH_PX,
             gate_direction_deg: 5.0,
@@ -121,7 +129,16 @@ impl Default for MatchParams {
 impl MatchParams {
     /// The default of [`MatchParams::vertex_reach_px`].
     pub const VERTEX_REACH_PX: f64 = 2.0;
+    /// The default of [`MatchParams::list_shift_px`]: the least that brings the position of
+    /// OpenCV LSD lists' 3D segments within χ²'s 99% quantile for 98% of them in both
+    /// rendered rooms (docs/ACCURACY.md, "A list line's own shift"), and the floor our own
+    /// extractor's noise has.
+    pub const LIST_SHIFT_PX: f64 = 0.1;
 }
+
+/// Largest `list_shift_px`: a detector whose lines are systematically off by more than a
+/// pixel should say so per segment (`offsetSigmaPx`).
+pub const MAX_LIST_SHIFT_PX: f64 = 1.0;
 
 /// Largest `vertex_reach_px`: ends farther apart than a segment's own minimum length are not
 /// one vertex.
@@ -225,6 +242,12 @@ impl MatchParams {
                 self.list_push_px,
                 (0.0..=MAX_LIST_PUSH_PX).contains(&self.list_push_px),
                 "a finite number in [0, 5]",
+            ),
+            rule(
+                "list_shift_px",
+                self.list_shift_px,
+                (0.0..=MAX_LIST_SHIFT_PX).contains(&self.list_shift_px),
+                "a finite number in [0, 1]",
             ),
             rule(
                 "max_direction_sigma_deg",
@@ -345,6 +368,28 @@ mod tests {
         assert_eq!(fields, ["tolerance_px", "min_gradient", "gate_confidence"]);
         assert_eq!(e.field(), "tolerance_px");
         assert!(MatchParams::default().check().is_ok());
+    }
+
+    #[test]
+    fn a_list_shift_is_off_at_zero_and_bounded() {
+        for shift in [0.0, MAX_LIST_SHIFT_PX] {
+            let params = MatchParams {
+                list_shift_px: shift,
+                ..MatchParams::default()
+            };
+            assert!(params.check().is_ok(), "{shift}");
+        }
+        for shift in [-0.01, MAX_LIST_SHIFT_PX + 0.01, f64::NAN, f64::INFINITY] {
+            let params = MatchParams {
+                list_shift_px: shift,
+                ..MatchParams::default()
+            };
+            assert_eq!(
+                params.check().unwrap_err().field(),
+                "list_shift_px",
+                "{shift}"
+            );
+        }
     }
 
     #[test]

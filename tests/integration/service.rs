@@ -579,6 +579,16 @@ fn deadlines_are_honoured_on_both_transports() {
             .unwrap();
         assert_eq!(bad.status(), 400);
         assert_eq!(bad.json_body().await["error"]["field"], "timeout_ms");
+        // Misspelt, the deadline is not silently dropped: the parameter is named.
+        let misspelt = http
+            .post(format!("{url}?timout_ms=10"))
+            .header("content-type", "application/x-protobuf")
+            .body(small.encode_to_vec())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(misspelt.status(), 400);
+        assert_eq!(misspelt.json_body().await["error"]["field"], "timout_ms");
 
         // The slow one completes, and the service is fine afterwards.
         assert_eq!(slow.await.unwrap().unwrap().status(), 200);

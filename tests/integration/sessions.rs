@@ -483,6 +483,15 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
             .await
             .unwrap();
         assert_eq!(reply.status(), 400);
+        // Not UTF-8 once decoded: the same error, in the same format, on every session route.
+        let raw = format!("http://{}/v1/sessions/%FF%FE", running.http_addr);
+        for url in [raw.clone(), format!("{raw}/map"), format!("{raw}/events")] {
+            let reply = http.get(&url).send().await.unwrap();
+            assert_eq!(reply.status(), 400, "{url}");
+            let body = reply.json_body().await;
+            assert_eq!(body["error"]["code"], "INVALID_ARGUMENT", "{url}");
+            assert_eq!(body["error"]["field"], "session_id", "{url}");
+        }
         running.shutdown().await;
     });
 }

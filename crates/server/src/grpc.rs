@@ -10,7 +10,7 @@ use tonic::{Request, Response, Status};
 use crate::service::auth::Caller;
 use crate::service::sessions::map_to_pb;
 use crate::service::{Service, ServiceError};
-use trinocular_schema::pb;
+use trinocular_schema::{pb, InputError};
 
 pub struct GrpcApi {
     service: Arc<Service>,
@@ -82,14 +82,24 @@ fn with_margin(timeout: Duration) -> Duration {
     timeout.saturating_sub(timeout / 10 + Duration::from_millis(2))
 }
 
-/// The call's deadline, from `grpc-timeout`, less the margin.
-fn deadline_of<T>(request: &Request<T>) -> Option<Duration> {
-    request
-        .metadata()
-        .get("grpc-timeout")
-        .and_then(|v| v.to_str().ok())
+/// The call's deadline, from `grpc-timeout`, less the margin; none when the header is
+/// absent. A header that does not parse is INVALID_ARGUMENT naming it: taken as absent, a
+/// client's deadline would be dropped without a word and its call run to the server's own.
+fn deadline_of<T>(request: &Request<T>) -> Result<Option<Duration>, Status> {
+    let Some(value) = request.metadata().get("grpc-timeout") else {
+        return Ok(None);
+    };
+    value
+        .to_str()
+        .ok()
         .and_then(grpc_timeout)
-        .map(with_margin)
+        .map(|t| Some(with_margin(t)))
+        .ok_or_else(|| {
+            status(&ServiceError::Input(InputError::new(
+                "grpc-timeout",
+                "must be 1 to 8 digits and a unit (H, M, S, m, u or n)",
+            )))
+        })
 }
 
 /// The answer to a call: the use case's answer, or the status of its error.
@@ -118,8 +128,8 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         &self,
         request: Request<pb::MatchRequest>,
     ) -> Result<Response<pb::MatchResponse>, Status> {
-        let timeout = deadline_of(&request);
         self.caller(&request)?;
+        let timeout = deadline_of(&request)?;
         let request = request.into_inner();
         let (answer, ()) = self
             .service
@@ -150,8 +160,8 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         &self,
         request: Request<pb::AddCaptureRequest>,
     ) -> Result<Response<pb::AddCaptureResponse>, Status> {
-        let timeout = deadline_of(&request);
         let caller = self.caller(&request)?;
+        let timeout = deadline_of(&request)?;
         let answer = self
             .service
             .add_capture(&caller, request.into_inner(), timeout)
@@ -201,8 +211,8 @@ impl pb::trinocular_server::Trinocular for GrpcApi {
         &self,
         request: Request<pb::CalibrateRequest>,
     ) -> Result<Response<pb::CalibrateResponse>, Status> {
-        let timeout = deadline_of(&request);
         self.caller(&request)?;
+        let timeout = deadline_of(&request)?;
         let request = request.into_inner();
         let answer = self.service.calibrate(move || Ok(request), timeout).await;
         respond(answer)
@@ -251,6 +261,29 @@ mod tests {
         assert_eq!(grpc_timeout("100u"), Some(Duration::from_micros(100)));
         for bad in ["", "m", "12", "12x", "-1m", "123456789S"] {
             assert_eq!(grpc_timeout(bad), None, "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn a_call_deadline_that_does_not_parse_is_named_not_dropped() {
+        let with = |value: Option<&'static str>| {
+            let mut request = Request::new(());
+            if let Some(v) = value {
+                request
+                    .metadata_mut()
+                    .insert("grpc-timeout", v.parse().unwrap());
+            }
+            deadline_of(&request)
+        };
+        assert_eq!(with(None).unwrap(), None);
+        assert_eq!(
+            with(Some("100m")).unwrap(),
+            Some(with_margin(Duration::from_millis(100)))
+        );
+        for bad in ["soon", "12", "123456789S"] {
+            let e = with(Some(bad)).unwrap_err();
+            assert_eq!(e.code(), tonic::Code::InvalidArgument, "{bad:?}");
+            assert!(e.message().contains("grpc-timeout"), "{bad:?}: {e:?}");
         }
     }
 }

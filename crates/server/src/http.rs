@@ -285,6 +285,27 @@ impl FromRequestParts<Arc<Service>> for Caller {
     }
 }
 
+/// The session id of the URL (`/v1/sessions/{id}...`): an extractor, like [`BodyFormat`]. A
+/// segment that is not UTF-8 once percent-decoded is INVALID_ARGUMENT naming `session_id`
+/// in the service's error format, where axum's `Path` answers plain text.
+pub(crate) struct SessionId(pub String);
+
+impl<S: Send + Sync> FromRequestParts<S> for SessionId {
+    type Rejection = Response;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, Self::Rejection> {
+        Path::<String>::from_request_parts(parts, state)
+            .await
+            .map(|Path(id)| SessionId(id))
+            .map_err(|e| {
+                error_response(&ServiceError::Input(InputError::new(
+                    "session_id",
+                    e.body_text(),
+                )))
+            })
+    }
+}
+
 /// A caller without a valid key: 401 UNAUTHENTICATED in the service's error format, with
 /// `WWW-Authenticate: Bearer`.
 #[derive(Debug)]
@@ -370,17 +391,31 @@ async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) ->
 /// Longest `timeout_ms` accepted: an hour.
 const MAX_TIMEOUT_MS: u64 = 3_600_000;
 
-/// The query string as `T`. Every field of a query struct is an optional string, so only a
-/// repeated parameter fails here (serde refuses a duplicate field): that is INVALID_ARGUMENT
-/// naming the query, in our error format rather than axum's.
+/// The query string as `T`. Every field of a query struct is an optional string, and none
+/// takes a parameter it does not know (a misspelt `timout_ms` would otherwise be ignored, and
+/// the call run without the deadline its client asked for), so a parameter that is not the
+/// call's, named as the field, and a repeated one (serde refuses a duplicate field), naming
+/// the query, are what fails here: INVALID_ARGUMENT, in our error format rather than axum's.
 fn query<T>(query: Result<Query<T>, QueryRejection>) -> Result<T, InputError> {
-    query
-        .map(|Query(q)| q)
-        .map_err(|e| InputError::new("query", e.body_text()))
+    query.map(|Query(q)| q).map_err(|e| {
+        let text = e.body_text();
+        let unknown = text
+            .split_once("unknown field `")
+            .and_then(|(_, rest)| rest.split_once('`'))
+            .map(|(name, _)| name.to_string());
+        match unknown {
+            Some(name) => InputError::new(
+                name,
+                format!("this call takes no such query parameter ({text})"),
+            ),
+            None => InputError::new("query", text),
+        }
+    })
 }
 
 /// The query of the calls that run compute: `?timeout_ms=N`.
 #[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct TimeoutQuery {
     timeout_ms: Option<String>,
 }
@@ -405,6 +440,7 @@ impl TimeoutQuery {
 
 /// Match's query: `?timeout_ms=N&format=json|ply`, both optional.
 #[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct MatchQuery {
     timeout_ms: Option<String>,
     format: Option<String>,
@@ -433,6 +469,7 @@ impl MatchQuery {
 
 /// ListSessions' query: `?page_size=N&page_token=T`, both optional.
 #[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct ListQuery {
     page_size: Option<String>,
     page_token: Option<String>,
@@ -455,6 +492,7 @@ impl ListQuery {
 
 /// GetMap's query: `?format=F&min_observations=N`, both optional.
 #[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct MapQuery {
     format: Option<String>,
     min_observations: Option<String>,
@@ -822,7 +860,7 @@ async fn list_sessions(
 async fn get_session(
     State(service): State<Arc<Service>>,
     caller: Caller,
-    Path(id): Path<String>,
+    SessionId(id): SessionId,
     answer_format: AnswerFormat,
 ) -> Response {
     answer(
@@ -834,7 +872,7 @@ async fn get_session(
 async fn delete_session(
     State(service): State<Arc<Service>>,
     caller: Caller,
-    Path(id): Path<String>,
+    SessionId(id): SessionId,
     answer_format: AnswerFormat,
 ) -> Response {
     let result = service.delete_session(&caller, &id).await;
@@ -847,7 +885,7 @@ async fn delete_session(
 async fn add_capture(
     State(service): State<Arc<Service>>,
     caller: Caller,
-    Path(id): Path<String>,
+    SessionId(id): SessionId,
     params: Result<Query<TimeoutQuery>, QueryRejection>,
     format: BodyFormat,
     request: axum::extract::Request,
@@ -890,7 +928,7 @@ async fn add_capture(
 async fn get_map(
     State(service): State<Arc<Service>>,
     caller: Caller,
-    Path(id): Path<String>,
+    SessionId(id): SessionId,
     params: Result<Query<MapQuery>, QueryRejection>,
     answer_format: AnswerFormat,
 ) -> Response {
@@ -1350,6 +1388,18 @@ mod tests {
         let e = parsed("/m?format=ply&format=obj").err().unwrap();
         assert_eq!(e.field, "query");
         assert!(e.message.contains("format"), "{e}");
+        // A parameter the call does not take is named, not ignored: a misspelt deadline would
+        // otherwise run the call without it.
+        let e = parsed("/m?format=svg&min_observation=2").err().unwrap();
+        assert_eq!(e.field, "min_observation");
+        assert!(e.message.contains("no such query parameter"), "{e}");
+        let uri: axum::http::Uri = "/v1/match?timout_ms=5".parse().unwrap();
+        let e = query(Query::<MatchQuery>::try_from_uri(&uri))
+            .err()
+            .unwrap();
+        assert_eq!(e.field, "timout_ms");
+        let uri: axum::http::Uri = "/v1/sessions?page_size=2&page_token=".parse().unwrap();
+        assert!(query(Query::<ListQuery>::try_from_uri(&uri)).is_ok());
     }
 
     /// The routes the router serves, read from the sources that declare them (each `route`

@@ -27,6 +27,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 
+use crate::http::SessionId;
 use crate::service::auth::Caller;
 use crate::service::{Service, ServiceError};
 
@@ -122,7 +123,7 @@ fn serve(path: &str, cache: &'static str) -> Response {
 async fn session_events(
     State(service): State<Arc<Service>>,
     caller: Caller,
-    Path(id): Path<String>,
+    SessionId(id): SessionId,
 ) -> Response {
     let first = match service.session_captures(&caller, &id).await {
         Ok(captures) => captures,

@@ -897,7 +897,7 @@ pub fn shared_shift_covariance(
 /// the shift of σ `shift_sigma_m` its three views share.
 fn reported_covariance(est: &Line3Estimate, shift_sigma_m: f64) -> nalgebra::Matrix6<f64> {
     est.covariance
-        + est.systematic_covariance
+        + est.systematic_covariance()
         + shared_shift_covariance(&est.start, &est.end, shift_sigma_m)
 }
 
@@ -1122,7 +1122,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
         est.start = start + u * trim_start;
         est.end = end - u * trim_end;
         est.covariance = blend * est.covariance * blend.transpose();
-        est.systematic_covariance = blend * est.systematic_covariance * blend.transpose();
+        est.systematic_shifts = est.systematic_shifts.map(|u| blend * u);
     }
     let (e1, e2) = crate::geometry::across_basis(&u);
     let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
@@ -1975,7 +1975,7 @@ mod tests {
             start: nalgebra::Point3::new(x, -0.2, z),
             end: nalgebra::Point3::new(x, 0.2, z),
             covariance: nalgebra::Matrix6::identity() * 1e-6,
-            systematic_covariance: nalgebra::Matrix6::zeros(),
+            systematic_shifts: [nalgebra::Vector6::zeros(); 3],
             chi2,
             dof: 2,
             residual_px: 0.05,

@@ -9,7 +9,7 @@
 //! the part of the line every view saw (the overlap of their ends, a view holding only a
 //! fragment of the line aside).
 
-use nalgebra::{Matrix3, Matrix6, Point2, Point3, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix6, Point2, Point3, Vector3, Vector4, Vector6};
 
 use super::camera::Camera;
 use crate::segment::LineNoise;
@@ -37,10 +37,10 @@ pub struct LineObservation {
     pub start: Point2<f64>,
     pub end: Point2<f64>,
     pub noise: LineNoise,
-    /// σ of a shift of this view's line across itself that `noise` leaves out, pixels: an
-    /// error the view's other lines share, which no disagreement between the views shows.
-    /// The χ² ignores it; the covariance of the estimate's report
-    /// ([`Line3Estimate::systematic_covariance`]) carries it.
+    /// σ of a shift of this line across itself that `noise` leaves out, pixels: a detector's
+    /// systematic error, which no number of points along the line averages away. The χ² and
+    /// `covariance` ignore it (the views' consistency is judged by their noise alone);
+    /// [`Line3Estimate::systematic_shifts`] carries it, each view's shift independent.
     pub systematic_px: f64,
 }
 
@@ -53,10 +53,14 @@ pub struct Line3Estimate {
     /// Covariance of `(start, end)` stacked (metres²). Across the line it is the propagated
     /// image-line noise; along it, the endpoints' own spread (see [`estimate_line`]).
     pub covariance: Matrix6<f64>,
-    /// Covariance of `(start, end)` from each view's [`LineObservation::systematic_px`]: the
-    /// views' lines shifted independently, each across itself. Not in `covariance`, whose χ²
-    /// tests it would loosen; what is reported adds it.
-    pub systematic_covariance: Matrix6<f64>,
+    /// How `(start, end)` move when each view's lines shift by their
+    /// [`LineObservation::systematic_px`] (1σ, first order), one column per view: the
+    /// covariance they add is Σ uᵥ·uᵥᵀ, the views' shifts being independent ([`Self::
+    /// systematic_covariance`]). Not in `covariance`, which the tests between segments (a
+    /// rival's place, a shared vertex) compare by; what is reported adds it. Zero when no
+    /// observation has a systematic shift. Three vectors, not a 6x6 matrix: the estimate is
+    /// copied often.
+    pub systematic_shifts: [Vector6<f64>; 3],
     /// Sum of squared normalised image residuals at the optimum, and its degrees of freedom
     /// (2 per observation, less the line's 4): a χ² variable when the observations are images
     /// of one line with the stated noise.
@@ -89,6 +93,16 @@ impl Line3Estimate {
     /// Covariance of the midpoint's position across the line (rank 2).
     pub fn midpoint_covariance(&self) -> Matrix3<f64> {
         midpoint_covariance(&self.start, &self.end, &self.covariance)
+    }
+
+    /// The covariance of `(start, end)` the views' systematic shifts add
+    /// ([`Self::systematic_shifts`]).
+    pub fn systematic_covariance(&self) -> Matrix6<f64> {
+        let mut out = Matrix6::zeros();
+        for u in &self.systematic_shifts {
+            out.ger(1.0, u, u, 1.0);
+        }
+        out
     }
 }
 
@@ -280,43 +294,6 @@ fn linear_start(
     Some((x0, dir))
 }
 
-/// The covariance of the line's four parameters (pivot `x0`, along `d`; `h_inv` the inverse
-/// normal matrix in those parameters) that
-/// independent shifts of each view's lines by their `systematic_px` add, first order: a shift
-/// δ of view v's lines across the line's image moves each of their virtual points' residuals
-/// by δ, and the optimum by −H⁻¹·Σ jᵢ·δ/σᵢ². `None` when no observation has one.
-fn systematic_parameter_covariance(
-    cameras: &[&Camera; 3],
-    obs: &[LineObservation],
-    points: &[(usize, VirtualPoints)],
-    x0: &Vector3<f64>,
-    d: &Vector3<f64>,
-    h_inv: &nalgebra::Matrix4<f64>,
-) -> Option<nalgebra::Matrix4<f64>> {
-    if !obs.iter().any(|o| o.systematic_px > 0.0) {
-        return None;
-    }
-    let (e1, e2) = across_basis(d);
-    let mut per_view = [Vector4::<f64>::zeros(); 3];
-    let shifted = obs
-        .iter()
-        .zip(points)
-        .filter(|(o, _)| o.systematic_px > 0.0);
-    for (o, (view, pts)) in shifted {
-        let image = ImageOfLine::new(cameras[*view].projection(), x0, d, (&e1, &e2))?;
-        for &(q, sigma) in pts {
-            let (_, j) = image.distance_and_gradient(q);
-            per_view[*view] += j * (o.systematic_px / (sigma * sigma));
-        }
-    }
-    let mut cov = nalgebra::Matrix4::<f64>::zeros();
-    for g in per_view {
-        let s = h_inv * g;
-        cov += s * s.transpose();
-    }
-    Some(cov)
-}
-
 /// The maximum-likelihood 3D line of image-line observations in the three views, with its
 /// covariance, its χ² and its extent.
 ///
@@ -364,17 +341,21 @@ pub fn estimate_line_through(
     through: &[PointOnLine],
 ) -> Option<Line3Estimate> {
     let (mut x0, mut d) = linear_start(cameras, obs)?;
-    let points: Vec<(usize, VirtualPoints)> = obs
+    let points: Vec<(usize, VirtualPoints, f64)> = obs
         .iter()
-        .map(|o| virtual_points(o).map(|v| (o.view, v)))
+        .map(|o| virtual_points(o).map(|v| (o.view, v, o.systematic_px)))
         .collect::<Option<_>>()?;
+    let systematic = obs.iter().any(|o| o.systematic_px > 0.0);
     let normal = |x0: &Vector3<f64>, d: &Vector3<f64>| {
         let (e1, e2) = across_basis(d);
         let mut h = nalgebra::Matrix4::<f64>::zeros();
         let mut g = Vector4::<f64>::zeros();
+        // Per view, Σ jᵢ·δ/σᵢ² over its virtual points: a shift δ of the view's lines moves
+        // each point's residual by δ, and the optimum by −H⁻¹ times this (first order).
+        let mut shifted = [Vector4::<f64>::zeros(); 3];
         let mut chi2 = 0.0;
         let mut sum_px = 0.0;
-        for (view, pts) in &points {
+        for (view, pts, systematic_px) in &points {
             let image = ImageOfLine::new(cameras[*view].projection(), x0, d, (&e1, &e2))?;
             for &(q, sigma) in pts {
                 let (r, j) = image.distance_and_gradient(q);
@@ -382,6 +363,9 @@ pub fn estimate_line_through(
                 let rn = r / sigma;
                 h += j * j.transpose();
                 g += j * rn;
+                if systematic {
+                    shifted[*view] += j * (systematic_px / sigma);
+                }
                 chi2 += rn * rn;
                 sum_px += r * r;
             }
@@ -404,27 +388,27 @@ pub fn estimate_line_through(
             g += a.transpose() * weight * r;
             chi2 += r.dot(&(weight * r));
         }
-        Some((h, g, chi2, sum_px, e1, e2))
+        Some((h, g, shifted, chi2, sum_px, e1, e2))
     };
     // The normal equations at the optimum: a step below the tolerance is not taken, and the
     // last evaluation serves for the covariance.
     let mut at_optimum = None;
     for _ in 0..MAX_ML_ITERATIONS {
-        let (h, g, chi2, sum_px, e1, e2) = normal(&x0, &d)?;
+        let (h, g, shifted, chi2, sum_px, e1, e2) = normal(&x0, &d)?;
         let step = h.cholesky()?.solve(&(-g));
         // stepᵀ·H·step = −stepᵀ·g, since H·step = −g.
         if -step.dot(&g) < ML_STEP_SIGMA2 {
-            at_optimum = Some((h, chi2, sum_px, e1, e2));
+            at_optimum = Some((h, shifted, chi2, sum_px, e1, e2));
             break;
         }
         x0 += e1 * step[0] + e2 * step[1];
         d = (d + e1 * step[2] + e2 * step[3]).normalize();
     }
-    let (h, chi2, sum_px, e1, e2) = match at_optimum {
+    let (h, shifted, chi2, sum_px, e1, e2) = match at_optimum {
         Some(found) => found,
         None => {
-            let (h, _, chi2, sum_px, e1, e2) = normal(&x0, &d)?;
-            (h, chi2, sum_px, e1, e2)
+            let (h, _, shifted, chi2, sum_px, e1, e2) = normal(&x0, &d)?;
+            (h, shifted, chi2, sum_px, e1, e2)
         }
     };
     // Extent: each view's ends along the line (a view's pieces together), then their overlap.
@@ -483,8 +467,6 @@ pub fn estimate_line_through(
     let h_inv = h.try_inverse()?;
     h_inv.cholesky()?;
     let line_cov = shift * h_inv * shift.transpose();
-    let systematic_line_cov =
-        systematic_parameter_covariance(cameras, obs, &points, &x0, &d, &line_cov);
     let (t_start, t_end) = if first_sign >= 0.0 {
         (lo, hi)
     } else {
@@ -520,12 +502,19 @@ pub fn estimate_line_through(
         1.0
     };
     let mut covariance = j * line_cov * j.transpose() * posterior;
-    let systematic_covariance = systematic_line_cov
-        .map(|c| {
-            let c = j * c * j.transpose();
-            (c + c.transpose()) * 0.5
+    // Each view's shift moves the parameters by H⁻¹·sᵥ: re-centred like the rest (the point
+    // moves by `mid` times the turn) and mapped onto the ends, as `j` does, written out.
+    let systematic_shifts = if systematic {
+        shifted.map(|s| {
+            let p = h_inv * s;
+            let (a, b) = (p[0] + mid * p[2], p[1] + mid * p[3]);
+            let at = |t: f64| e1 * (a + t * p[2]) + e2 * (b + t * p[3]);
+            let (s, e) = (at(t_start), at(t_end));
+            Vector6::new(s.x, s.y, s.z, e.x, e.y, e.z)
         })
-        .unwrap_or_else(Matrix6::zeros);
+    } else {
+        [Vector6::zeros(); 3]
+    };
     // Along the line: how far an end moves when its image end moves by end_sigma_px — far
     // for a line that recedes from the camera, whose rays meet it at a grazing angle (the
     // middle view of three, as the median takes the middle end) — and the spread of the
@@ -583,7 +572,7 @@ pub fn estimate_line_through(
         start,
         end,
         covariance,
-        systematic_covariance,
+        systematic_shifts,
         chi2,
         dof,
         residual_px: (sum_px / n_obs as f64).sqrt(),

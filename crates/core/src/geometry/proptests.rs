@@ -572,7 +572,7 @@ fn the_systematic_covariance_describes_independent_shifts_of_the_views() {
     let predicted = super::line::midpoint_covariance(
         &reference.start,
         &reference.end,
-        &reference.systematic_covariance,
+        &reference.systematic_covariance(),
     );
     let (m, p) = (measured.trace(), predicted.trace());
     assert!((m / p - 1.0).abs() < 0.1, "measured {m:e}, predicted {p:e}");

@@ -370,47 +370,29 @@ mod tests {
         assert!(MatchParams::default().check().is_ok());
     }
 
+    /// The lists' push and shift: 0 (exact lines) and their largest are accepted, anything
+    /// beyond either end or not finite names the option.
     #[test]
-    fn a_list_shift_is_off_at_zero_and_bounded() {
-        for shift in [0.0, MAX_LIST_SHIFT_PX] {
-            let params = MatchParams {
-                list_shift_px: shift,
-                ..MatchParams::default()
+    fn a_list_push_and_shift_are_off_at_zero_and_bounded() {
+        type Set = fn(&mut MatchParams, f64);
+        let options: [(&str, f64, Set); 2] = [
+            ("list_push_px", MAX_LIST_PUSH_PX, |p, v| p.list_push_px = v),
+            ("list_shift_px", MAX_LIST_SHIFT_PX, |p, v| {
+                p.list_shift_px = v
+            }),
+        ];
+        for (field, max, set) in options {
+            let with = |value: f64| {
+                let mut params = MatchParams::default();
+                set(&mut params, value);
+                params.check()
             };
-            assert!(params.check().is_ok(), "{shift}");
-        }
-        for shift in [-0.01, MAX_LIST_SHIFT_PX + 0.01, f64::NAN, f64::INFINITY] {
-            let params = MatchParams {
-                list_shift_px: shift,
-                ..MatchParams::default()
-            };
-            assert_eq!(
-                params.check().unwrap_err().field(),
-                "list_shift_px",
-                "{shift}"
-            );
-        }
-    }
-
-    #[test]
-    fn a_list_push_is_off_at_zero_and_bounded() {
-        for push in [0.0, MAX_LIST_PUSH_PX] {
-            let params = MatchParams {
-                list_push_px: push,
-                ..MatchParams::default()
-            };
-            assert!(params.check().is_ok(), "{push}");
-        }
-        for push in [-0.1, MAX_LIST_PUSH_PX + 0.1, f64::NAN, f64::INFINITY] {
-            let params = MatchParams {
-                list_push_px: push,
-                ..MatchParams::default()
-            };
-            assert_eq!(
-                params.check().unwrap_err().field(),
-                "list_push_px",
-                "{push}"
-            );
+            for value in [0.0, max] {
+                assert!(with(value).is_ok(), "{field} {value}");
+            }
+            for value in [-0.01, max + 0.01, f64::NAN, f64::INFINITY] {
+                assert_eq!(with(value).unwrap_err().field(), field, "{value}");
+            }
         }
         assert!(crate::segment::CrowdingModel::lists(0.0)
             .repulsion

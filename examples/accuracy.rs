@@ -34,7 +34,7 @@ use trinocular::pipeline::{self, Input, Options};
 use trinocular::segment::{Segment2, Segment3};
 use trinocular::synth::{
     eligible_intervals, eligible_intervals_with, error_classes, match_labels, rig_centre, score,
-    score_labelled, turntable_captures, Defects, Pooled,
+    score_labelled, turntable_captures, Calibration, Defects, Pooled,
 };
 
 /// `error … compl …` of a pool: the share of its segments that are wrong (0 for none) and of
@@ -45,35 +45,6 @@ fn show(p: &Pooled) -> String {
         (p.segments - p.correct) as f64 / p.segments.max(1) as f64,
         p.covered_m / p.eligible_m.max(1e-12)
     )
-}
-
-/// χ² quantiles of two degrees of freedom, 95% and 99%.
-const CHI2_2DOF: [f64; 2] = [5.991_464_547, 9.210_340_372];
-
-/// Squared normalised errors of a 3D segment's direction and of its midpoint across the line
-/// (two degrees of freedom each) under its reported covariance, against the true `edge` —
-/// what `tools/eval_rooms.py --calibration` measures on the rendered rooms.
-fn normalised_errors(r: &trinocular::pipeline::Reconstructed, edge: &Segment3) -> Option<[f64; 2]> {
-    let (a, b) = (r.segment.start, r.segment.end);
-    let u = (b - a).normalize();
-    let mut truth = (edge.end - edge.start).normalize();
-    if truth.dot(&u) < 0.0 {
-        truth = -truth;
-    }
-    let (e1, e2) = trinocular::geometry::across_basis(&u);
-    let basis = nalgebra::Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]);
-    let mid = nalgebra::center(&a, &b);
-    let foot = edge.start + truth * (mid - edge.start).dot(&truth);
-    let mut out = [0.0; 2];
-    let errors = [
-        (truth - u, r.direction_covariance()),
-        (foot - mid, r.midpoint_covariance()),
-    ];
-    for (k, (error, covariance)) in errors.into_iter().enumerate() {
-        let e = basis * error;
-        out[k] = e.dot(&((basis * covariance * basis.transpose()).try_inverse()? * e));
-    }
-    Some(out)
 }
 
 /// How far a listed segment's ends lie across its true edge's image, the larger, pixels.
@@ -168,8 +139,7 @@ fn main() {
             Pooled::default(),
         );
         let mut ms = Vec::new();
-        // Per quantity (direction, position): segments on their true edge, within q95, q99.
-        let mut calibration = [[0usize; 3]; 2];
+        let mut calibration = Calibration::default();
         let captures = (1..=seeds).flat_map(|seed| {
             turntable_captures(seed, poses, &defects, collinear)
                 .into_iter()
@@ -191,18 +161,7 @@ fn main() {
                 eligible_intervals_with(&obs, 20.0, Some(10.0)),
             );
             let truth = &obs.ground_truth;
-            // The calibration's population: segments whose image segments are images of one
-            // true edge (the match right), however far off in 3D.
-            for (r, label) in out.segments_3d.iter().zip(&labels) {
-                let Some(errors) = label.and_then(|e| normalised_errors(r, &truth[e])) else {
-                    continue;
-                };
-                for (counts, chi2) in calibration.iter_mut().zip(errors) {
-                    counts[0] += 1;
-                    counts[1] += usize::from(chi2 <= CHI2_2DOF[0]);
-                    counts[2] += usize::from(chi2 <= CHI2_2DOF[1]);
-                }
-            }
+            calibration.add(&out, &obs);
             matched.add(&score_labelled(&segs, &labels, truth, &elig));
             matched_c10.add(&score_labelled(&segs, &labels, truth, &elig_c10));
             let strict_score = score(&segs, truth, &elig, rig_centre(&rig));
@@ -257,8 +216,7 @@ fn main() {
             ms.push(out.stats.total_ms);
         }
         ms.sort_by(f64::total_cmp);
-        let share = |c: &[usize; 3], k: usize| c[k] as f64 / c[0].max(1) as f64;
-        let [dir, pos] = &calibration;
+        let (dir, pos) = calibration.shares();
         println!(
             "{name:21} n {:5} | match: {} (c10 {:.4}) | 3D: {} (c10 {:.4}; dir / near / far {} / {} / {}) | within q95 / q99: direction {:.3} / {:.3}, position {:.3} / {:.3} | median {:.2} ms",
             matched.segments,
@@ -269,10 +227,10 @@ fn main() {
             strict.classes.direction_only,
             strict.classes.near,
             strict.classes.far,
-            share(dir, 1),
-            share(dir, 2),
-            share(pos, 1),
-            share(pos, 2),
+            dir[0],
+            dir[1],
+            pos[0],
+            pos[1],
             ms[ms.len() / 2],
         );
     }

@@ -8,7 +8,7 @@ use trinocular::pipeline::{self, Input, MatchOutput, Options};
 use trinocular::segment::{Segment3, SegmentList};
 use trinocular::synth::{
     eligible_intervals_with, match_labels, rig_centre, score, score_labelled, standard_capture,
-    turntable_captures, Defects, Observation, Pooled as Pool, Score,
+    turntable_captures, Calibration, Defects, Observation, Pooled as Pool, Score,
 };
 
 const SEEDS: [u64; 2] = [1, 2];
@@ -192,6 +192,44 @@ fn realistic_lists_place_few_segments_near_no_edge() {
         "{} of {} near no edge",
         pooled.classes.far,
         pooled.segments
+    );
+}
+
+/// Issue 12's calibration goal, its first half for the position: of the segments on their true
+/// edge (`includeUncertain`, as the goal is measured), ≥ 93% within χ²'s 95% quantile of the
+/// midpoint's error under the reported covariance.
+const CALIBRATION_GOAL_WITHIN_Q95: f64 = 0.93;
+
+/// The synthetic room's lists with LSD's measured defects report a position covariance that
+/// holds their errors: the share the goal asks for at q95. Each list line's own shift
+/// (`MatchParams::list_shift_px`) is what brings it there: 92.0% without it, 95.2% with it
+/// (five seeds of 12 captures, 2,289 segments on their edge, when written). This room's direction (92.5%)
+/// and the 99% halves (96.6% position, 95.3% direction) miss the goal, which the shared rooms
+/// meet (docs/ACCURACY.md): the generator's tails are heavier than LSD's on them.
+#[test]
+fn realistic_lists_report_a_position_covariance_that_holds_their_errors() {
+    let params = MatchParams {
+        include_uncertain: true,
+        ..MatchParams::default()
+    };
+    let mut calibration = Calibration::default();
+    for seed in 1..=5 {
+        for (rig, obs) in turntable_captures(seed, 12, &Defects::realistic(), false) {
+            calibration.add(&matched_lists(&rig, &obs.lists, &params), &obs);
+        }
+    }
+    let (direction, position) = calibration.shares();
+    println!(
+        "realistic lists, every match: {} segments on their edge, within q95 / q99: \
+         direction {direction:.3?}, position {position:.3?}",
+        calibration.segments
+    );
+    // A share of a couple of thousand, not of an answer emptied by some regression.
+    assert!(calibration.segments >= 1000, "{calibration:?}");
+    assert!(
+        position[0] >= CALIBRATION_GOAL_WITHIN_Q95,
+        "position within q95: {:.3}",
+        position[0]
     );
 }
 

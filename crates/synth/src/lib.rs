@@ -53,8 +53,8 @@ pub use rng::Rng;
 pub use scatter::scattered_capture;
 pub use scene::{Box3, Face, Hit, Scene, Tracer};
 pub use score::{
-    edge_recall, eligible_intervals, eligible_intervals_with, error_classes, match_labels, score,
-    score_labelled, ErrorClasses, Pooled, Score,
+    edge_recall, eligible_intervals, eligible_intervals_with, error_classes, match_labels,
+    normalised_errors, score, score_labelled, Calibration, ErrorClasses, Pooled, Score, CHI2_2DOF,
 };
 pub use visibility::{
     contrast_at, edge_contrast, intersect_intervals, rig_visibility, total_length, union_intervals,

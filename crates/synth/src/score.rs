@@ -644,3 +644,76 @@ mod tests {
         assert_eq!(percentile(&[], 50.0), None);
     }
 }
+
+/// χ² quantiles of two degrees of freedom, 95% and 99%.
+pub const CHI2_2DOF: [f64; 2] = [5.991_464_547, 9.210_340_372];
+
+/// Squared normalised errors of a 3D segment's direction and of its midpoint across the line
+/// (two degrees of freedom each) under its reported covariance, against the true `edge` —
+/// what `tools/eval_rooms.py --calibration` measures on the rendered rooms. `None` when a
+/// covariance cannot be inverted across the line.
+pub fn normalised_errors(
+    r: &trinocular_core::pipeline::Reconstructed,
+    edge: &Segment3,
+) -> Option<[f64; 2]> {
+    let (a, b) = (r.segment.start, r.segment.end);
+    let u = (b - a).normalize();
+    let mut truth = (edge.end - edge.start).normalize();
+    if truth.dot(&u) < 0.0 {
+        truth = -truth;
+    }
+    let (e1, e2) = trinocular_core::geometry::across_basis(&u);
+    let basis = nalgebra::Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]);
+    let mid = nalgebra::center(&a, &b);
+    let foot = edge.start + truth * (mid - edge.start).dot(&truth);
+    let mut out = [0.0; 2];
+    let errors = [
+        (truth - u, r.direction_covariance()),
+        (foot - mid, r.midpoint_covariance()),
+    ];
+    for (k, (error, covariance)) in errors.into_iter().enumerate() {
+        let e = basis * error;
+        out[k] = e.dot(&((basis * covariance * basis.transpose()).try_inverse()? * e));
+    }
+    Some(out)
+}
+
+/// How well reported covariances describe the true errors: of the 3D segments whose match
+/// is right ([`match_labels`]: every image segment an image of one true edge), however far
+/// off in 3D, how many have their direction and their position within χ²'s 95% and 99%
+/// quantiles ([`normalised_errors`]). Issue 12's goal: ≥ 93% and ≥ 98% of each.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Calibration {
+    pub segments: usize,
+    /// Within q95, within q99.
+    pub direction: [usize; 2],
+    pub position: [usize; 2],
+}
+
+impl Calibration {
+    /// Adds a match's segments on their true edge.
+    pub fn add(&mut self, output: &trinocular_core::pipeline::MatchOutput, obs: &Observation) {
+        let labels = match_labels(output, obs);
+        for (r, label) in output.segments_3d.iter().zip(&labels) {
+            let Some([direction, position]) =
+                label.and_then(|e| normalised_errors(r, &obs.ground_truth[e]))
+            else {
+                continue;
+            };
+            self.segments += 1;
+            for (k, q) in CHI2_2DOF.iter().enumerate() {
+                self.direction[k] += usize::from(direction <= *q);
+                self.position[k] += usize::from(position <= *q);
+            }
+        }
+    }
+
+    /// Shares within q95 and q99: (direction, position).
+    pub fn shares(&self) -> ([f64; 2], [f64; 2]) {
+        let n = self.segments.max(1) as f64;
+        (
+            self.direction.map(|c| c as f64 / n),
+            self.position.map(|c| c as f64 / n),
+        )
+    }
+}

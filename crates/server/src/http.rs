@@ -399,15 +399,21 @@ const MAX_TIMEOUT_MS: u64 = 3_600_000;
 fn query<T>(query: Result<Query<T>, QueryRejection>) -> Result<T, InputError> {
     query.map(|Query(q)| q).map_err(|e| {
         let text = e.body_text();
+        // serde's words: "… unknown field `name`, expected `a` or `b`" (or "there are no
+        // fields"): the name becomes the field, what is expected the message.
         let unknown = text
             .split_once("unknown field `")
-            .and_then(|(_, rest)| rest.split_once('`'))
-            .map(|(name, _)| name.to_string());
+            .and_then(|(_, rest)| rest.split_once('`'));
         match unknown {
-            Some(name) => InputError::new(
-                name,
-                format!("this call takes no such query parameter ({text})"),
-            ),
+            Some((name, rest)) => {
+                let expected = rest.trim_start_matches([',', ' ']);
+                let message = if expected.is_empty() {
+                    "this call takes no such query parameter".to_string()
+                } else {
+                    format!("this call takes no such query parameter ({expected})")
+                };
+                InputError::new(name, message)
+            }
             None => InputError::new("query", text),
         }
     })
@@ -1392,7 +1398,10 @@ mod tests {
         // otherwise run the call without it.
         let e = parsed("/m?format=svg&min_observation=2").err().unwrap();
         assert_eq!(e.field, "min_observation");
-        assert!(e.message.contains("no such query parameter"), "{e}");
+        assert_eq!(
+            e.message,
+            "this call takes no such query parameter (expected `format` or `min_observations`)"
+        );
         let uri: axum::http::Uri = "/v1/match?timout_ms=5".parse().unwrap();
         let e = query(Query::<MatchQuery>::try_from_uri(&uri))
             .err()

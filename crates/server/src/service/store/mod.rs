@@ -90,7 +90,9 @@ pub trait SessionStore: Send + Sync {
     async fn delete(&self, id: &str) -> Result<(), StoreError>;
     /// Appends a capture to the session as it is now (its record read first), in one atomic
     /// step, and returns its index (0, 1, 2, ...); refreshes the TTL. Concurrent appends (from
-    /// any replica) each get their own index.
+    /// any replica) each get their own index. The stores' tests use it; the service appends
+    /// with [`SessionStore::append_named`] against the record it matched, with no second read.
+    #[cfg(test)]
     async fn append_capture(&self, id: &str, capture: &[u8]) -> Result<u64, StoreError> {
         let record = self.get(id).await?.record;
         match self.append_named(id, capture, None, &record).await? {

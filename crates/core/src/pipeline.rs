@@ -1068,6 +1068,45 @@ fn rescaled(mut est: Line3Estimate, factor: f64) -> Line3Estimate {
     est
 }
 
+/// How far an end may slide along its line because the line itself is uncertain, metres
+/// (1σ). An end is where a view's ray through its image end meets the 3D line; a line placed
+/// δ off across itself, in the plane of that ray, meets the ray δ·cot θ further along (θ the
+/// angle between ray and line), so the end of a receding line overshoots the edge's true end
+/// by far more than the line misses the edge — the scorer's distance to the edge *segment*
+/// sees it, the across-line tests do not. The middle of the three views' slides, as
+/// `estimate_line` takes the middle view's end noise. `covariance` is of (start, end)
+/// stacked, `which` 0 or 1.
+fn end_slide_sigma_m(
+    rig: &Rig,
+    at: &nalgebra::Point3<f64>,
+    direction: &nalgebra::Vector3<f64>,
+    covariance: &nalgebra::Matrix6<f64>,
+    which: usize,
+) -> f64 {
+    let block = covariance.fixed_view::<3, 3>(3 * which, 3 * which);
+    // In squares, without a root per view: with r the ray, c = r·u and w = r − c·u (across
+    // the line, in the ray's plane, |w|² = |r|²·sin²θ), the slide's variance is
+    // (wᵀ·B·w / |w|²)·cot²θ = wᵀ·B·w · c² / |w|⁴, sin θ floored in the second |w|².
+    let mut per_view: [f64; 3] = std::array::from_fn(|v| {
+        let ray = at - rig.camera(v).centre();
+        let along = ray.dot(direction);
+        let across = ray - direction * along;
+        let across2 = across.norm_squared();
+        if across2 <= 0.0 {
+            return 0.0;
+        }
+        let floored = across2.max(END_SLIDE_MIN_SIN * END_SLIDE_MIN_SIN * ray.norm_squared());
+        across.dot(&(block * across)).max(0.0) * along * along / (across2 * floored)
+    });
+    per_view.sort_by(f64::total_cmp);
+    per_view[1].sqrt()
+}
+
+/// Below this sine of the angle between a ray and its line, an end's slide is taken at this
+/// angle (3°): the line is then nearly a ray itself, and its ends are as unknown as the
+/// trim can make them.
+const END_SLIDE_MIN_SIN: f64 = 0.05;
+
 /// True when the observations are images of one 3D line within their stated noise.
 fn consistent(est: &Line3Estimate) -> bool {
     est.chi2 <= chi2_quantile(est.dof, CONSISTENCY_Z)
@@ -1096,17 +1135,27 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     let centre = rig.centroid();
     let tolerance = |p: &nalgebra::Point3<f64>| position_tolerance(params, &centre, p);
     // An end that may lie past the true end by more than the tolerance (a receding line, whose
-    // ends the images place poorly) is pulled in to where it may not: the answer reports the
-    // part of the line it is sure of. The new ends are fixed blends of the old, so their
-    // covariance follows exactly.
+    // ends the images place poorly, and along which an end slides as far as the line is
+    // uncertain across: `end_slide_sigma_m`) is pulled in to where it may not: the answer
+    // reports the part of the line it is sure of. The new ends are fixed blends of the old,
+    // so their covariance follows exactly.
     let length = (est.end - est.start).norm();
     let trim = |sigma: f64, at: &nalgebra::Point3<f64>| (k * sigma - tolerance(at)).max(0.0);
+    let untrimmed_shift_sigma_m = shared_shift_sigma_m(rig, &centre, &est.start, &est.end);
+    let untrimmed = reported_covariance(&est, untrimmed_shift_sigma_m);
     let (trim_start, trim_end) = (
-        trim(est.end_along_sigma_m[0], &est.start),
-        trim(est.end_along_sigma_m[1], &est.end),
+        trim(
+            est.end_along_sigma_m[0].hypot(end_slide_sigma_m(rig, &est.start, &u, &untrimmed, 0)),
+            &est.start,
+        ),
+        trim(
+            est.end_along_sigma_m[1].hypot(end_slide_sigma_m(rig, &est.end, &u, &untrimmed, 1)),
+            &est.end,
+        ),
     );
     let long_enough = trim_start + trim_end < length;
-    if trim_start + trim_end > 0.0 && long_enough {
+    let trimmed = trim_start + trim_end > 0.0 && long_enough;
+    if trimmed {
         let (a, b) = (trim_start / length, trim_end / length);
         let i3 = nalgebra::Matrix3::<f64>::identity();
         let mut blend = nalgebra::Matrix6::<f64>::zeros();
@@ -1128,8 +1177,12 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
     // What the answer reports, and the gate judges, adds the shift every view shares
     // ([`SHARED_SHIFT_PX`]): the direction is untouched by it, the position is not.
-    let shift_sigma_m = shared_shift_sigma_m(rig, &centre, &est.start, &est.end);
-    let reported = reported_covariance(&est, shift_sigma_m);
+    let (shift_sigma_m, reported) = if trimmed {
+        let shift_sigma_m = shared_shift_sigma_m(rig, &centre, &est.start, &est.end);
+        (shift_sigma_m, reported_covariance(&est, shift_sigma_m))
+    } else {
+        (untrimmed_shift_sigma_m, untrimmed)
+    };
     let direction_var = principal_variances(&est.direction_covariance(), &basis);
     let direction_sigma_deg = direction_var.0.sqrt().to_degrees();
     if direction_sigma_deg > params.max_direction_sigma_deg {
@@ -1982,6 +2035,90 @@ mod tests {
             end_along_sigma_m: [0.003; 2],
             ends_disagreement: ends,
         }
+    }
+
+    /// A line receding from the rig, 2 to 3 m ahead, to the right and below, whose ends are
+    /// known to `sigma_m` in every direction.
+    fn receding_line(sigma_m: f64) -> Line3Estimate {
+        Line3Estimate {
+            start: nalgebra::Point3::new(0.5, 0.3, 2.0),
+            end: nalgebra::Point3::new(0.5, 0.3, 3.0),
+            covariance: nalgebra::Matrix6::identity() * (sigma_m * sigma_m),
+            ..line_at(0.0, 2.0, 0.5, 1.0)
+        }
+    }
+
+    #[test]
+    fn an_end_slides_along_a_receding_line_by_what_the_line_misses_across() {
+        let rig = preset_rig();
+        let sigma = 0.01;
+        let est = receding_line(sigma);
+        let u = est.direction();
+        let slide = |e: &Line3Estimate, at: &nalgebra::Point3<f64>, which| {
+            end_slide_sigma_m(&rig, at, &e.direction(), &e.covariance, which)
+        };
+        // The rays meet the far end at about 11°: the end slides σ·cot θ, five times what the
+        // line misses across. The middle view's: within the three views' cot θ.
+        let cot = |v: usize| {
+            let ray = (est.end - rig.camera(v).centre()).normalize();
+            let cos = ray.dot(&u);
+            cos / (1.0 - cos * cos).sqrt()
+        };
+        let (lo, hi) = (0..3)
+            .map(cot)
+            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), c| {
+                (lo.min(c), hi.max(c))
+            });
+        let far = slide(&est, &est.end, 1);
+        assert!(lo > 4.0, "{lo}");
+        assert!(
+            far >= sigma * lo - 1e-12 && far <= sigma * hi + 1e-12,
+            "{far} not within {lo}σ–{hi}σ"
+        );
+        // The near end, seen less obliquely, slides less.
+        assert!(slide(&est, &est.start, 0) < far);
+        // An uncertainty along the line alone moves no end along it.
+        let mut covariance = nalgebra::Matrix6::zeros();
+        covariance
+            .fixed_view_mut::<3, 3>(3, 3)
+            .copy_from(&(u * u.transpose() * (sigma * sigma)));
+        let e = Line3Estimate { covariance, ..est };
+        assert!(
+            slide(&e, &e.end, 1) < 1e-9 * sigma,
+            "{}",
+            slide(&e, &e.end, 1)
+        );
+        // A vertical line straight ahead, seen nearly square on: hardly any slide.
+        let frontal = Line3Estimate {
+            covariance: est.covariance,
+            ..line_at(0.0, 2.0, 0.5, 1.0)
+        };
+        assert!(slide(&frontal, &frontal.end, 1) < 0.15 * sigma);
+    }
+
+    #[test]
+    fn a_receding_line_placed_loosely_across_is_cut_to_what_its_ends_can_vouch_for() {
+        // The image ends alone (3 mm along) would keep the whole metre; the line's own 1 cm
+        // across, carried along by the grazing rays, pulls both ends in — the far one most —
+        // and a line placed to 0.1 mm keeps its length.
+        let rig = preset_rig();
+        let params = MatchParams::default();
+        let (est, _) = accept(Some(receding_line(0.01)), &rig, &params).expect("kept");
+        let (precise, _) = accept(Some(receding_line(1e-4)), &rig, &params).expect("kept");
+        let original = receding_line(0.0);
+        assert_eq!(precise.start, original.start);
+        assert_eq!(precise.end, original.end);
+        let (cut_start, cut_end) = (
+            (est.start - original.start).norm(),
+            (original.end - est.end).norm(),
+        );
+        assert!(
+            cut_end > 0.05 && cut_end > cut_start,
+            "{cut_start} {cut_end}"
+        );
+        // Pulled in along the line, not off it.
+        let u = original.direction();
+        assert!(((est.end - original.start).cross(&u)).norm() < 1e-12);
     }
 
     #[test]

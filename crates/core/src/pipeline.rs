@@ -1083,23 +1083,41 @@ fn end_slide_sigma_m(
     covariance: &nalgebra::Matrix6<f64>,
     which: usize,
 ) -> f64 {
-    let block = covariance.fixed_view::<3, 3>(3 * which, 3 * which);
-    // In squares, without a root per view: with r the ray, c = r·u and w = r − c·u (across
-    // the line, in the ray's plane, |w|² = |r|²·sin²θ), the slide's variance is
-    // (wᵀ·B·w / |w|²)·cot²θ = wᵀ·B·w · c² / |w|⁴, sin θ floored in the second |w|².
-    let mut per_view: [f64; 3] = std::array::from_fn(|v| {
-        let ray = at - rig.camera(v).centre();
-        let along = ray.dot(direction);
-        let across = ray - direction * along;
-        let across2 = across.norm_squared();
-        if across2 <= 0.0 {
-            return 0.0;
-        }
-        let floored = across2.max(END_SLIDE_MIN_SIN * END_SLIDE_MIN_SIN * ray.norm_squared());
-        across.dot(&(block * across)).max(0.0) * along * along / (across2 * floored)
-    });
+    let block = covariance
+        .fixed_view::<3, 3>(3 * which, 3 * which)
+        .into_owned();
+    let mut per_view: [f64; 3] =
+        std::array::from_fn(|v| slide_variance(&(at - rig.camera(v).centre()), direction, &block));
     per_view.sort_by(f64::total_cmp);
     per_view[1].sqrt()
+}
+
+/// The variance of an end's slide along the line of unit `direction` for one view, whose
+/// `ray` runs from its centre to the end; `block` is the end's covariance.
+fn slide_variance(
+    ray: &nalgebra::Vector3<f64>,
+    direction: &nalgebra::Vector3<f64>,
+    block: &nalgebra::Matrix3<f64>,
+) -> f64 {
+    // In squares, without a root: with r the ray, c = r·u and w = r − c·u (across the line,
+    // in the ray's plane, |w|² = |r|²·sin²θ), the variance is (wᵀ·B·w / |w|²)·cot²θ =
+    // (wᵀ·B·w / |w|²)·c² / |w|², sin θ floored in the second |w|².
+    let range2 = ray.norm_squared();
+    if range2 <= 0.0 {
+        return 0.0;
+    }
+    let along = ray.dot(direction);
+    let across = ray - direction * along;
+    let across2 = across.norm_squared();
+    // A ray along the line itself has no plane with it: every direction across is in one,
+    // and the variance across both of them bounds the one that counts.
+    let variance = if across2 > 0.0 {
+        across.dot(&(block * across)) / across2
+    } else {
+        block.trace() - direction.dot(&(block * direction))
+    };
+    let floored = across2.max(END_SLIDE_MIN_SIN * END_SLIDE_MIN_SIN * range2);
+    variance.max(0.0) * along * along / floored
 }
 
 /// Below this sine of the angle between a ray and its line, an end's slide is taken at this
@@ -2088,6 +2106,15 @@ mod tests {
             "{}",
             slide(&e, &e.end, 1)
         );
+        // A ray straight along the line: the end is as unknown along it as the floor of 3°
+        // makes it (at least), not known exactly; and a ray square to it, no slide at all.
+        let z = nalgebra::Vector3::z();
+        let round = nalgebra::Matrix3::identity() * (sigma * sigma);
+        let floor = sigma / END_SLIDE_MIN_SIN;
+        let head_on = slide_variance(&(z * 2.0), &z, &round).sqrt();
+        assert!(head_on >= 0.99 * floor, "{head_on} against {floor}");
+        assert_eq!(slide_variance(&nalgebra::Vector3::x(), &z, &round), 0.0);
+        assert_eq!(slide_variance(&nalgebra::Vector3::zeros(), &z, &round), 0.0);
         // A vertical line straight ahead, seen nearly square on: hardly any slide.
         let frontal = Line3Estimate {
             covariance: est.covariance,

@@ -161,7 +161,7 @@ fn main() {
                 eligible_intervals_with(&obs, 20.0, Some(10.0)),
             );
             let truth = &obs.ground_truth;
-            calibration.add(&out, &obs);
+            calibration.add_labelled(&out, &obs, &labels);
             matched.add(&score_labelled(&segs, &labels, truth, &elig));
             matched_c10.add(&score_labelled(&segs, &labels, truth, &elig_c10));
             let strict_score = score(&segs, truth, &elig, rig_centre(&rig));

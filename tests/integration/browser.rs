@@ -11,10 +11,9 @@
 
 use std::path::{Path, PathBuf};
 
-use prost::Message;
 use trinocular::api::{self, pb};
 
-use crate::common::{runtime, scratch_dir};
+use crate::common::{post_protobuf, runtime, scratch_dir};
 use crate::sessions::{panorama, start};
 
 fn skip_or_fail(why: &str) {
@@ -80,13 +79,14 @@ async fn session_with(
             session_id: session.id.clone(),
             ..capture.clone()
         };
-        let added = http
-            .post(format!("{base}/v1/sessions/{}/captures", session.id))
-            .header("content-type", "application/x-protobuf")
-            .body(capture.encode_to_vec())
-            .send()
-            .await
-            .expect("add capture");
+        let added = post_protobuf(
+            http,
+            format!("{base}/v1/sessions/{}/captures", session.id),
+            &capture,
+        )
+        .send()
+        .await
+        .expect("add capture");
         assert_eq!(added.status(), 200, "{}", added.text().await.unwrap());
     }
     session.id
@@ -355,10 +355,7 @@ fn the_live_feed_announces_each_capture_and_the_end_of_its_session() {
                 session_id: id.clone(),
                 ..capture.clone()
             };
-            let added = http
-                .post(format!("{base}/v1/sessions/{id}/captures"))
-                .header("content-type", "application/x-protobuf")
-                .body(capture.encode_to_vec())
+            let added = post_protobuf(&http, format!("{base}/v1/sessions/{id}/captures"), &capture)
                 .send()
                 .await
                 .unwrap();

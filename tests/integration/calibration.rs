@@ -4,13 +4,12 @@
 //! naming the field.
 
 use nalgebra::Point3;
-use prost::Message;
 use trinocular::api::{self, pb, RunCalibration, RunMatch};
 use trinocular::geometry::Rig;
 use trinocular::service::Limits;
 use trinocular::synth::{pattern_views, render_triplet, RenderParams, Rng};
 
-use crate::common::{embedded_service, runtime, JsonBody};
+use crate::common::{embedded_service, post_protobuf, runtime, JsonBody};
 
 fn png_triplet(seed: u64) -> (Rig, Vec<pb::Image>) {
     let (scene, rig, _) = pattern_views(seed);
@@ -256,13 +255,14 @@ fn calibrate_over_http_as_curl_sends_it_and_over_grpc() {
                 data: vec![128; 512 * 512],
             })),
         };
-        let reply = http
-            .post(format!("http://{}/v1/calibrate", running.http_addr))
-            .header("content-type", "application/x-protobuf")
-            .body(request(blank).encode_to_vec())
-            .send()
-            .await
-            .unwrap();
+        let reply = post_protobuf(
+            &http,
+            format!("http://{}/v1/calibrate", running.http_addr),
+            &request(blank),
+        )
+        .send()
+        .await
+        .unwrap();
         assert_eq!(reply.status(), 400);
         let body = reply.json_body().await;
         assert_eq!(body["error"]["field"], "images.images[2]", "{body}");

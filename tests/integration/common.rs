@@ -240,3 +240,14 @@ pub fn assert_invalid_argument_naming(status: &tonic::Status, field: &str) {
     assert_eq!(violations[0].field, field);
     assert!(!violations[0].description.is_empty());
 }
+
+/// A POST of `message` as HTTP/protobuf (`content-type: application/x-protobuf`), to send.
+pub fn post_protobuf(
+    http: &reqwest::Client,
+    url: impl reqwest::IntoUrl,
+    message: &impl prost::Message,
+) -> reqwest::RequestBuilder {
+    http.post(url)
+        .header("content-type", "application/x-protobuf")
+        .body(message.encode_to_vec())
+}

@@ -7,7 +7,7 @@ use prost::Message;
 use trinocular::api::{self, pb, RunMatch};
 use trinocular::service::{server, Limits};
 
-use crate::common::{example_request, metrics_text, runtime, JsonBody};
+use crate::common::{example_request, metrics_text, post_protobuf, runtime, JsonBody};
 
 async fn start(limits: Limits) -> server::Running {
     let any = "127.0.0.1:0".parse().unwrap();
@@ -68,10 +68,7 @@ fn grpc_json_and_protobuf_over_http_give_the_same_match() {
         let by_json: pb::MatchResponse =
             serde_json::from_str(&json.text().await.unwrap()).expect("a MatchResponse");
 
-        let proto = http
-            .post(&url)
-            .header("content-type", "application/x-protobuf")
-            .body(request.encode_to_vec())
+        let proto = post_protobuf(&http, &url, &request)
             .send()
             .await
             .expect("sent");
@@ -242,13 +239,14 @@ fn oversized_requests_are_refused() {
         .await;
         let request = example_request();
         assert!(request.encoded_len() > 4096);
-        let reply = reqwest::Client::new()
-            .post(format!("http://{}/v1/match", running.http_addr))
-            .header("content-type", "application/x-protobuf")
-            .body(request.encode_to_vec())
-            .send()
-            .await
-            .unwrap();
+        let reply = post_protobuf(
+            &reqwest::Client::new(),
+            format!("http://{}/v1/match", running.http_addr),
+            &request,
+        )
+        .send()
+        .await
+        .unwrap();
         assert_eq!(reply.status(), 413);
         let body = reply.json_body().await;
         assert_eq!(body["error"]["code"], "OUT_OF_RANGE");
@@ -297,13 +295,14 @@ fn too_many_segments_in_a_list_is_refused_naming_the_list_and_the_limit() {
                     .contains("limit of 10 per list (limits.max_segments_per_list)"),
             "{status:?}"
         );
-        let reply = reqwest::Client::new()
-            .post(format!("http://{}/v1/match", running.http_addr))
-            .header("content-type", "application/x-protobuf")
-            .body(request.encode_to_vec())
-            .send()
-            .await
-            .unwrap();
+        let reply = post_protobuf(
+            &reqwest::Client::new(),
+            format!("http://{}/v1/match", running.http_addr),
+            &request,
+        )
+        .send()
+        .await
+        .unwrap();
         assert_eq!(reply.status(), 400);
         assert_eq!(
             reply.json_body().await["error"]["field"],
@@ -529,19 +528,11 @@ fn deadlines_are_honoured_on_both_transports() {
         .await;
         let http = reqwest::Client::new();
         let url = format!("http://{}/v1/match", running.http_addr);
-        let slow = tokio::spawn(
-            http.post(url.clone())
-                .header("content-type", "application/x-protobuf")
-                .body(slow_request().encode_to_vec())
-                .send(),
-        );
+        let slow = tokio::spawn(post_protobuf(&http, url.clone(), &slow_request()).send());
         tokio::time::sleep(std::time::Duration::from_millis(30)).await;
         let small = example_request();
 
-        let reply = http
-            .post(format!("{url}?timeout_ms=10"))
-            .header("content-type", "application/x-protobuf")
-            .body(small.encode_to_vec())
+        let reply = post_protobuf(&http, format!("{url}?timeout_ms=10"), &small)
             .send()
             .await
             .unwrap();
@@ -575,10 +566,7 @@ fn deadlines_are_honoured_on_both_transports() {
             ("timeout_ms=soon", "timeout_ms"),
             ("timout_ms=10", "timout_ms"),
         ] {
-            let bad = http
-                .post(format!("{url}?{query}"))
-                .header("content-type", "application/x-protobuf")
-                .body(small.encode_to_vec())
+            let bad = post_protobuf(&http, format!("{url}?{query}"), &small)
                 .send()
                 .await
                 .unwrap();

@@ -11,7 +11,7 @@ use trinocular::service::{server, Limits};
 use trinocular::synth::{panoramic_session, Defects};
 
 use crate::common::{
-    embedded_service, metrics_text, runtime, scratch_dir, JsonBody, ServerProcess,
+    embedded_service, metrics_text, post_protobuf, runtime, scratch_dir, JsonBody, ServerProcess,
 };
 
 fn limits() -> Limits {
@@ -147,13 +147,11 @@ fn a_session_is_built_through_both_transports_and_exported_in_every_format() {
             let answer = if i % 2 == 0 {
                 grpc.add_capture(capture).await.unwrap().into_inner()
             } else {
-                let reply = http
-                    .post(format!("{base}/{}/captures", session.id))
-                    .header("content-type", "application/x-protobuf")
-                    .body(capture.encode_to_vec())
-                    .send()
-                    .await
-                    .unwrap();
+                let reply =
+                    post_protobuf(&http, format!("{base}/{}/captures", session.id), &capture)
+                        .send()
+                        .await
+                        .unwrap();
                 assert_eq!(reply.status(), 200);
                 pb::AddCaptureResponse::decode(reply.bytes().await.unwrap()).unwrap()
             };
@@ -405,16 +403,17 @@ fn bad_poses_and_unknown_sessions_are_refused_and_store_nothing() {
                     "{status:?}"
                 );
             }
-            let reply = http
-                .post(format!(
+            let reply = post_protobuf(
+                &http,
+                format!(
                     "http://{}/v1/sessions/{}/captures",
                     running.http_addr, session.id
-                ))
-                .header("content-type", "application/x-protobuf")
-                .body(bad.encode_to_vec())
-                .send()
-                .await
-                .unwrap();
+                ),
+                &bad,
+            )
+            .send()
+            .await
+            .unwrap();
             assert_eq!(reply.status(), 400);
             let body = reply.json_body().await;
             assert_eq!(body["error"]["field"], field);

@@ -693,8 +693,17 @@ pub struct Calibration {
 impl Calibration {
     /// Adds a match's segments on their true edge.
     pub fn add(&mut self, output: &trinocular_core::pipeline::MatchOutput, obs: &Observation) {
-        let labels = match_labels(output, obs);
-        for (r, label) in output.segments_3d.iter().zip(&labels) {
+        self.add_labelled(output, obs, &match_labels(output, obs));
+    }
+
+    /// [`Calibration::add`] with the match's [`match_labels`] already at hand.
+    pub fn add_labelled(
+        &mut self,
+        output: &trinocular_core::pipeline::MatchOutput,
+        obs: &Observation,
+        labels: &[Option<usize>],
+    ) {
+        for (r, label) in output.segments_3d.iter().zip(labels) {
             let Some([direction, position]) =
                 label.and_then(|e| normalised_errors(r, &obs.ground_truth[e]))
             else {

@@ -502,16 +502,11 @@ pub fn estimate_line_through(
         1.0
     };
     let mut covariance = j * line_cov * j.transpose() * posterior;
-    // Each view's shift moves the parameters by H⁻¹·sᵥ: re-centred like the rest (the point
-    // moves by `mid` times the turn) and mapped onto the ends, as `j` does, written out.
+    // Each view's shift moves the parameters by H⁻¹·sᵥ, re-centred and mapped onto the ends
+    // as the covariance's are (`shift`, then `j`).
     let systematic_shifts = if systematic {
-        shifted.map(|s| {
-            let p = h_inv * s;
-            let (a, b) = (p[0] + mid * p[2], p[1] + mid * p[3]);
-            let at = |t: f64| e1 * (a + t * p[2]) + e2 * (b + t * p[3]);
-            let (s, e) = (at(t_start), at(t_end));
-            Vector6::new(s.x, s.y, s.z, e.x, e.y, e.z)
-        })
+        let to_ends = j * shift * h_inv;
+        shifted.map(|s| to_ends * s)
     } else {
         [Vector6::zeros(); 3]
     };

@@ -18,8 +18,8 @@ use thiserror::Error;
 
 use crate::extract::{self, Adjacent, Extraction, GreyImage};
 use crate::geometry::{
-    estimate_line_through, Line3Estimate, LineObservation, PointOnLine, Rectification,
-    RectifyError, Rig, RigFrames,
+    estimate_line_constrained, estimate_line_through, DirectionOfLine, Line3Estimate,
+    LineObservation, PointOnLine, Rectification, RectifyError, Rig, RigFrames,
 };
 use crate::matching::{self, Hypothesis, MatchParams, ParamErrors, RectSegment, Views};
 use crate::reconstruct::{
@@ -228,6 +228,10 @@ pub struct MatchStats {
     /// one (`MatchParams::vertex_reach_px`), before the uniqueness test (which may still find
     /// them `ambiguous`).
     pub joined_at_vertices: u32,
+    /// Of the winners the gate doubted for their direction alone: made certain by the
+    /// direction of the scene's well-measured lines they lie along
+    /// (`MatchParams::dominant_directions`), before the uniqueness test.
+    pub along_dominant_directions: u32,
     /// How much larger than stated the image-line noise turned out to be in this capture (a
     /// factor on σ, at least 1; read off the first reconstructions: mostly the calibration's
     /// own error).
@@ -1322,6 +1326,12 @@ fn validate_and_reconstruct(
         join_at_vertices(request, &observations, &kept, &mut fits, stats)?;
         stats.reconstruct_ms += ms(t);
     }
+    if params.dominant_directions {
+        checkpoint.before("reconstruct")?;
+        let t = Instant::now();
+        align_with_dominant_directions(request, &observations, &kept, &mut fits, stats)?;
+        stats.reconstruct_ms += ms(t);
+    }
     if params.validate {
         // The rivals' reconstructions are more work: a request past its deadline stops here.
         checkpoint.before("reconstruct")?;
@@ -1768,6 +1778,257 @@ fn join_at_vertices(
         if let Some(fit) = accept(est, rig, params).filter(|(_, q)| q.certain) {
             fits[h] = Some(Some(fit));
             stats.joined_at_vertices += 1;
+        }
+    }
+    Ok(())
+}
+
+/// Winners certain before this step whose direction σ is under this lend the scene its
+/// dominant directions, degrees.
+const MODE_MEMBER_SIGMA_DEG: f64 = 2.0;
+/// A dominant direction needs this many such winners along it.
+const MODE_MIN_MEMBERS: usize = 5;
+/// At most this many dominant directions (a room has three; a fourth for a slanted roof).
+const MAX_MODES: usize = 4;
+/// A winner counts along a direction within max(this, 2.5σ) of it, degrees.
+const MODE_REACH_DEG: f64 = 2.0;
+/// Floor on a member's direction σ in its weight, degrees: no line measures the scene's
+/// direction better than the calibration does.
+const MODE_WEIGHT_FLOOR_DEG: f64 = 0.3;
+/// Winners whose direction σ is under this say how many of the scene's lines lie along no
+/// dominant direction, degrees.
+const ALONG_NONE_SIGMA_DEG: f64 = 1.0;
+/// The share along none is at least this, and is drawn toward 0.3 as if five more lines had
+/// been seen: a few well-measured lines cannot prove a scene wholly built along its modes.
+const ALONG_NONE_MIN: f64 = 0.05;
+const ALONG_NONE_PRIOR: (f64, f64) = (0.3, 5.0);
+/// A doubted winner takes a dominant direction when it lies along it with this posterior
+/// probability (against lying along none of them). 0.8 and 0.99 take the same segments
+/// within a few in a room; the posteriors come out near 0 or 1.
+const ALONG_POSTERIOR: f64 = 0.95;
+/// Nor a winner shorter than this in any view, pixels: a direction does not place a line,
+/// and a short segment's place and correspondence are the least sure of all (with none, or
+/// 12 px, a segment near no edge in the office; with 16 px, lines a neighbour pulled off
+/// their edge in the synthetic room's realistic lists, 3.1% wrong: docs/ACCURACY.md).
+const ALONG_MIN_PX: f64 = 20.0;
+
+/// One dominant direction of a scene: a unit vector (either sense), the variance of the
+/// direction its lines share about it (radians², per axis across it), and how many lines
+/// lie along it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Mode {
+    direction: nalgebra::Vector3<f64>,
+    variance: f64,
+    members: usize,
+}
+
+/// The scene's dominant directions, from well-measured lines (each its unit direction and
+/// direction variance, radians²): greedily the direction most lines lie along, their
+/// information-weighted mean, its variance the members' spread beyond their own noise plus
+/// the mean's own; then the next among the lines left.
+fn dominant_directions(lines: &[(nalgebra::Vector3<f64>, f64)]) -> Vec<Mode> {
+    let weight = |var: f64| 1.0 / (var + MODE_WEIGHT_FLOOR_DEG.to_radians().powi(2));
+    let reach = |var: f64| (2.5 * var.sqrt()).max(MODE_REACH_DEG.to_radians()).cos();
+    let mut left: Vec<bool> = vec![true; lines.len()];
+    let mut modes = Vec::new();
+    while modes.len() < MAX_MODES {
+        let along = |i: usize, j: usize| lines[i].0.dot(&lines[j].0).abs() > reach(lines[j].1);
+        let support = |i: usize| -> f64 {
+            (0..lines.len())
+                .filter(|&j| left[j] && along(i, j))
+                .map(|j| weight(lines[j].1))
+                .sum()
+        };
+        let Some(seed) = (0..lines.len())
+            .filter(|&i| left[i])
+            .max_by(|&a, &b| support(a).total_cmp(&support(b)))
+        else {
+            break;
+        };
+        let members: Vec<usize> = (0..lines.len())
+            .filter(|&j| left[j] && along(seed, j))
+            .collect();
+        if members.len() < MODE_MIN_MEMBERS {
+            break;
+        }
+        let sense = |j: usize| lines[j].0 * lines[j].0.dot(&lines[seed].0).signum();
+        let total: f64 = members.iter().map(|&j| weight(lines[j].1)).sum();
+        let Some(direction) = members
+            .iter()
+            .map(|&j| sense(j) * weight(lines[j].1))
+            .sum::<nalgebra::Vector3<f64>>()
+            .try_normalize(1e-12)
+        else {
+            break;
+        };
+        let spread = members
+            .iter()
+            .map(|&j| {
+                let angle = sense(j).dot(&direction).clamp(-1.0, 1.0).acos();
+                weight(lines[j].1) * (angle * angle - lines[j].1)
+            })
+            .sum::<f64>()
+            / total;
+        modes.push(Mode {
+            direction,
+            variance: spread.max(0.0) + 1.0 / total,
+            members: members.len(),
+        });
+        members.iter().for_each(|&j| left[j] = false);
+    }
+    modes
+}
+
+/// A doubted winner whose direction fails the gate is estimated again with the scene's
+/// dominant direction it lies along, when it lies along one: rooms are built along three
+/// directions, and their long, well-measured lines tell the short ones theirs, which a short
+/// segment's 20–40 px at a 0.3 m baseline cannot (docs/ACCURACY.md, "The scene's dominant
+/// directions"). The directions come from this capture's certain winners
+/// ([`dominant_directions`]); the share of its lines along none of them, from the best
+/// measured. A winner takes a direction when the posterior that it lies along it, against
+/// along none, reaches [`ALONG_POSTERIOR`]; its maximum-likelihood line is then found again
+/// from its three views with that direction as one more observation
+/// ([`estimate_line_constrained`]), and the gate judges the result whole — a direction does
+/// not place a line, so one whose position the views leave loose stays doubted. Not for a
+/// winner shorter than [`ALONG_MIN_PX`] in a view; and those made certain are then checked
+/// for uniqueness like every certain winner ([`flag_ambiguous`]): a wrong correspondence is
+/// as vertical as a right one, and the first trial of such a prior (a study on the answers)
+/// let in the lab's radiator fins, ambiguous winners whose direction was never in doubt.
+/// Winners whose verification was blind to their depth are included: their gradients had to
+/// agree closely to be hypotheses at all, and on a rig whose baselines run along the room's
+/// directions (the L-shape) they are nearly every line (leaving them out cost both rooms a
+/// point or two and the L-shape all of its gain: docs/ACCURACY.md).
+fn align_with_dominant_directions(
+    request: &Matching,
+    observations: &Observations,
+    kept: &[usize],
+    fits: &mut [Option<Fit>],
+    stats: &mut MatchStats,
+) -> Result<(), Stopped> {
+    let Matching {
+        rig,
+        views,
+        hypotheses,
+        params,
+        checkpoint,
+        ..
+    } = *request;
+    let direction_of = |est: &Line3Estimate| {
+        let u = est.direction();
+        let (e1, e2) = crate::geometry::across_basis(&u);
+        let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
+        (
+            u,
+            basis,
+            principal_variances(&est.direction_covariance(), &basis),
+        )
+    };
+    let certain: Vec<(nalgebra::Vector3<f64>, f64)> = kept
+        .iter()
+        .filter_map(|&h| match &fits[h] {
+            Some(Some((est, q))) if q.certain => {
+                let (u, _, var) = direction_of(est);
+                Some((u, var.0))
+            }
+            _ => None,
+        })
+        .collect();
+    let lending: Vec<(nalgebra::Vector3<f64>, f64)> = certain
+        .iter()
+        .copied()
+        .filter(|(_, var)| var.sqrt() < MODE_MEMBER_SIGMA_DEG.to_radians())
+        .collect();
+    let modes = dominant_directions(&lending);
+    if modes.is_empty() {
+        return Ok(());
+    }
+    // The share of lines along none: of the best measured, those 3σ off every mode.
+    let best: Vec<&(nalgebra::Vector3<f64>, f64)> = certain
+        .iter()
+        .filter(|(_, var)| var.sqrt() < ALONG_NONE_SIGMA_DEG.to_radians())
+        .collect();
+    let off_every_mode = best
+        .iter()
+        .filter(|(u, var)| {
+            modes.iter().all(|m| {
+                let angle = u.dot(&m.direction).abs().clamp(0.0, 1.0).acos();
+                angle * angle > 9.0 * (var + m.variance)
+            })
+        })
+        .count();
+    let (prior_share, prior_count) = ALONG_NONE_PRIOR;
+    let along_none = ((off_every_mode as f64 + prior_share * prior_count)
+        / (best.len() as f64 + prior_count))
+        .max(ALONG_NONE_MIN);
+    let members: usize = modes.iter().map(|m| m.members).sum();
+    let confidence = params.gate_confidence;
+    let gate_direction = params.gate_direction_deg.to_radians();
+    let mut candidates: Vec<(usize, Mode)> = Vec::new();
+    for &h in kept {
+        let Some(Some((est, quality))) = &fits[h] else {
+            continue;
+        };
+        if quality.certain {
+            continue;
+        }
+        if (0..3).any(|v| views.segments[v][hypotheses[h].segments[v] as usize].len < ALONG_MIN_PX)
+        {
+            continue;
+        }
+        let (u, basis, var) = direction_of(est);
+        if within_radius(var, gate_direction, confidence) {
+            continue; // the direction is not what the gate doubts
+        }
+        let covariance = est.direction_covariance();
+        let across = basis.transpose() * covariance * basis;
+        // Each mode's density at this line's direction (a Gaussian across it, the line's
+        // variance and the mode's), against a uniform direction (1 / 2π per steradian).
+        let densities: Vec<(f64, Mode)> = modes
+            .iter()
+            .map(|m| {
+                let toward = m.direction * m.direction.dot(&u).signum();
+                let z = basis.transpose() * (toward - u);
+                let spread = across + nalgebra::Matrix2::identity() * m.variance;
+                let density = spread.try_inverse().map_or(0.0, |inv| {
+                    (-0.5 * (z.transpose() * inv * z)[(0, 0)]).exp()
+                        / (2.0 * std::f64::consts::PI * spread.determinant().max(0.0).sqrt())
+                });
+                let share = (1.0 - along_none) * m.members as f64 / members as f64;
+                (share * density, *m)
+            })
+            .collect();
+        let total: f64 = densities.iter().map(|(d, _)| d).sum::<f64>()
+            + along_none / (2.0 * std::f64::consts::PI);
+        if let Some((density, mode)) = densities.iter().copied().max_by(|a, b| a.0.total_cmp(&b.0))
+        {
+            if density / total >= ALONG_POSTERIOR && density.is_finite() {
+                candidates.push((h, mode));
+            }
+        }
+    }
+    if candidates.is_empty() {
+        return Ok(());
+    }
+    // Estimated again from the views with the mode's direction as one more observation of
+    // the line (the stored fit is cut to what its ends vouch for under its own direction).
+    let cameras = [rig.camera(0), rig.camera(1), rig.camera(2)];
+    let factor = stats.noise_scale.powi(2);
+    for (done, (h, mode)) in candidates.into_iter().enumerate() {
+        if done % RECONSTRUCT_CHUNK == 0 {
+            checkpoint.before("reconstruct")?;
+        }
+        let segments = hypotheses[h].segments;
+        let obs: [LineObservation; 3] =
+            std::array::from_fn(|v| observations.lines[v][segments[v] as usize]);
+        let along = DirectionOfLine {
+            direction: mode.direction,
+            variance: mode.variance,
+        };
+        let est = estimate_line_constrained(&cameras, &obs, END_SIGMA_PX, &[], Some(&along))
+            .map(|e| rescaled(e, factor));
+        if let Some(fit) = accept(est, rig, params).filter(|(_, q)| q.certain) {
+            fits[h] = Some(Some(fit));
+            stats.along_dominant_directions += 1;
         }
     }
     Ok(())
@@ -2521,6 +2782,155 @@ mod tests {
             let out = run_with(tiny);
             assert_eq!(out.stats.joined_at_vertices, 0, "{tiny}");
             assert_eq!(rail_of(&out).uncertain, before.uncertain);
+        }
+    }
+
+    #[test]
+    fn dominant_directions_are_the_directions_most_lines_share() {
+        // Forty lines near three axes (the second a tilted one), 0.5° apart at most, and
+        // four lines along no axis.
+        let axes = [
+            nalgebra::Vector3::z(),
+            nalgebra::Vector3::new(1.0, 0.2, 0.0).normalize(),
+            nalgebra::Vector3::new(-0.2, 1.0, 0.0).normalize(),
+        ];
+        let mut lines = Vec::new();
+        for (k, axis) in axes.iter().enumerate() {
+            let (e1, e2) = crate::geometry::across_basis(axis);
+            for i in 0..(20 - 5 * k) {
+                let a = (i as f64 * 0.7).sin() * 0.5f64.to_radians();
+                let b = (i as f64 * 1.3).cos() * 0.5f64.to_radians();
+                let sense = if i % 2 == 0 { 1.0 } else { -1.0 };
+                lines.push((
+                    (axis + e1 * a + e2 * b).normalize() * sense,
+                    0.3f64.to_radians().powi(2),
+                ));
+            }
+        }
+        for d in [
+            [1.0, 1.0, 1.0],
+            [1.0, -1.0, 0.5],
+            [0.3, 1.0, -1.0],
+            [-1.0, 0.4, 0.7],
+        ] {
+            lines.push((
+                nalgebra::Vector3::from(d).normalize(),
+                0.3f64.to_radians().powi(2),
+            ));
+        }
+        let modes = dominant_directions(&lines);
+        assert_eq!(modes.len(), 3, "{modes:?}");
+        for (mode, (axis, members)) in modes.iter().zip(axes.iter().zip([20, 15, 10])) {
+            assert_eq!(mode.members, members);
+            assert!(
+                mode.direction.dot(axis).abs().acos().to_degrees() < 0.2,
+                "{mode:?}"
+            );
+            assert!(mode.variance.sqrt().to_degrees() < 0.5, "{mode:?}");
+        }
+        // Fewer than five lines along a direction make none.
+        assert!(dominant_directions(&lines[..4]).is_empty());
+        assert!(dominant_directions(&[]).is_empty());
+    }
+
+    #[test]
+    fn a_short_upright_takes_the_direction_of_the_uprights_around_it() {
+        let rig = preset_rig();
+        let upright = |x: f64, y: f64, z0: f64, z1: f64| {
+            [
+                nalgebra::Point3::new(x, y, z0),
+                nalgebra::Point3::new(x, y, z1),
+            ]
+        };
+        // Five long posts, seen to 0.05 px at each end: certain, the scene's vertical.
+        let posts = [
+            upright(-0.62, 2.1, -0.5, 0.25),
+            upright(-0.31, 2.6, -0.35, 0.3),
+            upright(0.02, 2.3, -0.55, 0.05),
+            upright(0.27, 2.9, -0.4, 0.35),
+            upright(0.58, 2.2, -0.3, 0.2),
+        ];
+        // A short upright (12 cm, about 30 px) and a short slanted rail, seen to 0.15 px: too
+        // short for their directions to meet the gate alone. And a shorter upright, 6 cm.
+        let short = upright(-0.15, 2.35, -0.05, 0.07);
+        let slanted = [
+            nalgebra::Point3::new(0.4, 2.45, -0.2),
+            nalgebra::Point3::new(0.47, 2.5, -0.11),
+        ];
+        let shorter = upright(0.13, 2.4, 0.2, 0.26);
+        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], sigma_px: f64| {
+            let cam = rig.camera(view);
+            let (a, b) = (
+                cam.project(&line[0]).unwrap(),
+                cam.project(&line[1]).unwrap(),
+            );
+            Segment2 {
+                gradient: Some(20.0),
+                noise: Some(LineNoise::from_endpoint_sigma(sigma_px, (b - a).norm())),
+                ..Segment2::new(a, b)
+            }
+        };
+        let lists: [SegmentList; 3] = std::array::from_fn(|v| {
+            let mut segments: Vec<Segment2> = posts.iter().map(|p| seen(v, p, 0.05)).collect();
+            segments.push(seen(v, &short, 0.15));
+            segments.push(seen(v, &slanted, 0.15));
+            segments.push(seen(v, &shorter, 0.15));
+            SegmentList {
+                segments,
+                oriented: true,
+                background_gradient: None,
+            }
+        });
+        let run_with = |dominant_directions| {
+            let params = MatchParams {
+                dominant_directions,
+                include_uncertain: true,
+                ..MatchParams::default()
+            };
+            run(&rig, Input::lists(&lists), &Options::with(params))
+                .unwrap()
+                .output
+        };
+        let of = |out: &MatchOutput, i: u32| {
+            out.segments_3d
+                .iter()
+                .find(|s| out.triplets[s.triplet as usize].segments == [i, i, i])
+                .cloned()
+                .unwrap_or_else(|| panic!("segment {i} is matched: {:?}", out.stats))
+        };
+        let alone = run_with(false);
+        assert_eq!(alone.stats.along_dominant_directions, 0);
+        for i in 0..5 {
+            assert!(!of(&alone, i).uncertain, "post {i}: {:?}", of(&alone, i));
+        }
+        let before = of(&alone, 5);
+        assert!(before.uncertain, "{before:?}");
+        let along = run_with(true);
+        assert_eq!(
+            along.stats.along_dominant_directions, 1,
+            "{:?}",
+            along.stats
+        );
+        let after = of(&along, 5);
+        assert!(!after.uncertain, "{after:?}");
+        assert!(after.direction_sigma_deg < 0.5 * before.direction_sigma_deg);
+        // Upright, and where the short upright is: its ends on its line.
+        let truth = (short[1] - short[0]).normalize();
+        let u = (after.segment.end - after.segment.start).normalize();
+        assert!(u.dot(&truth).abs().acos().to_degrees() < 0.5, "{u}");
+        for p in [after.segment.start, after.segment.end] {
+            let w = p - short[0];
+            assert!((w - truth * w.dot(&truth)).norm() < 0.01, "{p}");
+        }
+        // The slanted rail lies along no direction of the scene, and the 6-cm upright is too
+        // short to be given one: both stay as they were.
+        for i in [6, 7] {
+            assert_eq!(of(&along, i), of(&alone, i), "segment {i}");
+            assert!(of(&along, i).uncertain);
+        }
+        // The posts are untouched.
+        for i in 0..5 {
+            assert_eq!(of(&along, i), of(&alone, i));
         }
     }
 

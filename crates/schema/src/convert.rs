@@ -287,6 +287,7 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         list_shift_px,
         max_direction_sigma_deg,
         vertex_reach_px,
+        dominant_directions,
         gate_direction_deg,
         gate_position_m,
         gate_position_rel,
@@ -318,6 +319,7 @@ pub fn match_params(options: Option<&pb::MatchOptions>) -> MatchParams {
         list_shift_px: list_shift_px.unwrap_or(d.list_shift_px),
         max_direction_sigma_deg: max_direction_sigma_deg.unwrap_or(d.max_direction_sigma_deg),
         vertex_reach_px: vertex_reach_px.unwrap_or(d.vertex_reach_px),
+        dominant_directions: dominant_directions.unwrap_or(d.dominant_directions),
         gate_direction_deg: gate_direction_deg.unwrap_or(d.gate_direction_deg),
         gate_position_m: gate_position_m.unwrap_or(d.gate_position_m),
         gate_position_rel: gate_position_rel.unwrap_or(d.gate_position_rel),
@@ -782,6 +784,7 @@ pub fn match_response(
             gradient_gains: s.gradient_gains.to_vec(),
             depth_blind_refused: s.depth_blind_refused,
             joined_at_vertices: s.joined_at_vertices,
+            along_dominant_directions: s.along_dominant_directions,
         }),
         extracted: extracted
             .map(|e| e.iter().map(|x| segment_list_to_pb(&x.segments)).collect())

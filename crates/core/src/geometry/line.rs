@@ -330,6 +330,15 @@ pub struct PointOnLine {
     pub covariance: Matrix3<f64>,
 }
 
+/// A direction the line is known to run along (either sense), with the variance of the
+/// angle between them per axis across it (radians²): the scene's dominant direction the line
+/// lies along.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DirectionOfLine {
+    pub direction: Vector3<f64>,
+    pub variance: f64,
+}
+
 /// [`estimate_line`] with `through`, points the line passes through within their
 /// covariance, as observations of the line besides the images: each adds the squared
 /// normalised distance of its point from the line (two degrees of freedom) to the χ²
@@ -339,6 +348,19 @@ pub fn estimate_line_through(
     obs: &[LineObservation],
     end_sigma_px: f64,
     through: &[PointOnLine],
+) -> Option<Line3Estimate> {
+    estimate_line_constrained(cameras, obs, end_sigma_px, through, None)
+}
+
+/// [`estimate_line_through`] with, besides, a direction the line runs along: its angle to
+/// the line across it, squared and normalised by its variance, is one more observation (two
+/// degrees of freedom).
+pub fn estimate_line_constrained(
+    cameras: &[&Camera; 3],
+    obs: &[LineObservation],
+    end_sigma_px: f64,
+    through: &[PointOnLine],
+    along: Option<&DirectionOfLine>,
 ) -> Option<Line3Estimate> {
     let (mut x0, mut d) = linear_start(cameras, obs)?;
     let points: Vec<(usize, VirtualPoints, f64)> = obs
@@ -387,6 +409,19 @@ pub fn estimate_line_through(
             h += a.transpose() * weight * a;
             g += a.transpose() * weight * r;
             chi2 += r.dot(&(weight * r));
+        }
+        if let Some(along) = along {
+            // The known direction's components across the line: the angle to turn it by,
+            // which turning it by (c, f) takes away.
+            let toward = along.direction * along.direction.dot(d).signum();
+            let r = nalgebra::Vector2::new(e1.dot(&toward), e2.dot(&toward));
+            let weight = 1.0 / along.variance;
+            let mut a = nalgebra::Matrix2x4::<f64>::zeros();
+            a[(0, 2)] = -1.0;
+            a[(1, 3)] = -1.0;
+            h += a.transpose() * a * weight;
+            g += a.transpose() * r * weight;
+            chi2 += r.norm_squared() * weight;
         }
         Some((h, g, shifted, chi2, sum_px, e1, e2))
     };
@@ -495,7 +530,7 @@ pub fn estimate_line_through(
     // stated noise was too small for this line: scale up (never down) by the χ² per degree
     // of freedom.
     let n_obs = points.len() * 2;
-    let dof = (n_obs + 2 * through.len()).saturating_sub(4);
+    let dof = (n_obs + 2 * through.len() + 2 * usize::from(along.is_some())).saturating_sub(4);
     let posterior = if dof > 0 {
         (chi2 / dof as f64).max(1.0)
     } else {

@@ -5,8 +5,8 @@ use nalgebra::{Matrix3, Point2, Point3, Rotation3, Vector3};
 use proptest::prelude::*;
 
 use super::{
-    estimate_line, estimate_line_through, Camera, Distortion, LineObservation, PointOnLine,
-    Rectification, Rig, RigFrames,
+    estimate_line, estimate_line_constrained, estimate_line_through, Camera, DirectionOfLine,
+    Distortion, LineObservation, PointOnLine, Rectification, Rig, RigFrames,
 };
 use crate::segment::LineNoise;
 
@@ -521,6 +521,79 @@ fn a_known_vertex_narrows_a_short_segments_direction_and_stays_calibrated() {
     // direction: at the median, at least a fifth narrower.
     assert!(median_ratio < 0.8, "median ratio {median_ratio}");
     assert!(share(narrower) > 0.95, "narrower for {}", share(narrower));
+}
+
+/// A known direction of the line (the scene's dominant one it lies along) is an observation
+/// like a known point: it narrows a short segment's direction to about its own spread, and
+/// the estimate's direction and midpoint covariances still describe the true errors when
+/// the direction is off by exactly its stated variance.
+#[test]
+fn a_known_direction_narrows_a_short_segment_and_stays_calibrated() {
+    use trinocular_synth::Rng;
+    let r = uneven_triangle();
+    let cams = [r.camera(0), r.camera(1), r.camera(2)];
+    let mut rng = Rng::new(17);
+    let (mut dir95, mut dir99, mut pos95, mut pos99) = (0, 0, 0, 0);
+    let mut sigma_ratios = Vec::new();
+    let n = for_each_estimate(
+        &cams,
+        &mut rng,
+        ([0.8, 0.6], [2.0, 4.0], [0.08, 0.25]),
+        |rng, (p, q), obs, alone| {
+            // The direction known to 0.3° per axis across it, and off by exactly that.
+            let variance = 0.3f64.to_radians().powi(2);
+            let u = (q - p).normalize();
+            let (e1, e2) = super::across_basis(&u);
+            let known = (u + (e1 * rng.normal() + e2 * rng.normal()) * variance.sqrt()).normalize();
+            let along = DirectionOfLine {
+                direction: -known,
+                variance,
+            };
+            let Some(est) = estimate_line_constrained(&cams, obs, 1.0, &[], Some(&along)) else {
+                return false;
+            };
+            assert_eq!(
+                est.dof,
+                alone.dof + 2,
+                "a direction adds two degrees of freedom"
+            );
+            let (dir, pos) = normalised_errors(&est, (p, q));
+            let sigma = |c: Matrix3<f64>| c.trace().sqrt();
+            sigma_ratios
+                .push(sigma(est.direction_covariance()) / sigma(alone.direction_covariance()));
+            dir95 += usize::from(dir <= CHI2_2DOF_Q95);
+            dir99 += usize::from(dir <= CHI2_2DOF_Q99);
+            pos95 += usize::from(pos <= CHI2_2DOF_Q95);
+            pos99 += usize::from(pos <= CHI2_2DOF_Q99);
+            true
+        },
+    );
+    assert_eq!(
+        n, CALIBRATION_SAMPLES,
+        "too few segments seen by all three cameras"
+    );
+    sigma_ratios.sort_by(f64::total_cmp);
+    let share = |k: usize| k as f64 / n as f64;
+    let median_ratio = sigma_ratios[n / 2];
+    println!(
+        "direction {:.3} / {:.3}, midpoint {:.3} / {:.3} within chi2 q95 / q99; direction \
+         sigma along the known direction / alone, median {median_ratio:.2}",
+        share(dir95),
+        share(dir99),
+        share(pos95),
+        share(pos99)
+    );
+    assert_calibrated("direction", share(dir95), share(dir99));
+    assert_calibrated("midpoint", share(pos95), share(pos99));
+    // 0.3° against the several degrees that 8–25 cm at 2–4 m leave a short segment.
+    assert!(median_ratio < 0.3, "median ratio {median_ratio}");
+    // With no direction it is the estimate through no point, to the bit.
+    let segment = (Point3::new(-0.1, 3.0, 0.2), Point3::new(0.1, 3.1, 0.3));
+    let obs = noisy_images(&cams, segment, &mut rng).expect("seen by all three");
+    assert_eq!(
+        estimate_line_constrained(&cams, &obs, 1.0, &[], None),
+        estimate_line(&cams, &obs, 1.0)
+    );
 }
 
 /// Each view's line shifted across itself by an independent N(0, δ²), and by nothing else:

@@ -84,6 +84,11 @@ pub struct MatchParams {
     /// rendered rooms from images and LSD lists at no error; 3 placed a segment from LSD lists
     /// near no edge.
     pub vertex_reach_px: f64,
+    /// A 3D segment the gate doubts for its direction alone takes the direction of the
+    /// scene's well-measured lines it lies along (a room's three), when it does with 95%
+    /// posterior probability, and is judged again (`pipeline`, docs/ACCURACY.md "The scene's
+    /// dominant directions"). False for a scene not built along a few directions.
+    pub dominant_directions: bool,
     /// The accuracy a 3D segment must meet, at `gate_confidence`, to be in the answer by
     /// default: its direction within `gate_direction_deg`, and its midpoint and both ends
     /// across the line within max(`gate_position_m`, `gate_position_rel` × distance from the
@@ -117,6 +122,7 @@ impl Default for MatchParams {
             list_shift_px: MatchParams::LIST_SHIFT_PX,
             max_direction_sigma_deg: 180.0,
             vertex_reach_px: MatchParams::VERTEX_REACH_PX,
+            dominant_directions: true,
             gate_direction_deg: 5.0,
             gate_position_m: 0.02,
             gate_position_rel: 0.01,

@@ -200,6 +200,10 @@ pub struct Reconstructed {
     /// The segment does not meet the accuracy asked for (`MatchParams::gate_*`): reported
     /// only when `include_uncertain` is set.
     pub uncertain: bool,
+    /// It meets it along the scene's dominant direction it lies along
+    /// (`MatchParams::dominant_directions`), its views alone leaving its direction too loose:
+    /// its direction and covariance hold the scene's well-measured lines as well as its own.
+    pub aligned: bool,
 }
 
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -831,6 +835,9 @@ struct Matching<'a> {
 /// How a reconstruction measures up, in the units its users think in.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Quality {
+    /// Certain along the scene's dominant direction it lies along
+    /// ([`align_with_dominant_directions`]), not by its views alone.
+    aligned: bool,
     direction_sigma_deg: f64,
     /// Of the reported covariance: the shared shift included.
     position_sigma_m: f64,
@@ -1231,6 +1238,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     Some((
         est,
         Quality {
+            aligned: false,
             direction_sigma_deg,
             position_sigma_m,
             shift_sigma_m,
@@ -2026,8 +2034,14 @@ fn align_with_dominant_directions(
         };
         let est = estimate_line_constrained(&cameras, &obs, END_SIGMA_PX, &[], Some(&along))
             .map(|e| rescaled(e, factor));
-        if let Some(fit) = accept(est, rig, params).filter(|(_, q)| q.certain) {
-            fits[h] = Some(Some(fit));
+        if let Some((est, quality)) = accept(est, rig, params).filter(|(_, q)| q.certain) {
+            fits[h] = Some(Some((
+                est,
+                Quality {
+                    aligned: true,
+                    ..quality
+                },
+            )));
             stats.along_dominant_directions += 1;
         }
     }
@@ -2289,6 +2303,7 @@ fn assemble(
             direction_sigma_deg: quality.direction_sigma_deg,
             position_sigma_m: quality.position_sigma_m,
             uncertain: !quality.certain,
+            aligned: quality.aligned,
         });
     }
     output
@@ -2912,7 +2927,8 @@ mod tests {
             along.stats
         );
         let after = of(&along, 5);
-        assert!(!after.uncertain, "{after:?}");
+        assert!(!after.uncertain && after.aligned, "{after:?}");
+        assert!(!before.aligned);
         assert!(after.direction_sigma_deg < 0.5 * before.direction_sigma_deg);
         // Upright, and where the short upright is: its ends on its line.
         let truth = (short[1] - short[0]).normalize();

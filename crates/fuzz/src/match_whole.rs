@@ -139,6 +139,7 @@ pub(crate) struct Options {
     raw: Option<(u8, f64)>,
     validate: Option<bool>,
     include_uncertain: Option<bool>,
+    dominant_directions: Option<bool>,
 }
 
 /// The numeric options, as (default, setter): the order of `Options::scaled`.
@@ -169,6 +170,7 @@ pub(crate) fn options(o: &Options) -> pb::MatchOptions {
     let mut out = pb::MatchOptions {
         validate: o.validate,
         include_uncertain: o.include_uncertain,
+        dominant_directions: o.dominant_directions,
         ..Default::default()
     };
     for (scaled, (default, set)) in o.scaled.iter().zip(NUMERIC) {

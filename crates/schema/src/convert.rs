@@ -756,6 +756,7 @@ pub fn match_response(
                 position_sigma_m: r.position_sigma_m,
                 uncertain: r.uncertain,
                 shift_sigma_m: r.shift_sigma_m,
+                along_dominant_direction: r.aligned,
             })
             .collect(),
         stats: Some(pb::MatchStats {

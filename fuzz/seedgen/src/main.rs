@@ -164,6 +164,7 @@ fn main() {
         min_gradient_to_background: Some(2.5),
         max_direction_sigma_deg: Some(90.0),
         vertex_reach_px: Some(2.0),
+        dominant_directions: Some(true),
         extract: Some(pb::ExtractOptions {
             smoothing_sigma_px: Some(1.0),
             gradient_low: Some(2.0),

@@ -861,6 +861,7 @@ fn stored_capture(
                 covariance: s.covariance.clone(),
                 uncertain: s.uncertain,
                 shift_sigma_m: s.shift_sigma_m,
+                along_dominant_direction: s.along_dominant_direction,
                 ..Default::default()
             })
             .collect(),

@@ -200,9 +200,10 @@ pub struct Reconstructed {
     /// The segment does not meet the accuracy asked for (`MatchParams::gate_*`): reported
     /// only when `include_uncertain` is set.
     pub uncertain: bool,
-    /// It meets it along the scene's dominant direction it lies along
-    /// (`MatchParams::dominant_directions`), its views alone leaving its direction too loose:
-    /// its direction and covariance hold the scene's well-measured lines as well as its own.
+    /// It was estimated along the scene's dominant direction it lies along
+    /// (`MatchParams::dominant_directions`), its views alone leaving its direction too loose
+    /// for the gate: its direction and covariance hold the scene's well-measured lines as
+    /// well as its own. Still `uncertain` when the uniqueness test then found a rival.
     pub aligned: bool,
 }
 

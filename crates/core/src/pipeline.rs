@@ -919,7 +919,11 @@ pub(crate) fn principal_variances(
     m: &nalgebra::Matrix3<f64>,
     basis: &nalgebra::Matrix3x2<f64>,
 ) -> (f64, f64) {
-    let c = basis.transpose() * m * basis;
+    eigenvalues_2x2(&(basis.transpose() * m * basis))
+}
+
+/// The two eigenvalues of a 2×2 covariance, largest first, floored at 0.
+fn eigenvalues_2x2(c: &nalgebra::Matrix2<f64>) -> (f64, f64) {
     let (a, b, d) = (c[(0, 0)], 0.5 * (c[(0, 1)] + c[(1, 0)]), c[(1, 1)]);
     let (mean, spread) = (0.5 * (a + d), (0.25 * (a - d) * (a - d) + b * b).sqrt());
     ((mean + spread).max(0.0), (mean - spread).max(0.0))
@@ -1935,22 +1939,20 @@ fn align_with_dominant_directions(
         checkpoint,
         ..
     } = *request;
+    // A fit's direction, the basis across it, and its direction covariance in that basis.
     let direction_of = |est: &Line3Estimate| {
         let u = est.direction();
         let (e1, e2) = crate::geometry::across_basis(&u);
         let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
-        (
-            u,
-            basis,
-            principal_variances(&est.direction_covariance(), &basis),
-        )
+        let across = basis.transpose() * est.direction_covariance() * basis;
+        (u, basis, across)
     };
     let certain: Vec<(nalgebra::Vector3<f64>, f64)> = kept
         .iter()
         .filter_map(|&h| match &fits[h] {
             Some(Some((est, q))) if q.certain => {
-                let (u, _, var) = direction_of(est);
-                Some((u, var.0))
+                let (u, _, across) = direction_of(est);
+                Some((u, eigenvalues_2x2(&across).0))
             }
             _ => None,
         })
@@ -1997,12 +1999,10 @@ fn align_with_dominant_directions(
         {
             continue;
         }
-        let (u, basis, var) = direction_of(est);
-        if within_radius(var, gate_direction, confidence) {
+        let (u, basis, across) = direction_of(est);
+        if within_radius(eigenvalues_2x2(&across), gate_direction, confidence) {
             continue; // the direction is not what the gate doubts
         }
-        let covariance = est.direction_covariance();
-        let across = basis.transpose() * covariance * basis;
         // Each mode's density at this line's direction (a Gaussian across it, the line's
         // variance and the mode's), against a uniform direction (1 / 2π per steradian).
         let densities: Vec<(f64, Mode)> = modes

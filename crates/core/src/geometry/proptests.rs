@@ -318,6 +318,17 @@ fn for_each_estimate(
     n
 }
 
+/// Checks that [`for_each_estimate`] counted every sample it was asked for (`n`), and returns
+/// the median of `ratios`, one per sample.
+fn all_counted_and_median(n: usize, mut ratios: Vec<f64>) -> f64 {
+    assert_eq!(
+        n, CALIBRATION_SAMPLES,
+        "too few segments seen by all three cameras"
+    );
+    ratios.sort_by(f64::total_cmp);
+    ratios[n / 2]
+}
+
 /// When the image lines carry exactly the noise they state, the reported covariance describes
 /// the true errors: squared normalised errors of the direction and of the midpoint (2 degrees
 /// of freedom each) fall within χ²'s 95% and 99% quantiles as often as they should. This is
@@ -502,13 +513,8 @@ fn a_known_vertex_narrows_a_short_segments_direction_and_stays_calibrated() {
             true
         },
     );
-    assert_eq!(
-        n, CALIBRATION_SAMPLES,
-        "too few segments seen by all three cameras"
-    );
-    sigma_ratios.sort_by(f64::total_cmp);
+    let median_ratio = all_counted_and_median(n, sigma_ratios);
     let share = |k: usize| k as f64 / n as f64;
-    let median_ratio = sigma_ratios[n / 2];
     println!(
         "direction {:.3} / {:.3} within chi2 q95 / q99; direction sigma with the vertex / \
          without, median {median_ratio:.2}; narrower for {:.3}",
@@ -568,13 +574,8 @@ fn a_known_direction_narrows_a_short_segment_and_stays_calibrated() {
             true
         },
     );
-    assert_eq!(
-        n, CALIBRATION_SAMPLES,
-        "too few segments seen by all three cameras"
-    );
-    sigma_ratios.sort_by(f64::total_cmp);
+    let median_ratio = all_counted_and_median(n, sigma_ratios);
     let share = |k: usize| k as f64 / n as f64;
-    let median_ratio = sigma_ratios[n / 2];
     println!(
         "direction {:.3} / {:.3}, midpoint {:.3} / {:.3} within chi2 q95 / q99; direction \
          sigma along the known direction / alone, median {median_ratio:.2}",

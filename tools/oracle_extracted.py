@@ -3,9 +3,10 @@
 were matched and reconstructed perfectly, and where the rest of the edges are lost.
 
     /tmp/ev/bin/python tools/oracle_extracted.py [--shared ../shared] [--rooms office,lab]
-        [--bin target/release/trinocular]
+        [--bin target/release/trinocular] [--input images|lsd]
 
-For each capture, runs `trinocular match` on the images with returnExtracted, then counts a
+For each capture, runs `trinocular match` on the images with returnExtracted (or, with
+`--input lsd`, reads the capture's OpenCV LSD lists, segments_lsd.json), then counts a
 point of an eligible ground-truth edge (visible in all three cameras, >= 20 px in each) as
 extracted in a view when an extracted segment runs along its projection there (within 1.5 px
 and 5 degrees), and reachable when it is extracted in all three. Prints per room the reachable
@@ -28,6 +29,8 @@ ap = argparse.ArgumentParser()
 ap.add_argument("--shared", default=os.path.join(os.path.dirname(__file__), "..", "..", "shared"))
 ap.add_argument("--rooms", default="office,lab")
 ap.add_argument("--bin", default="target/release/trinocular")
+ap.add_argument("--input", default="images", choices=["images", "lsd"],
+                help="whose segments: our extraction's, or the rooms' OpenCV LSD lists")
 args = ap.parse_args()
 req_path = os.path.join(tempfile.mkdtemp(), "request.json")
 for room in args.rooms.split(","):
@@ -48,9 +51,14 @@ for room in args.rooms.split(","):
         req = {"calibration": {"cameras": cams}, "options": {"returnExtracted": True},
                "images": {"images": [{"encoded": base64.b64encode(open(f"{cdir}/img{i}.png", "rb").read()).decode()}
                                      for i in (1, 2, 3)]}}
-        open(req_path, "w").write(json.dumps(req))
-        out = json.loads(subprocess.run([args.bin, "match", req_path], capture_output=True, text=True, check=True).stdout)
-        lists = [[(s["u1"], s["v1"], s["u2"], s["v2"]) for s in l.get("segments", [])] for l in out["extracted"]]
+        if args.input == "lsd":
+            lsd = json.load(open(cdir + "/segments_lsd.json"))
+            lists = [[tuple(s[:4]) for s in im["segments"]] for im in lsd["images"]]
+        else:
+            open(req_path, "w").write(json.dumps(req))
+            out = json.loads(subprocess.run([args.bin, "match", req_path], capture_output=True, text=True,
+                                            check=True).stdout)
+            lists = [[(s["u1"], s["v1"], s["u2"], s["v2"]) for s in l.get("segments", [])] for l in out["extracted"]]
         P = [np.asarray(c["P"]) for c in calw["cameras"]]
         images = [np.asarray(Image.open(f"{cdir}/img{i}.png").convert("L"), float) for i in (1, 2, 3)]
         for r in vis["edges"]:

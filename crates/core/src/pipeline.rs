@@ -18,8 +18,8 @@ use thiserror::Error;
 
 use crate::extract::{self, Adjacent, Extraction, GreyImage};
 use crate::geometry::{
-    estimate_line_constrained, estimate_line_through, DirectionOfLine, Line3Estimate,
-    LineObservation, PointOnLine, Rectification, RectifyError, Rig, RigFrames,
+    estimate_line_constrained, estimate_line_through, DirectionOfLine, KnownDirection,
+    Line3Estimate, LineObservation, PointOnLine, Rectification, RectifyError, Rig, RigFrames,
 };
 use crate::matching::{self, Hypothesis, MatchParams, ParamErrors, RectSegment, Views};
 use crate::reconstruct::{
@@ -1829,6 +1829,9 @@ const ALONG_POSTERIOR: f64 = 0.95;
 /// 12 px, a segment near no edge in the office; with 16 px, lines a neighbour pulled off
 /// their edge in the synthetic room's realistic lists, 3.1% wrong: docs/ACCURACY.md).
 const ALONG_MIN_PX: f64 = 20.0;
+/// Two dominant directions are square to each other when their cosine is under this
+/// (88°): a line along one lies in the other's plane.
+const SQUARE_COS: f64 = 0.035;
 
 /// One dominant direction of a scene: a unit vector (either sense), the variance of the
 /// direction its lines share about it (radians², per axis across it), and how many lines
@@ -1912,8 +1915,12 @@ fn dominant_directions(lines: &[(nalgebra::Vector3<f64>, f64)]) -> Vec<Mode> {
 /// directions"). The directions come from this capture's certain winners
 /// ([`dominant_directions`]); the share of its lines along none of them, from the best
 /// measured. A winner takes a direction when the posterior that it lies along it, against
-/// along none, reaches [`ALONG_POSTERIOR`]; its maximum-likelihood line is then found again
-/// from its three views with that direction as one more observation
+/// along none, reaches [`ALONG_POSTERIOR`]; failing that, a direction's plane when it lies
+/// in it with that posterior (across the direction, or along another square to it: a room's
+/// horizontal lines, its vertical known, however its furniture is turned — the planes'
+/// shares and spreads from the best-measured lines across a direction and along none). Its
+/// maximum-likelihood line is then found again from its three views with that direction
+/// (two degrees of freedom) or that plane (one: the tilt out of it) as one more observation
 /// ([`estimate_line_constrained`]), and the gate judges the result whole — a direction does
 /// not place a line, so one whose position the views leave loose stays doubted. Not for a
 /// winner shorter than [`ALONG_MIN_PX`] in a view; and those made certain are then checked
@@ -1966,28 +1973,68 @@ fn align_with_dominant_directions(
     if modes.is_empty() {
         return Ok(());
     }
-    // The share of lines along none: of the best measured, those 3σ off every mode.
+    // What the best-measured lines do: lie along a mode; else lie across one, in the plane
+    // normal to it (a room's horizontal lines, its vertical known, however its furniture
+    // turns); else neither. Their shares, drawn toward ALONG_NONE_PRIOR, weigh the three
+    // kinds of explanation of a doubted line.
     let best: Vec<&(nalgebra::Vector3<f64>, f64)> = certain
         .iter()
         .filter(|(_, var)| var.sqrt() < ALONG_NONE_SIGMA_DEG.to_radians())
         .collect();
-    let off_every_mode = best
-        .iter()
-        .filter(|(u, var)| {
-            modes.iter().all(|m| {
-                let angle = u.dot(&m.direction).abs().clamp(0.0, 1.0).acos();
-                angle * angle > 9.0 * (var + m.variance)
-            })
-        })
-        .count();
+    let tilt = |u: &nalgebra::Vector3<f64>, m: &Mode| u.dot(&m.direction).clamp(-1.0, 1.0).asin();
+    let mut across_lines: Vec<Vec<(f64, f64)>> = vec![Vec::new(); modes.len()];
+    let mut off_every_mode = 0usize;
+    for (u, var) in &best {
+        let along_one = modes.iter().any(|m| {
+            let angle = u.dot(&m.direction).abs().clamp(0.0, 1.0).acos();
+            angle * angle <= 9.0 * (var + m.variance)
+        });
+        if along_one {
+            continue;
+        }
+        let plane = (0..modes.len())
+            .filter(|&k| tilt(u, &modes[k]).powi(2) <= 9.0 * (var + modes[k].variance))
+            .min_by(|&a, &b| {
+                tilt(u, &modes[a])
+                    .abs()
+                    .total_cmp(&tilt(u, &modes[b]).abs())
+            });
+        match plane {
+            Some(k) => across_lines[k].push((tilt(u, &modes[k]), *var)),
+            _ => off_every_mode += 1,
+        }
+    }
     let (prior_share, prior_count) = ALONG_NONE_PRIOR;
-    let along_none = ((off_every_mode as f64 + prior_share * prior_count)
-        / (best.len() as f64 + prior_count))
-        .max(ALONG_NONE_MIN);
+    let seen = best.len() as f64 + prior_count;
+    let along_none =
+        ((off_every_mode as f64 + prior_share * prior_count) / seen).max(ALONG_NONE_MIN);
+    // Each mode's plane: its share, and the variance of a line's tilt out of it — the
+    // lines' spread beyond their own noise, plus the normal's own.
+    let planes: Vec<(f64, f64)> = modes
+        .iter()
+        .zip(&across_lines)
+        .map(|(m, lines)| {
+            if lines.is_empty() {
+                return (0.0, 0.0);
+            }
+            let weight = |var: f64| 1.0 / (var + MODE_WEIGHT_FLOOR_DEG.to_radians().powi(2));
+            let total: f64 = lines.iter().map(|&(_, var)| weight(var)).sum();
+            let spread = lines
+                .iter()
+                .map(|&(t, var)| weight(var) * (t * t - var))
+                .sum::<f64>()
+                / total;
+            (
+                lines.len() as f64 / seen,
+                spread.max(0.0) + 1.0 / total + m.variance,
+            )
+        })
+        .collect();
+    let along_share = (1.0 - along_none - planes.iter().map(|p| p.0).sum::<f64>()).max(0.0);
     let members: usize = modes.iter().map(|m| m.members).sum();
     let confidence = params.gate_confidence;
     let gate_direction = params.gate_direction_deg.to_radians();
-    let mut candidates: Vec<(usize, Mode)> = Vec::new();
+    let mut candidates: Vec<(usize, KnownDirection)> = Vec::new();
     for &h in kept {
         let Some(Some((est, quality))) = &fits[h] else {
             continue;
@@ -2003,9 +2050,11 @@ fn align_with_dominant_directions(
         if within_radius(eigenvalues_2x2(&across), gate_direction, confidence) {
             continue; // the direction is not what the gate doubts
         }
-        // Each mode's density at this line's direction (a Gaussian across it, the line's
-        // variance and the mode's), against a uniform direction (1 / 2π per steradian).
-        let densities: Vec<(f64, Mode)> = modes
+        // Densities on the sphere of directions (per steradian) at this line's: each mode's
+        // (a Gaussian across it, the line's variance and the mode's); each plane's (a
+        // Gaussian in the tilt out of it, even along it: π radians of lines); a uniform
+        // direction's (1 / 2π).
+        let along: Vec<f64> = modes
             .iter()
             .map(|m| {
                 let toward = m.direction * m.direction.dot(&u).signum();
@@ -2015,38 +2064,78 @@ fn align_with_dominant_directions(
                     (-0.5 * (z.transpose() * inv * z)[(0, 0)]).exp()
                         / (2.0 * std::f64::consts::PI * spread.determinant().max(0.0).sqrt())
                 });
-                let share = (1.0 - along_none) * m.members as f64 / members as f64;
-                (share * density, *m)
+                along_share * m.members as f64 / members as f64 * density
             })
             .collect();
-        let total: f64 = densities.iter().map(|(d, _)| d).sum::<f64>()
+        let direction_covariance = est.direction_covariance();
+        let in_plane: Vec<f64> = modes
+            .iter()
+            .zip(&planes)
+            .map(|(m, &(share, variance))| {
+                if share <= 0.0 {
+                    return 0.0;
+                }
+                let t = tilt(&u, m);
+                let var = (m.direction.transpose() * direction_covariance * m.direction)[(0, 0)]
+                    + variance;
+                share * (-0.5 * t * t / var).exp()
+                    / ((2.0 * std::f64::consts::PI * var).sqrt() * std::f64::consts::PI)
+            })
+            .collect();
+        let total: f64 = along.iter().sum::<f64>()
+            + in_plane.iter().sum::<f64>()
             + along_none / (2.0 * std::f64::consts::PI);
-        if let Some((density, mode)) = densities.iter().copied().max_by(|a, b| a.0.total_cmp(&b.0))
-        {
-            if density / total >= ALONG_POSTERIOR && density.is_finite() {
-                candidates.push((h, mode));
-            }
+        if !total.is_finite() || total <= 0.0 {
+            continue;
+        }
+        let best_mode = (0..modes.len()).max_by(|&a, &b| along[a].total_cmp(&along[b]));
+        if let Some(k) = best_mode.filter(|&k| along[k] / total >= ALONG_POSTERIOR) {
+            candidates.push((
+                h,
+                KnownDirection::Along(DirectionOfLine {
+                    direction: modes[k].direction,
+                    variance: modes[k].variance,
+                }),
+            ));
+            continue;
+        }
+        // Lying in a mode's plane: across it, or along another mode square to it.
+        let plane_posterior = |k: usize| {
+            let square: f64 = (0..modes.len())
+                .filter(|&j| modes[j].direction.dot(&modes[k].direction).abs() < SQUARE_COS)
+                .map(|j| along[j])
+                .sum();
+            (in_plane[k] + square) / total
+        };
+        let best_plane = (0..modes.len())
+            .filter(|&k| planes[k].0 > 0.0)
+            .max_by(|&a, &b| plane_posterior(a).total_cmp(&plane_posterior(b)));
+        if let Some(k) = best_plane.filter(|&k| plane_posterior(k) >= ALONG_POSTERIOR) {
+            candidates.push((
+                h,
+                KnownDirection::Across(DirectionOfLine {
+                    direction: modes[k].direction,
+                    variance: planes[k].1,
+                }),
+            ));
         }
     }
     if candidates.is_empty() {
         return Ok(());
     }
-    // Estimated again from the views with the mode's direction as one more observation of
-    // the line (the stored fit is cut to what its ends vouch for under its own direction).
+    // Estimated again from the views with the mode's direction, or its plane, as one more
+    // observation of the line (the stored fit is cut to what its ends vouch for under its
+    // own direction).
     let cameras = [rig.camera(0), rig.camera(1), rig.camera(2)];
     let factor = stats.noise_scale.powi(2);
-    for (done, (h, mode)) in candidates.into_iter().enumerate() {
+    for (done, (h, known)) in candidates.into_iter().enumerate() {
         if done % RECONSTRUCT_CHUNK == 0 {
             checkpoint.before("reconstruct")?;
         }
         let segments = hypotheses[h].segments;
         let obs: [LineObservation; 3] =
             std::array::from_fn(|v| observations.lines[v][segments[v] as usize]);
-        let along = DirectionOfLine {
-            direction: mode.direction,
-            variance: mode.variance,
-        };
-        let est = estimate_line_constrained(&cameras, &obs, END_SIGMA_PX, &[], Some(&along))
+        let est = estimate_line_constrained(&cameras, &obs, END_SIGMA_PX, &[], Some(&known))
             .map(|e| rescaled(e, factor));
         if let Some((est, quality)) = accept(est, rig, params).filter(|(_, q)| q.certain) {
             fits[h] = Some(Some((
@@ -2970,6 +3059,113 @@ mod tests {
         }
         // The posts are untouched.
         for i in 0..5 {
+            assert_eq!(of(&along, i), of(&alone, i));
+        }
+    }
+
+    #[test]
+    fn a_short_rail_turned_off_the_axes_takes_the_horizontal_of_the_uprights() {
+        let rig = preset_rig();
+        let line = |a: [f64; 3], b: [f64; 3]| {
+            [
+                nalgebra::Point3::new(a[0], a[1], a[2]),
+                nalgebra::Point3::new(b[0], b[1], b[2]),
+            ]
+        };
+        // A horizontal line of `length` at (x, y, z), turned by `azimuth` degrees from x.
+        let rail = |x: f64, y: f64, z: f64, azimuth: f64, length: f64| {
+            let (s, c) = azimuth.to_radians().sin_cos();
+            let h = 0.5 * length;
+            line([x - c * h, y - s * h, z], [x + c * h, y + s * h, z])
+        };
+        // Five long posts and three long rails, each turned its own way (no second
+        // direction shared by five lines), seen to 0.05 px at each end: certain; the scene's
+        // vertical, and its horizontal.
+        let mut long = vec![
+            line([-0.62, 2.1, -0.5], [-0.62, 2.1, 0.25]),
+            line([-0.31, 2.6, -0.35], [-0.31, 2.6, 0.3]),
+            line([0.02, 2.3, -0.55], [0.02, 2.3, 0.05]),
+            line([0.27, 2.9, -0.4], [0.27, 2.9, 0.35]),
+            line([0.58, 2.2, -0.3], [0.58, 2.2, 0.2]),
+        ];
+        long.push(rail(-0.2, 2.5, -0.45, 15.0, 0.6));
+        long.push(rail(0.3, 2.6, 0.4, -25.0, 0.5));
+        long.push(rail(0.0, 2.8, -0.3, 70.0, 0.35));
+        // A short rail (10 cm, turned 35°) and a short slanted line, seen to 0.15 px: too
+        // short for their directions to meet the gate alone.
+        let short = rail(-0.3, 2.4, -0.25, 35.0, 0.14);
+        let slanted = line([0.4, 2.45, -0.2], [0.47, 2.5, -0.11]);
+        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], sigma_px: f64| {
+            let cam = rig.camera(view);
+            let (a, b) = (
+                cam.project(&line[0]).unwrap(),
+                cam.project(&line[1]).unwrap(),
+            );
+            Segment2 {
+                gradient: Some(20.0),
+                noise: Some(LineNoise::from_endpoint_sigma(sigma_px, (b - a).norm())),
+                ..Segment2::new(a, b)
+            }
+        };
+        let lists: [SegmentList; 3] = std::array::from_fn(|v| {
+            let mut segments: Vec<Segment2> = long.iter().map(|p| seen(v, p, 0.05)).collect();
+            segments.push(seen(v, &short, 0.15));
+            segments.push(seen(v, &slanted, 0.15));
+            SegmentList {
+                segments,
+                oriented: true,
+                background_gradient: None,
+            }
+        });
+        let run_with = |dominant_directions| {
+            let params = MatchParams {
+                dominant_directions,
+                include_uncertain: true,
+                ..MatchParams::default()
+            };
+            run(&rig, Input::lists(&lists), &Options::with(params))
+                .unwrap()
+                .output
+        };
+        let of = |out: &MatchOutput, i: u32| {
+            out.segments_3d
+                .iter()
+                .find(|s| out.triplets[s.triplet as usize].segments == [i, i, i])
+                .cloned()
+                .unwrap_or_else(|| panic!("segment {i} is matched: {:?}", out.stats))
+        };
+        let (n_long, short_index, slanted_index) = (long.len() as u32, 8, 9);
+        let alone = run_with(false);
+        for i in 0..n_long {
+            assert!(!of(&alone, i).uncertain, "line {i}: {:?}", of(&alone, i));
+        }
+        let before = of(&alone, short_index);
+        assert!(before.uncertain, "{before:?}");
+        let along = run_with(true);
+        assert_eq!(
+            along.stats.along_dominant_directions, 1,
+            "{:?}",
+            along.stats
+        );
+        let after = of(&along, short_index);
+        assert!(!after.uncertain && after.aligned, "{after:?}");
+        // The plane fixes the tilt out of it; the turn within it, which the images measure,
+        // is now the direction's largest uncertainty.
+        assert!(after.direction_sigma_deg < before.direction_sigma_deg);
+        // Horizontal, turned as the rail is, and where it is.
+        let truth = (short[1] - short[0]).normalize();
+        let u = (after.segment.end - after.segment.start).normalize();
+        assert!(u.z.abs() < 0.5f64.to_radians().sin(), "{u}");
+        assert!(u.dot(&truth).abs().acos().to_degrees() < 2.0, "{u}");
+        for p in [after.segment.start, after.segment.end] {
+            let w = p - short[0];
+            assert!((w - truth * w.dot(&truth)).norm() < 0.01, "{p}");
+        }
+        // The slanted line lies in no plane of the scene's: it stays as it was, and so do
+        // the long lines.
+        assert_eq!(of(&along, slanted_index), of(&alone, slanted_index));
+        assert!(of(&along, slanted_index).uncertain);
+        for i in 0..n_long {
             assert_eq!(of(&along, i), of(&alone, i));
         }
     }

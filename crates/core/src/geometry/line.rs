@@ -352,15 +352,36 @@ pub fn estimate_line_through(
     estimate_line_constrained(cameras, obs, end_sigma_px, through, None)
 }
 
-/// [`estimate_line_through`] with, besides, a direction the line runs along: its angle to
-/// the line across it, squared and normalised by its variance, is one more observation (two
-/// degrees of freedom).
+/// What is known of a line's direction besides its images: it runs along a direction (two
+/// degrees of freedom), or it lies across one, in the plane of directions normal to it (one:
+/// a horizontal line of a room whose vertical is known, whichever way it turns).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum KnownDirection {
+    Along(DirectionOfLine),
+    /// `direction` is the plane's normal, `variance` that of the line's angle to the plane
+    /// (radians²).
+    Across(DirectionOfLine),
+}
+
+impl KnownDirection {
+    fn degrees_of_freedom(&self) -> usize {
+        match self {
+            KnownDirection::Along(_) => 2,
+            KnownDirection::Across(_) => 1,
+        }
+    }
+}
+
+/// [`estimate_line_through`] with, besides, what is known of the line's direction: for a
+/// direction it runs along, its angle to the line across it, squared and normalised by its
+/// variance (two degrees of freedom); for a plane it lies in, the line's angle to the plane
+/// (one).
 pub fn estimate_line_constrained(
     cameras: &[&Camera; 3],
     obs: &[LineObservation],
     end_sigma_px: f64,
     through: &[PointOnLine],
-    along: Option<&DirectionOfLine>,
+    known: Option<&KnownDirection>,
 ) -> Option<Line3Estimate> {
     let (mut x0, mut d) = linear_start(cameras, obs)?;
     let points: Vec<(usize, VirtualPoints, f64)> = obs
@@ -410,18 +431,32 @@ pub fn estimate_line_constrained(
             g += a.transpose() * weight * r;
             chi2 += r.dot(&(weight * r));
         }
-        if let Some(along) = along {
-            // The known direction's components across the line: the angle to turn it by,
-            // which turning it by (c, f) takes away.
-            let toward = along.direction * along.direction.dot(d).signum();
-            let r = nalgebra::Vector2::new(e1.dot(&toward), e2.dot(&toward));
-            let weight = 1.0 / along.variance;
-            let mut a = nalgebra::Matrix2x4::<f64>::zeros();
-            a[(0, 2)] = -1.0;
-            a[(1, 3)] = -1.0;
-            h += a.transpose() * a * weight;
-            g += a.transpose() * r * weight;
-            chi2 += r.norm_squared() * weight;
+        match known {
+            Some(KnownDirection::Along(along)) => {
+                // The known direction's components across the line: the angle to turn it
+                // by, which turning it by (c, f) takes away.
+                let toward = along.direction * along.direction.dot(d).signum();
+                let r = nalgebra::Vector2::new(e1.dot(&toward), e2.dot(&toward));
+                let weight = 1.0 / along.variance;
+                let mut a = nalgebra::Matrix2x4::<f64>::zeros();
+                a[(0, 2)] = -1.0;
+                a[(1, 3)] = -1.0;
+                h += a.transpose() * a * weight;
+                g += a.transpose() * r * weight;
+                chi2 += r.norm_squared() * weight;
+            }
+            Some(KnownDirection::Across(plane)) => {
+                // The line's component along the plane's normal (the sine of its angle to
+                // the plane), which turning it by (c, f) changes by c·(e1·n) + f·(e2·n).
+                let n = plane.direction;
+                let r = d.dot(&n);
+                let weight = 1.0 / plane.variance;
+                let a = Vector4::new(0.0, 0.0, e1.dot(&n), e2.dot(&n));
+                h += a * a.transpose() * weight;
+                g += a * r * weight;
+                chi2 += r * r * weight;
+            }
+            None => {}
         }
         Some((h, g, shifted, chi2, sum_px, e1, e2))
     };
@@ -530,7 +565,8 @@ pub fn estimate_line_constrained(
     // stated noise was too small for this line: scale up (never down) by the χ² per degree
     // of freedom.
     let n_obs = points.len() * 2;
-    let dof = (n_obs + 2 * through.len() + 2 * usize::from(along.is_some())).saturating_sub(4);
+    let dof =
+        (n_obs + 2 * through.len() + known.map_or(0, |k| k.degrees_of_freedom())).saturating_sub(4);
     let posterior = if dof > 0 {
         (chi2 / dof as f64).max(1.0)
     } else {

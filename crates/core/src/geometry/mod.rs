@@ -14,7 +14,7 @@ pub mod rectify;
 pub use camera::{Camera, CameraError, Distortion, Rig, RigError};
 pub use line::{
     across_basis, estimate_line, estimate_line_constrained, estimate_line_through, DirectionOfLine,
-    Line3Estimate, LineObservation, PointOnLine,
+    KnownDirection, Line3Estimate, LineObservation, PointOnLine,
 };
 pub use rectify::{Rectification, RectifyError, RigFrames};
 

@@ -6,7 +6,7 @@ use proptest::prelude::*;
 
 use super::{
     estimate_line, estimate_line_constrained, estimate_line_through, Camera, DirectionOfLine,
-    Distortion, LineObservation, PointOnLine, Rectification, Rig, RigFrames,
+    Distortion, KnownDirection, LineObservation, PointOnLine, Rectification, Rig, RigFrames,
 };
 use crate::segment::LineNoise;
 
@@ -551,10 +551,10 @@ fn a_known_direction_narrows_a_short_segment_and_stays_calibrated() {
             let u = (q - p).normalize();
             let (e1, e2) = super::across_basis(&u);
             let known = (u + (e1 * rng.normal() + e2 * rng.normal()) * variance.sqrt()).normalize();
-            let along = DirectionOfLine {
+            let along = KnownDirection::Along(DirectionOfLine {
                 direction: -known,
                 variance,
-            };
+            });
             let Some(est) = estimate_line_constrained(&cams, obs, 1.0, &[], Some(&along)) else {
                 return false;
             };
@@ -594,6 +594,91 @@ fn a_known_direction_narrows_a_short_segment_and_stays_calibrated() {
     assert_eq!(
         estimate_line_constrained(&cams, &obs, 1.0, &[], None),
         estimate_line(&cams, &obs, 1.0)
+    );
+}
+
+/// A plane the line is known to lie in (a room's horizontal, its vertical known) is one
+/// observation of the line's tilt out of it: the tilt's σ falls to about the plane's, the
+/// turn within the plane keeps what the images say given the tilt (linear Gaussian fusion of
+/// one degree of freedom), and the covariances still describe the true errors when the plane
+/// is off by exactly its stated variance.
+#[test]
+fn a_known_plane_of_directions_is_one_observation_of_the_tilt_and_stays_calibrated() {
+    use trinocular_synth::Rng;
+    let r = uneven_triangle();
+    let cams = [r.camera(0), r.camera(1), r.camera(2)];
+    let mut rng = Rng::new(23);
+    let (mut dir95, mut dir99, mut pos95, mut pos99) = (0, 0, 0, 0);
+    let (mut out_ratios, mut in_ratios) = (Vec::new(), Vec::new());
+    let n = for_each_estimate(
+        &cams,
+        &mut rng,
+        ([0.8, 0.6], [2.0, 4.0], [0.08, 0.25]),
+        |rng, (p, q), obs, alone| {
+            // A plane of directions through the true one: its normal any unit vector
+            // across the line, tilted by exactly the stated 0.3°.
+            let variance = 0.3f64.to_radians().powi(2);
+            let u = (q - p).normalize();
+            let (e1, e2) = super::across_basis(&u);
+            let turn = rng.uniform() * std::f64::consts::TAU;
+            let normal = e1 * turn.cos() + e2 * turn.sin();
+            let tilted = (normal + u * rng.normal() * variance.sqrt()).normalize();
+            let across = KnownDirection::Across(DirectionOfLine {
+                direction: tilted,
+                variance,
+            });
+            let Some(est) = estimate_line_constrained(&cams, obs, 1.0, &[], Some(&across)) else {
+                return false;
+            };
+            assert_eq!(est.dof, alone.dof + 1, "a plane adds one degree of freedom");
+            let (dir, pos) = normalised_errors(&est, (p, q));
+            // The estimate's direction across the line, in the plane's terms (its normal,
+            // and the line's turn within it), against the images alone conditioned on one
+            // observation of the tilt: linear Gaussian fusion, which the fit should match.
+            let in_plane = u.cross(&normal);
+            let basis = nalgebra::Matrix3x2::from_columns(&[normal, in_plane]);
+            let project = |c: Matrix3<f64>| basis.transpose() * c * basis;
+            let with_plane = project(est.direction_covariance());
+            let alone_2 = project(alone.direction_covariance());
+            let predicted = alone_2.try_inverse().and_then(|info| {
+                (info + nalgebra::Matrix2::new(1.0 / variance, 0.0, 0.0, 0.0)).try_inverse()
+            });
+            let Some(predicted) = predicted else {
+                return false;
+            };
+            out_ratios.push((with_plane[(0, 0)] / alone_2[(0, 0)]).sqrt());
+            in_ratios.push((with_plane[(1, 1)] / predicted[(1, 1)]).sqrt());
+            dir95 += usize::from(dir <= CHI2_2DOF_Q95);
+            dir99 += usize::from(dir <= CHI2_2DOF_Q99);
+            pos95 += usize::from(pos <= CHI2_2DOF_Q95);
+            pos99 += usize::from(pos <= CHI2_2DOF_Q99);
+            true
+        },
+    );
+    let out_median = all_counted_and_median(n, out_ratios);
+    let in_median = all_counted_and_median(n, in_ratios);
+    let share = |k: usize| k as f64 / n as f64;
+    println!(
+        "direction {:.3} / {:.3}, midpoint {:.3} / {:.3} within chi2 q95 / q99; direction \
+         sigma out of the plane, with it / alone, median {out_median:.2}; within it, against \
+         one observation of the tilt fused with the images' covariance, median {in_median:.3}",
+        share(dir95),
+        share(dir99),
+        share(pos95),
+        share(pos99)
+    );
+    assert_calibrated("direction", share(dir95), share(dir99));
+    assert_calibrated("midpoint", share(pos95), share(pos99));
+    // Out of the plane the 0.3° replaces the several degrees a short segment has alone;
+    // within it what is left is what the images say once the tilt is known: one degree of
+    // freedom, not two.
+    assert!(
+        out_median < 0.3,
+        "out of the plane, median ratio {out_median}"
+    );
+    assert!(
+        (0.9..1.1).contains(&in_median),
+        "within the plane, median ratio {in_median}"
     );
 }
 

@@ -86,8 +86,9 @@ pub struct MatchParams {
     pub vertex_reach_px: f64,
     /// A 3D segment the gate doubts for its direction alone takes the direction of the
     /// scene's well-measured lines it lies along (a room's three), when it does with 95%
-    /// posterior probability, and is judged again (`pipeline`, docs/ACCURACY.md "The scene's
-    /// dominant directions"). False for a scene not built along a few directions.
+    /// posterior probability, or else the plane square to one it lies in (a room's
+    /// horizontal), and is judged again (`pipeline`, docs/ACCURACY.md "The scene's dominant
+    /// directions"). False for a scene not built along a few directions.
     pub dominant_directions: bool,
     /// The accuracy a 3D segment must meet, at `gate_confidence`, to be in the answer by
     /// default: its direction within `gate_direction_deg`, and its midpoint and both ends

@@ -10,6 +10,10 @@ as it is), the scorer on OUT/map.json with --details and --png OUT/score.png, an
 scorer does not say — duplicates:
   - segs_per_edge: correct map segments / distinct ground-truth edges they match (edges that
     are collinear duplicates of one another in the GT count as one); the goal is <= 1.3;
+  - segs_per_gt_edge: the same per edge as the ground truth lists them (a row of boards end
+    to end is several edges on one line): over the listed edges that correct map segments
+    overlap by more than 1 cm along them, the mean number of such segments — how many pieces
+    the map makes of one edge, where segs_per_edge also counts one piece per board of a row;
   - overlap_ratio: over those edges, summed length of the correct segments projected on their
     edge / length of the union of these projections (1.0 = no two segments cover the same
     stretch of an edge).
@@ -57,12 +61,25 @@ def main():
     A, B = E[:, :3], E[:, 3:]
     U = (B - A) / np.linalg.norm(B - A, axis=1, keepdims=True)
 
-    def representative(j):
+    L = np.linalg.norm(B - A, axis=1)
+
+    def on_its_line(j):
         # The scorer's duplicate edges: parallel and on the same line.
         par = np.abs(np.abs(U @ U[j]) - 1) < 1e-9
         w = A - A[j]
         off = np.linalg.norm(w - (w @ U[j])[:, None] * U[j], axis=1)
-        return int(np.nonzero(par & (off < 1e-6))[0].min())
+        return np.nonzero(par & (off < 1e-6))[0]
+
+    def representative(j):
+        return int(on_its_line(j).min())
+
+    pieces = {}
+    for k, j in enumerate(match):
+        if j >= 0:
+            for i in on_its_line(j):
+                lo, hi = sorted(((S[k, :3] - A[i]) @ U[i], (S[k, 3:] - A[i]) @ U[i]))
+                if min(hi, L[i]) - max(lo, 0.0) > 0.01:
+                    pieces[int(i)] = pieces.get(int(i), 0) + 1
 
     groups = {}
     for k, j in enumerate(match):
@@ -83,6 +100,7 @@ def main():
         union += cur_hi - cur_lo
     summary["covered_edges"] = len(groups)
     summary["segs_per_edge"] = round(n_correct / len(groups), 3) if groups else None
+    summary["segs_per_gt_edge"] = round(float(np.mean(list(pieces.values()))), 3) if pieces else None
     summary["overlap_ratio"] = round(summed / union, 3) if union > 0 else None
     summary["pose_error"] = json.load(open(map_path)).get("pose_error")
     print(json.dumps(summary))

@@ -10,6 +10,7 @@
 //! Input problems are errors that name the list, the segment and the coordinate; zero-length
 //! segments are dropped and counted; empty lists give an empty result.
 
+use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 use std::time::Instant;
 
@@ -1855,15 +1856,23 @@ fn dominant_directions(lines: &[(nalgebra::Vector3<f64>, f64)]) -> Vec<Mode> {
     order.truncate(MAX_MODE_LINES);
     let lines: Vec<(nalgebra::Vector3<f64>, f64)> = order.iter().map(|&i| lines[i]).collect();
     let weight = |var: f64| 1.0 / (var + MODE_WEIGHT_FLOOR_DEG.to_radians().powi(2));
-    let reach = |var: f64| (2.5 * var.sqrt()).max(MODE_REACH_DEG.to_radians()).cos();
+    // Each line's reach, as the cosine its neighbours' directions must exceed (once per line,
+    // not per pair).
+    let reach: Vec<f64> = lines
+        .iter()
+        .map(|(_, var)| (2.5 * var.sqrt()).max(MODE_REACH_DEG.to_radians()).cos())
+        .collect();
     let mut left: Vec<bool> = vec![true; lines.len()];
     let mut modes = Vec::new();
     while modes.len() < MAX_MODES {
-        let along = |i: usize, j: usize| lines[i].0.dot(&lines[j].0).abs() > reach(lines[j].1);
+        let along = |i: usize, j: usize| lines[i].0.dot(&lines[j].0).abs() > reach[j];
         let support: Vec<f64> = (0..lines.len())
             .map(|i| {
+                if !left[i] {
+                    return 0.0;
+                }
                 (0..lines.len())
-                    .filter(|&j| left[i] && left[j] && along(i, j))
+                    .filter(|&j| left[j] && along(i, j))
                     .map(|j| weight(lines[j].1))
                     .sum()
             })
@@ -2126,26 +2135,34 @@ fn align_with_dominant_directions(
     // Estimated again from the views with the mode's direction, or its plane, as one more
     // observation of the line (the stored fit is cut to what its ends vouch for under its
     // own direction).
+    // On the pool's threads, a chunk at a time (the fits are independent; the order of the
+    // results is the candidates').
     let cameras = [rig.camera(0), rig.camera(1), rig.camera(2)];
     let factor = stats.noise_scale.powi(2);
-    for (done, (h, known)) in candidates.into_iter().enumerate() {
-        if done % RECONSTRUCT_CHUNK == 0 {
-            checkpoint.before("reconstruct")?;
-        }
-        let segments = hypotheses[h].segments;
-        let obs: [LineObservation; 3] =
-            std::array::from_fn(|v| observations.lines[v][segments[v] as usize]);
-        let est = estimate_line_constrained(&cameras, &obs, END_SIGMA_PX, &[], Some(&known))
-            .map(|e| rescaled(e, factor));
-        if let Some((est, quality)) = accept(est, rig, params).filter(|(_, q)| q.certain) {
-            fits[h] = Some(Some((
-                est,
-                Quality {
-                    aligned: true,
-                    ..quality
-                },
-            )));
-            stats.along_dominant_directions += 1;
+    for chunk in candidates.chunks(RECONSTRUCT_CHUNK) {
+        checkpoint.before("reconstruct")?;
+        let refitted: Vec<Fit> = chunk
+            .par_iter()
+            .map(|(h, known)| {
+                let segments = hypotheses[*h].segments;
+                let obs: [LineObservation; 3] =
+                    std::array::from_fn(|v| observations.lines[v][segments[v] as usize]);
+                let est = estimate_line_constrained(&cameras, &obs, END_SIGMA_PX, &[], Some(known))
+                    .map(|e| rescaled(e, factor));
+                accept(est, rig, params).filter(|(_, q)| q.certain)
+            })
+            .collect();
+        for ((h, _), fit) in chunk.iter().zip(refitted) {
+            if let Some((est, quality)) = fit {
+                fits[*h] = Some(Some((
+                    est,
+                    Quality {
+                        aligned: true,
+                        ..quality
+                    },
+                )));
+                stats.along_dominant_directions += 1;
+            }
         }
     }
     Ok(())

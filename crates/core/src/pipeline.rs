@@ -2978,6 +2978,58 @@ mod tests {
         assert!(modes[0].direction.z.abs() > 0.9999);
     }
 
+    /// Each 3D line imaged exactly by the preset rig as an oriented list segment, its ends
+    /// good to the σ given with it (pixels): the same index in all three lists.
+    fn lists_of_lines(rig: &Rig, lines: &[([nalgebra::Point3<f64>; 2], f64)]) -> [SegmentList; 3] {
+        std::array::from_fn(|v| {
+            let cam = rig.camera(v);
+            let segments = lines
+                .iter()
+                .map(|(line, sigma_px)| {
+                    let (a, b) = (
+                        cam.project(&line[0]).unwrap(),
+                        cam.project(&line[1]).unwrap(),
+                    );
+                    Segment2 {
+                        gradient: Some(20.0),
+                        noise: Some(LineNoise::from_endpoint_sigma(*sigma_px, (b - a).norm())),
+                        ..Segment2::new(a, b)
+                    }
+                })
+                .collect();
+            SegmentList {
+                segments,
+                oriented: true,
+                background_gradient: None,
+            }
+        })
+    }
+
+    /// Every match of `lists` (uncertain ones too), with or without the dominant directions.
+    fn matched_with_directions(
+        rig: &Rig,
+        lists: &[SegmentList; 3],
+        dominant_directions: bool,
+    ) -> MatchOutput {
+        let params = MatchParams {
+            dominant_directions,
+            include_uncertain: true,
+            ..MatchParams::default()
+        };
+        run(rig, Input::lists(lists), &Options::with(params))
+            .unwrap()
+            .output
+    }
+
+    /// The 3D segment of the triplet that takes list segment `i` in every view.
+    fn reconstructed_from(out: &MatchOutput, i: u32) -> Reconstructed {
+        out.segments_3d
+            .iter()
+            .find(|s| out.triplets[s.triplet as usize].segments == [i, i, i])
+            .cloned()
+            .unwrap_or_else(|| panic!("segment {i} is matched: {:?}", out.stats))
+    }
+
     #[test]
     fn a_short_upright_takes_the_direction_of_the_uprights_around_it() {
         let rig = preset_rig();
@@ -3003,46 +3055,13 @@ mod tests {
             nalgebra::Point3::new(0.47, 2.5, -0.11),
         ];
         let shorter = upright(0.13, 2.4, 0.2, 0.26);
-        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], sigma_px: f64| {
-            let cam = rig.camera(view);
-            let (a, b) = (
-                cam.project(&line[0]).unwrap(),
-                cam.project(&line[1]).unwrap(),
-            );
-            Segment2 {
-                gradient: Some(20.0),
-                noise: Some(LineNoise::from_endpoint_sigma(sigma_px, (b - a).norm())),
-                ..Segment2::new(a, b)
-            }
-        };
-        let lists: [SegmentList; 3] = std::array::from_fn(|v| {
-            let mut segments: Vec<Segment2> = posts.iter().map(|p| seen(v, p, 0.05)).collect();
-            segments.push(seen(v, &short, 0.15));
-            segments.push(seen(v, &slanted, 0.15));
-            segments.push(seen(v, &shorter, 0.15));
-            SegmentList {
-                segments,
-                oriented: true,
-                background_gradient: None,
-            }
-        });
-        let run_with = |dominant_directions| {
-            let params = MatchParams {
-                dominant_directions,
-                include_uncertain: true,
-                ..MatchParams::default()
-            };
-            run(&rig, Input::lists(&lists), &Options::with(params))
-                .unwrap()
-                .output
-        };
-        let of = |out: &MatchOutput, i: u32| {
-            out.segments_3d
-                .iter()
-                .find(|s| out.triplets[s.triplet as usize].segments == [i, i, i])
-                .cloned()
-                .unwrap_or_else(|| panic!("segment {i} is matched: {:?}", out.stats))
-        };
+        let mut lines: Vec<([nalgebra::Point3<f64>; 2], f64)> =
+            posts.iter().map(|p| (*p, 0.05)).collect();
+        lines.extend([(short, 0.15), (slanted, 0.15), (shorter, 0.15)]);
+        let lists = lists_of_lines(&rig, &lines);
+        let run_with =
+            |dominant_directions| matched_with_directions(&rig, &lists, dominant_directions);
+        let of = reconstructed_from;
         let alone = run_with(false);
         assert_eq!(alone.stats.along_dominant_directions, 0);
         for i in 0..5 {
@@ -3108,49 +3127,17 @@ mod tests {
         long.push(rail(-0.2, 2.5, -0.45, 15.0, 0.6));
         long.push(rail(0.3, 2.6, 0.4, -25.0, 0.5));
         long.push(rail(0.0, 2.8, -0.3, 70.0, 0.35));
-        // A short rail (10 cm, turned 35°) and a short slanted line, seen to 0.15 px: too
+        // A short rail (14 cm, turned 35°) and a short slanted line, seen to 0.15 px: too
         // short for their directions to meet the gate alone.
         let short = rail(-0.3, 2.4, -0.25, 35.0, 0.14);
         let slanted = line([0.4, 2.45, -0.2], [0.47, 2.5, -0.11]);
-        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], sigma_px: f64| {
-            let cam = rig.camera(view);
-            let (a, b) = (
-                cam.project(&line[0]).unwrap(),
-                cam.project(&line[1]).unwrap(),
-            );
-            Segment2 {
-                gradient: Some(20.0),
-                noise: Some(LineNoise::from_endpoint_sigma(sigma_px, (b - a).norm())),
-                ..Segment2::new(a, b)
-            }
-        };
-        let lists: [SegmentList; 3] = std::array::from_fn(|v| {
-            let mut segments: Vec<Segment2> = long.iter().map(|p| seen(v, p, 0.05)).collect();
-            segments.push(seen(v, &short, 0.15));
-            segments.push(seen(v, &slanted, 0.15));
-            SegmentList {
-                segments,
-                oriented: true,
-                background_gradient: None,
-            }
-        });
-        let run_with = |dominant_directions| {
-            let params = MatchParams {
-                dominant_directions,
-                include_uncertain: true,
-                ..MatchParams::default()
-            };
-            run(&rig, Input::lists(&lists), &Options::with(params))
-                .unwrap()
-                .output
-        };
-        let of = |out: &MatchOutput, i: u32| {
-            out.segments_3d
-                .iter()
-                .find(|s| out.triplets[s.triplet as usize].segments == [i, i, i])
-                .cloned()
-                .unwrap_or_else(|| panic!("segment {i} is matched: {:?}", out.stats))
-        };
+        let mut lines: Vec<([nalgebra::Point3<f64>; 2], f64)> =
+            long.iter().map(|l| (*l, 0.05)).collect();
+        lines.extend([(short, 0.15), (slanted, 0.15)]);
+        let lists = lists_of_lines(&rig, &lines);
+        let run_with =
+            |dominant_directions| matched_with_directions(&rig, &lists, dominant_directions);
+        let of = reconstructed_from;
         let (n_long, short_index, slanted_index) = (long.len() as u32, 8, 9);
         let alone = run_with(false);
         for i in 0..n_long {

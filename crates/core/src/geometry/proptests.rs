@@ -286,6 +286,50 @@ fn assert_calibrated(what: &str, within95: f64, within99: f64) {
     );
 }
 
+/// How many estimates' direction and position errors (squared, normalised: two degrees of
+/// freedom each) fell within χ²'s 95% and 99% quantiles.
+#[derive(Debug, Default)]
+struct WithinQuantiles {
+    direction: [usize; 2],
+    position: [usize; 2],
+}
+
+impl WithinQuantiles {
+    fn count(&mut self, (direction, position): (f64, f64)) {
+        for (counts, chi2) in [
+            (&mut self.direction, direction),
+            (&mut self.position, position),
+        ] {
+            counts[0] += usize::from(chi2 <= CHI2_2DOF_Q95);
+            counts[1] += usize::from(chi2 <= CHI2_2DOF_Q99);
+        }
+    }
+
+    /// The shares of `n` estimates: direction within q95, q99; position within q95, q99.
+    fn shares(&self, n: usize) -> [f64; 4] {
+        let share = |k: usize| k as f64 / n as f64;
+        [
+            share(self.direction[0]),
+            share(self.direction[1]),
+            share(self.position[0]),
+            share(self.position[1]),
+        ]
+    }
+
+    /// Prints the shares (the position called `position`) after `label`, and asserts both
+    /// calibrated; returns them.
+    fn assert_calibrated(&self, n: usize, position: &str, label: &str) -> [f64; 4] {
+        let [d95, d99, p95, p99] = self.shares(n);
+        println!(
+            "direction {d95:.3} / {d99:.3}, {position} {p95:.3} / {p99:.3} within chi2 q95 / \
+             q99; {label}"
+        );
+        assert_calibrated("direction", d95, d99);
+        assert_calibrated(position, p95, p99);
+        [d95, d99, p95, p99]
+    }
+}
+
 /// Draws segments from `random_segment`'s box (`half`, `depth`, `length`), images them with
 /// [`noisy_images`] and estimates each from its three lines, until `visit` has counted
 /// [`CALIBRATION_SAMPLES`] of them (it returns whether it counted one) or the draws run out;
@@ -339,18 +383,14 @@ fn ml_covariance_is_calibrated_when_the_noise_is_as_stated() {
     let r = uneven_triangle();
     let cams = [r.camera(0), r.camera(1), r.camera(2)];
     let mut rng = Rng::new(7);
-    let (mut dir95, mut dir99, mut pos95, mut pos99) = (0, 0, 0, 0);
+    let mut within = WithinQuantiles::default();
     // Segments 2–5 m in front (the rig looks along +y), 0.2–1.2 m long, any direction.
     let n = for_each_estimate(
         &cams,
         &mut rng,
         ([1.0, 0.8], [2.0, 5.0], [0.2, 1.2]),
         |_, truth, _, est| {
-            let (cd, cp) = normalised_errors(&est, truth);
-            dir95 += usize::from(cd <= CHI2_2DOF_Q95);
-            dir99 += usize::from(cd <= CHI2_2DOF_Q99);
-            pos95 += usize::from(cp <= CHI2_2DOF_Q95);
-            pos99 += usize::from(cp <= CHI2_2DOF_Q99);
+            within.count(normalised_errors(&est, truth));
             true
         },
     );
@@ -358,23 +398,9 @@ fn ml_covariance_is_calibrated_when_the_noise_is_as_stated() {
         n, CALIBRATION_SAMPLES,
         "too few segments seen by all three cameras"
     );
-    let share = |k: usize| k as f64 / n as f64;
-    println!(
-        "direction {:.3} / {:.3}, position {:.3} / {:.3} within chi2 q95 / q99",
-        share(dir95),
-        share(dir99),
-        share(pos95),
-        share(pos99)
-    );
-    assert_calibrated("direction", share(dir95), share(dir99));
-    assert_calibrated("position", share(pos95), share(pos99));
+    let [d95, _, p95, _] = within.assert_calibrated(n, "position", "the images alone");
     // ...and not by inflating it: no more than 99.5% within the 95% quantile.
-    assert!(
-        share(dir95) <= 0.995 && share(pos95) <= 0.995,
-        "too wide: {} {}",
-        share(dir95),
-        share(pos95)
-    );
+    assert!(d95 <= 0.995 && p95 <= 0.995, "too wide: {d95} {p95}");
 }
 
 #[test]
@@ -539,7 +565,7 @@ fn a_known_direction_narrows_a_short_segment_and_stays_calibrated() {
     let r = uneven_triangle();
     let cams = [r.camera(0), r.camera(1), r.camera(2)];
     let mut rng = Rng::new(17);
-    let (mut dir95, mut dir99, mut pos95, mut pos99) = (0, 0, 0, 0);
+    let mut within = WithinQuantiles::default();
     let mut sigma_ratios = Vec::new();
     let n = for_each_estimate(
         &cams,
@@ -563,29 +589,19 @@ fn a_known_direction_narrows_a_short_segment_and_stays_calibrated() {
                 alone.dof + 2,
                 "a direction adds two degrees of freedom"
             );
-            let (dir, pos) = normalised_errors(&est, (p, q));
+            within.count(normalised_errors(&est, (p, q)));
             let sigma = |c: Matrix3<f64>| c.trace().sqrt();
             sigma_ratios
                 .push(sigma(est.direction_covariance()) / sigma(alone.direction_covariance()));
-            dir95 += usize::from(dir <= CHI2_2DOF_Q95);
-            dir99 += usize::from(dir <= CHI2_2DOF_Q99);
-            pos95 += usize::from(pos <= CHI2_2DOF_Q95);
-            pos99 += usize::from(pos <= CHI2_2DOF_Q99);
             true
         },
     );
     let median_ratio = all_counted_and_median(n, sigma_ratios);
-    let share = |k: usize| k as f64 / n as f64;
-    println!(
-        "direction {:.3} / {:.3}, midpoint {:.3} / {:.3} within chi2 q95 / q99; direction \
-         sigma along the known direction / alone, median {median_ratio:.2}",
-        share(dir95),
-        share(dir99),
-        share(pos95),
-        share(pos99)
+    within.assert_calibrated(
+        n,
+        "midpoint",
+        &format!("direction sigma along the known direction / alone, median {median_ratio:.2}"),
     );
-    assert_calibrated("direction", share(dir95), share(dir99));
-    assert_calibrated("midpoint", share(pos95), share(pos99));
     // 0.3° against the several degrees that 8–25 cm at 2–4 m leave a short segment.
     assert!(median_ratio < 0.3, "median ratio {median_ratio}");
     // With no direction it is the estimate through no point, to the bit.
@@ -608,7 +624,7 @@ fn a_known_plane_of_directions_is_one_observation_of_the_tilt_and_stays_calibrat
     let r = uneven_triangle();
     let cams = [r.camera(0), r.camera(1), r.camera(2)];
     let mut rng = Rng::new(23);
-    let (mut dir95, mut dir99, mut pos95, mut pos99) = (0, 0, 0, 0);
+    let mut within = WithinQuantiles::default();
     let (mut out_ratios, mut in_ratios) = (Vec::new(), Vec::new());
     let n = for_each_estimate(
         &cams,
@@ -631,7 +647,7 @@ fn a_known_plane_of_directions_is_one_observation_of_the_tilt_and_stays_calibrat
                 return false;
             };
             assert_eq!(est.dof, alone.dof + 1, "a plane adds one degree of freedom");
-            let (dir, pos) = normalised_errors(&est, (p, q));
+            within.count(normalised_errors(&est, (p, q)));
             // The estimate's direction across the line, in the plane's terms (its normal,
             // and the line's turn within it), against the images alone conditioned on one
             // observation of the tilt: linear Gaussian fusion, which the fit should match.
@@ -648,27 +664,20 @@ fn a_known_plane_of_directions_is_one_observation_of_the_tilt_and_stays_calibrat
             };
             out_ratios.push((with_plane[(0, 0)] / alone_2[(0, 0)]).sqrt());
             in_ratios.push((with_plane[(1, 1)] / predicted[(1, 1)]).sqrt());
-            dir95 += usize::from(dir <= CHI2_2DOF_Q95);
-            dir99 += usize::from(dir <= CHI2_2DOF_Q99);
-            pos95 += usize::from(pos <= CHI2_2DOF_Q95);
-            pos99 += usize::from(pos <= CHI2_2DOF_Q99);
             true
         },
     );
     let out_median = all_counted_and_median(n, out_ratios);
     let in_median = all_counted_and_median(n, in_ratios);
-    let share = |k: usize| k as f64 / n as f64;
-    println!(
-        "direction {:.3} / {:.3}, midpoint {:.3} / {:.3} within chi2 q95 / q99; direction \
-         sigma out of the plane, with it / alone, median {out_median:.2}; within it, against \
-         one observation of the tilt fused with the images' covariance, median {in_median:.3}",
-        share(dir95),
-        share(dir99),
-        share(pos95),
-        share(pos99)
+    within.assert_calibrated(
+        n,
+        "midpoint",
+        &format!(
+            "direction sigma out of the plane, with it / alone, median {out_median:.2}; within \
+             it, against one observation of the tilt fused with the images' covariance, median \
+             {in_median:.3}"
+        ),
     );
-    assert_calibrated("direction", share(dir95), share(dir99));
-    assert_calibrated("midpoint", share(pos95), share(pos99));
     // Out of the plane the 0.3° replaces the several degrees a short segment has alone;
     // within it what is left is what the images say once the tilt is known: one degree of
     // freedom, not two.

@@ -434,12 +434,25 @@ fn build_map(
                 let v = d.scaled_axis();
                 let w = e.pose.translation.vector - t.translation.vector;
                 let err = nalgebra::Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z);
+                // The edge's own 1σ in translation, along its least-known axis (none for an
+                // edge of the heading or of a line alone, whose information is singular).
+                let sigma_mm = e.information.try_inverse().map(|c| {
+                    let t = c.fixed_view::<3, 3>(3, 3).into_owned();
+                    nalgebra::SymmetricEigen::new(t)
+                        .eigenvalues
+                        .max()
+                        .max(0.0)
+                        .sqrt()
+                        * 1e3
+                });
                 eprintln!(
-                    "    edge to {:02}: {} inliers, error {rotation:.3} deg {:.1} mm, chi2 {:.1}",
+                    "    edge to {:02}: {} inliers, error {rotation:.3} deg {:.1} mm, chi2 {:.1}, \
+                     sigma {}",
                     e.to,
                     e.inliers,
                     shift * 1e3,
-                    err.dot(&(e.information * err))
+                    err.dot(&(e.information * err)),
+                    sigma_mm.map_or("-".to_string(), |s| format!("{s:.1} mm"))
                 );
             }
         }

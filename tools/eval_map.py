@@ -20,7 +20,7 @@ scorer does not say — duplicates:
 Prints the scorer's JSON with these keys added. Run it with a python that has numpy (the
 scorer's, see ../shared/eval/README.md); the scorer runs with the same python.
 """
-import argparse, json, os, shlex, subprocess, sys
+import argparse, functools, json, os, shlex, subprocess, sys
 
 import numpy as np
 
@@ -63,6 +63,7 @@ def main():
 
     L = np.linalg.norm(B - A, axis=1)
 
+    @functools.lru_cache(maxsize=None)
     def on_its_line(j):
         # The scorer's duplicate edges: parallel and on the same line.
         par = np.abs(np.abs(U @ U[j]) - 1) < 1e-9

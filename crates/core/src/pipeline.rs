@@ -201,10 +201,11 @@ pub struct Reconstructed {
     /// The segment does not meet the accuracy asked for (`MatchParams::gate_*`): reported
     /// only when `include_uncertain` is set.
     pub uncertain: bool,
-    /// It was estimated along the scene's dominant direction it lies along
-    /// (`MatchParams::dominant_directions`), its views alone leaving its direction too loose
-    /// for the gate: its direction and covariance hold the scene's well-measured lines as
-    /// well as its own. Still `uncertain` when the uniqueness test then found a rival.
+    /// It was estimated along the scene's dominant direction it lies along, or in the plane
+    /// square to one (`MatchParams::dominant_directions`), its views alone leaving its
+    /// direction too loose for the gate: its direction and covariance hold the scene's
+    /// well-measured lines as well as its own. Still `uncertain` when the uniqueness test
+    /// then found a rival.
     pub aligned: bool,
 }
 
@@ -235,8 +236,8 @@ pub struct MatchStats {
     /// them `ambiguous`).
     pub joined_at_vertices: u32,
     /// Of the winners the gate doubted for their direction alone: made certain by the
-    /// direction of the scene's well-measured lines they lie along
-    /// (`MatchParams::dominant_directions`), before the uniqueness test.
+    /// direction of the scene's well-measured lines they lie along, or by the plane square to
+    /// one (`MatchParams::dominant_directions`), before the uniqueness test.
     pub along_dominant_directions: u32,
     /// How much larger than stated the image-line noise turned out to be in this capture (a
     /// factor on σ, at least 1; read off the first reconstructions: mostly the calibration's
@@ -837,7 +838,7 @@ struct Matching<'a> {
 /// How a reconstruction measures up, in the units its users think in.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Quality {
-    /// Certain along the scene's dominant direction it lies along
+    /// Certain along the scene's dominant direction it lies along, or in its plane
     /// ([`align_with_dominant_directions`]), not by its views alone.
     aligned: bool,
     direction_sigma_deg: f64,
@@ -1834,6 +1835,24 @@ const ALONG_MIN_PX: f64 = 20.0;
 /// (88°): a line along one lies in the other's plane.
 const SQUARE_COS: f64 = 0.035;
 
+/// A well-measured line's weight in the scene's directions: its direction's information,
+/// floored at [`MODE_WEIGHT_FLOOR_DEG`].
+fn mode_weight(variance: f64) -> f64 {
+    1.0 / (variance + MODE_WEIGHT_FLOOR_DEG.to_radians().powi(2))
+}
+
+/// The variance of an angle that lines share (a direction's, or a plane's tilt), from each
+/// line's deviation from it and its own variance (radians, radians²): their weighted spread
+/// beyond their own noise, plus the weighted mean's own.
+fn shared_variance(deviations: impl Iterator<Item = (f64, f64)> + Clone) -> f64 {
+    let total: f64 = deviations.clone().map(|(_, var)| mode_weight(var)).sum();
+    let spread = deviations
+        .map(|(angle, var)| mode_weight(var) * (angle * angle - var))
+        .sum::<f64>()
+        / total;
+    spread.max(0.0) + 1.0 / total
+}
+
 /// One dominant direction of a scene: a unit vector (either sense), the variance of the
 /// direction its lines share about it (radians², per axis across it), and how many lines
 /// lie along it.
@@ -1855,7 +1874,6 @@ fn dominant_directions(lines: &[(nalgebra::Vector3<f64>, f64)]) -> Vec<Mode> {
     order.sort_by(|&a, &b| lines[a].1.total_cmp(&lines[b].1).then(a.cmp(&b)));
     order.truncate(MAX_MODE_LINES);
     let lines: Vec<(nalgebra::Vector3<f64>, f64)> = order.iter().map(|&i| lines[i]).collect();
-    let weight = |var: f64| 1.0 / (var + MODE_WEIGHT_FLOOR_DEG.to_radians().powi(2));
     // Each line's reach, as the cosine its neighbours' directions must exceed (once per line,
     // not per pair).
     let reach: Vec<f64> = lines
@@ -1873,7 +1891,7 @@ fn dominant_directions(lines: &[(nalgebra::Vector3<f64>, f64)]) -> Vec<Mode> {
                 }
                 (0..lines.len())
                     .filter(|&j| left[j] && along(i, j))
-                    .map(|j| weight(lines[j].1))
+                    .map(|j| mode_weight(lines[j].1))
                     .sum()
             })
             .collect();
@@ -1890,26 +1908,22 @@ fn dominant_directions(lines: &[(nalgebra::Vector3<f64>, f64)]) -> Vec<Mode> {
             break;
         }
         let sense = |j: usize| lines[j].0 * lines[j].0.dot(&lines[seed].0).signum();
-        let total: f64 = members.iter().map(|&j| weight(lines[j].1)).sum();
         let Some(direction) = members
             .iter()
-            .map(|&j| sense(j) * weight(lines[j].1))
+            .map(|&j| sense(j) * mode_weight(lines[j].1))
             .sum::<nalgebra::Vector3<f64>>()
             .try_normalize(1e-12)
         else {
             break;
         };
-        let spread = members
-            .iter()
-            .map(|&j| {
-                let angle = sense(j).dot(&direction).clamp(-1.0, 1.0).acos();
-                weight(lines[j].1) * (angle * angle - lines[j].1)
-            })
-            .sum::<f64>()
-            / total;
+        let variance = shared_variance(
+            members
+                .iter()
+                .map(|&j| (sense(j).dot(&direction).clamp(-1.0, 1.0).acos(), lines[j].1)),
+        );
         modes.push(Mode {
             direction,
-            variance: spread.max(0.0) + 1.0 / total,
+            variance,
             members: members.len(),
         });
         members.iter().for_each(|&j| left[j] = false);
@@ -1955,19 +1969,21 @@ fn align_with_dominant_directions(
         checkpoint,
         ..
     } = *request;
-    // A fit's direction, the basis across it, and its direction covariance in that basis.
+    // A fit's direction, the basis across it, its direction covariance and that covariance
+    // in the basis.
     let direction_of = |est: &Line3Estimate| {
         let u = est.direction();
         let (e1, e2) = crate::geometry::across_basis(&u);
         let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
-        let across = basis.transpose() * est.direction_covariance() * basis;
-        (u, basis, across)
+        let covariance = est.direction_covariance();
+        let across = basis.transpose() * covariance * basis;
+        (u, basis, covariance, across)
     };
     let certain: Vec<(nalgebra::Vector3<f64>, f64)> = kept
         .iter()
         .filter_map(|&h| match &fits[h] {
             Some(Some((est, q))) if q.certain => {
-                let (u, _, across) = direction_of(est);
+                let (u, _, _, across) = direction_of(est);
                 Some((u, eigenvalues_2x2(&across).0))
             }
             _ => None,
@@ -2001,16 +2017,13 @@ fn align_with_dominant_directions(
         if along_one {
             continue;
         }
+        let tilts: Vec<f64> = modes.iter().map(|m| tilt(u, m)).collect();
         let plane = (0..modes.len())
-            .filter(|&k| tilt(u, &modes[k]).powi(2) <= 9.0 * (var + modes[k].variance))
-            .min_by(|&a, &b| {
-                tilt(u, &modes[a])
-                    .abs()
-                    .total_cmp(&tilt(u, &modes[b]).abs())
-            });
+            .filter(|&k| tilts[k].powi(2) <= 9.0 * (var + modes[k].variance))
+            .min_by(|&a, &b| tilts[a].abs().total_cmp(&tilts[b].abs()));
         match plane {
-            Some(k) => across_lines[k].push((tilt(u, &modes[k]), *var)),
-            _ => off_every_mode += 1,
+            Some(k) => across_lines[k].push((tilts[k], *var)),
+            None => off_every_mode += 1,
         }
     }
     let (prior_share, prior_count) = ALONG_NONE_PRIOR;
@@ -2026,16 +2039,9 @@ fn align_with_dominant_directions(
             if lines.is_empty() {
                 return (0.0, 0.0);
             }
-            let weight = |var: f64| 1.0 / (var + MODE_WEIGHT_FLOOR_DEG.to_radians().powi(2));
-            let total: f64 = lines.iter().map(|&(_, var)| weight(var)).sum();
-            let spread = lines
-                .iter()
-                .map(|&(t, var)| weight(var) * (t * t - var))
-                .sum::<f64>()
-                / total;
             (
                 lines.len() as f64 / seen,
-                spread.max(0.0) + 1.0 / total + m.variance,
+                shared_variance(lines.iter().copied()) + m.variance,
             )
         })
         .collect();
@@ -2055,7 +2061,7 @@ fn align_with_dominant_directions(
         {
             continue;
         }
-        let (u, basis, across) = direction_of(est);
+        let (u, basis, direction_covariance, across) = direction_of(est);
         if within_radius(eigenvalues_2x2(&across), gate_direction, confidence) {
             continue; // the direction is not what the gate doubts
         }
@@ -2076,7 +2082,6 @@ fn align_with_dominant_directions(
                 along_share * m.members as f64 / members as f64 * density
             })
             .collect();
-        let direction_covariance = est.direction_covariance();
         let in_plane: Vec<f64> = modes
             .iter()
             .zip(&planes)
@@ -2109,17 +2114,19 @@ fn align_with_dominant_directions(
             continue;
         }
         // Lying in a mode's plane: across it, or along another mode square to it.
-        let plane_posterior = |k: usize| {
-            let square: f64 = (0..modes.len())
-                .filter(|&j| modes[j].direction.dot(&modes[k].direction).abs() < SQUARE_COS)
-                .map(|j| along[j])
-                .sum();
-            (in_plane[k] + square) / total
-        };
+        let plane_posterior: Vec<f64> = (0..modes.len())
+            .map(|k| {
+                let square: f64 = (0..modes.len())
+                    .filter(|&j| modes[j].direction.dot(&modes[k].direction).abs() < SQUARE_COS)
+                    .map(|j| along[j])
+                    .sum();
+                (in_plane[k] + square) / total
+            })
+            .collect();
         let best_plane = (0..modes.len())
             .filter(|&k| planes[k].0 > 0.0)
-            .max_by(|&a, &b| plane_posterior(a).total_cmp(&plane_posterior(b)));
-        if let Some(k) = best_plane.filter(|&k| plane_posterior(k) >= ALONG_POSTERIOR) {
+            .max_by(|&a, &b| plane_posterior[a].total_cmp(&plane_posterior[b]));
+        if let Some(k) = best_plane.filter(|&k| plane_posterior[k] >= ALONG_POSTERIOR) {
             candidates.push((
                 h,
                 KnownDirection::Across(DirectionOfLine {
@@ -2134,9 +2141,8 @@ fn align_with_dominant_directions(
     }
     // Estimated again from the views with the mode's direction, or its plane, as one more
     // observation of the line (the stored fit is cut to what its ends vouch for under its
-    // own direction).
-    // On the pool's threads, a chunk at a time (the fits are independent; the order of the
-    // results is the candidates').
+    // own direction): on the pool's threads, a chunk at a time (the fits are independent;
+    // the results come in the candidates' order).
     let cameras = [rig.camera(0), rig.camera(1), rig.camera(2)];
     let factor = stats.noise_scale.powi(2);
     for chunk in candidates.chunks(RECONSTRUCT_CHUNK) {

@@ -1390,18 +1390,37 @@ fn estimate_unfitted(
 const YIELD_CHI2_MARGIN: f64 = 1.0;
 /// Most doubtful winners sharing one of a newcomer's segments for it to stand in for them.
 const MAX_YIELD_RIVALS: usize = 16;
+/// A winner whose views disagree on where both its ends lie by more than this many of their
+/// σ (`Line3Estimate::ends_disagreement`) is three edges that happen to lie on one 3D line,
+/// not one edge seen three times: the ghost of a repetitive structure — a radiator's fins,
+/// matched one fin over in one view and one fin the other way in the other, which a third
+/// camera half-way along the baseline checks no better than the first two (docs/ACCURACY.md,
+/// "Ghosts whose ends disagree"). Occlusion moves one end in some views, not both; a real
+/// edge's ends agree within a few σ ([`AMBIGUITY_ENDS_AGREE`]). 4, 5, 7 and 10 measured
+/// alike on the rendered rooms; 20 and 40 let some ghosts stand.
+const GHOST_ENDS_DISAGREE: f64 = 10.0;
 
 /// Validation ranks by neighbour support, and a winner the accuracy gate then doubts still
 /// holds its three segments against every rival — even one that would be certain. Here the
 /// doubtful winners stand aside: the uniqueness pass runs again with the certain winners
 /// first, then the other hypotheses in ranking order, then the doubtful winners, and a
 /// newcomer it admits takes the place of the doubtful winners it conflicts with when it is
-/// certain and fits better than each of them by [`YIELD_CHI2_MARGIN`]. Only a newcomer whose
-/// depth the verification checked (not [`Hypothesis::depth_blind`]) and whose three lines
-/// carry measured noise (the extractor's, not the list model's) may stand in: a ghost along a
-/// baseline, and a line whose certainty rests on a model of the noise, come out certain too
-/// easily to replace a winner that had more support (docs/ACCURACY.md, "A doubtful winner
-/// gives way"). The doubtful winners that are not replaced stay, flagged as before.
+/// certain and, against each of them, either fits better by [`YIELD_CHI2_MARGIN`] or is one
+/// edge where the winner is a ghost (below). Only a newcomer whose depth the verification
+/// checked (not [`Hypothesis::depth_blind`]) may stand in, and by the better fit only one
+/// whose three lines carry measured noise (the extractor's, not the list model's): a ghost
+/// along a baseline, and a line whose certainty rests on a model of the noise, come out
+/// certain too easily to replace a winner that had more support (docs/ACCURACY.md, "A
+/// doubtful winner gives way").
+///
+/// A winner whose views' ends disagree by more than [`GHOST_ENDS_DISAGREE`] σ is doubtful
+/// too, however certain its covariance: the ghost of a repetitive structure, whose lines fit
+/// one 3D line as well as the true edge's do. It gives way to a newcomer whose ends agree
+/// (within [`AMBIGUITY_ENDS_AGREE`]) and that fits as well (χ² within
+/// [`AMBIGUITY_CHI2_MARGIN`]): evidence the list model's noise does not enter, so lists'
+/// newcomers may take a ghost's place — only those sharing a segment with a ghost are tried,
+/// which bounds the work. The doubtful winners that are not replaced stay, flagged as before
+/// (a ghost, by [`flag_ambiguous`], when its rival is as likely).
 fn yield_to_certain_rivals(
     request: &Matching,
     observations: &mut Observations,
@@ -1423,15 +1442,30 @@ fn yield_to_certain_rivals(
         Some(Some((_, q))) => Some(q.certain),
         _ => None,
     };
+    let ends_disagreement = |fits: &[Option<Fit>], h: usize| match &fits[h] {
+        Some(Some((e, _))) => e.ends_disagreement,
+        _ => 0.0,
+    };
     let mut standing = vec![false; hypotheses.len()];
     let mut doubtful = vec![false; hypotheses.len()];
+    let mut ghost = vec![false; hypotheses.len()];
     for &h in kept.iter() {
         standing[h] = true;
-        doubtful[h] = quality(&fits[h]) == Some(false);
+        ghost[h] = ends_disagreement(fits, h) > GHOST_ENDS_DISAGREE;
+        doubtful[h] = ghost[h] || quality(&fits[h]) == Some(false);
     }
     if !doubtful.iter().any(|&d| d) {
         return Ok(());
     }
+    // Per view, the segments the ghosts hold: a newcomer on one may stand in for a ghost.
+    let mut ghosts_segments: [FxHashSet<u32>; 3] = Default::default();
+    for &h in kept.iter().filter(|&&h| ghost[h]) {
+        for (v, held) in ghosts_segments.iter_mut().enumerate() {
+            held.insert(hypotheses[h].segments[v]);
+        }
+    }
+    let meets_ghost =
+        |h: usize| (0..3).any(|v| ghosts_segments[v].contains(&hypotheses[h].segments[v]));
     let measured = |h: usize| {
         (0..3).all(|v| {
             let s = &views.segments[v][hypotheses[h].segments[v] as usize];
@@ -1445,12 +1479,9 @@ fn yield_to_certain_rivals(
         .iter()
         .copied()
         .filter(|&h| standing[h] && !doubtful[h])
-        .chain(
-            ranking
-                .iter()
-                .copied()
-                .filter(|&h| !standing[h] && !hypotheses[h].depth_blind && measured(h)),
-        )
+        .chain(ranking.iter().copied().filter(|&h| {
+            !standing[h] && !hypotheses[h].depth_blind && (measured(h) || meets_ghost(h))
+        }))
         .chain(ranking.iter().copied().filter(|&h| doubtful[h]))
         .collect();
     let newcomers: Vec<usize> = matching::select(views, hypotheses, &order, alive, params)
@@ -1508,10 +1539,15 @@ fn yield_to_certain_rivals(
         let Some(rivals) = rivals_of(h) else {
             continue;
         };
+        let (measured_noise, one_edge) = (
+            measured(h),
+            ends_disagreement(fits, h) <= AMBIGUITY_ENDS_AGREE,
+        );
         if !rivals.is_empty()
-            && rivals
-                .iter()
-                .all(|&d| chi2(d) > chi2(h) + YIELD_CHI2_MARGIN)
+            && rivals.iter().all(|&d| {
+                (measured_noise && chi2(d) > chi2(h) + YIELD_CHI2_MARGIN)
+                    || (one_edge && ghost[d] && chi2(h) <= chi2(d) + AMBIGUITY_CHI2_MARGIN)
+            })
         {
             replaced.extend(rivals);
             winners.push(h);
@@ -2826,6 +2862,83 @@ mod tests {
         assert_eq!(modelled.segments_3d.len(), 1, "{:?}", modelled.stats);
         assert!(modelled.segments_3d[0].uncertain);
         assert!(run_lists(None, false).segments_3d.is_empty());
+    }
+
+    #[test]
+    fn a_ghost_whose_ends_disagree_gives_way_to_the_edge_it_took_a_segment_from() {
+        let rig = preset_rig();
+        let c1 = rig.camera(0).centre();
+        // A vertical edge 2 m ahead, 40 cm tall; views 2 and 3 see only its lower part (the
+        // rest hidden from them). A repetitive structure's ghost: on view 1's rays, 30%
+        // farther, a line that views 2 and 3 also hold — but their segments are the images of
+        // two other pieces of that line, one 6 cm higher, one 6 cm lower, as the fins of a
+        // radiator matched one fin over each way are. The three lines fit that one 3D line
+        // exactly, and the ghost covers more of view 1's segment, which validation ranks
+        // first; only the views' ends say it is three edges, not one.
+        let edge = [
+            nalgebra::Point3::new(0.05, 2.0, -0.25),
+            nalgebra::Point3::new(0.05, 2.0, 0.15),
+        ];
+        let lower = [edge[0], edge[0] + (edge[1] - edge[0]) * 0.6];
+        let ghost = edge.map(|p| c1 + (p - c1) * 1.3);
+        let shifted = |dz: f64| ghost.map(|p| p + nalgebra::Vector3::new(0.0, 0.0, dz));
+        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], sigma_px: Option<f64>| {
+            let cam = rig.camera(view);
+            let (a, b) = (
+                cam.project(&line[0]).unwrap(),
+                cam.project(&line[1]).unwrap(),
+            );
+            Segment2 {
+                gradient: Some(20.0),
+                noise: sigma_px.map(|s| LineNoise::from_endpoint_sigma(s, (b - a).norm())),
+                ..Segment2::new(a, b)
+            }
+        };
+        let list = |segments: Vec<Segment2>| SegmentList {
+            segments,
+            oriented: true,
+            background_gradient: None,
+        };
+        // `sigma_px`: the extractor's measured noise at each end, or (`None`) a list's
+        // segment that says nothing of it.
+        let run_lists = |sigma_px: Option<f64>, include_uncertain| {
+            let lists = [
+                list(vec![seen(0, &edge, sigma_px)]),
+                list(vec![
+                    seen(1, &lower, sigma_px),
+                    seen(1, &shifted(0.06), sigma_px),
+                ]),
+                list(vec![
+                    seen(2, &lower, sigma_px),
+                    seen(2, &shifted(-0.06), sigma_px),
+                ]),
+            ];
+            let params = MatchParams {
+                include_uncertain,
+                ..MatchParams::default()
+            };
+            run(&rig, Input::lists(&lists), &Options::with(params))
+                .unwrap()
+                .output
+        };
+        for sigma_px in [Some(0.05), None] {
+            // Every match: the ghost was the winner, its views' ends tens of σ apart.
+            let everything = run_lists(sigma_px, true);
+            let ghost_fit = everything
+                .segments_3d
+                .iter()
+                .find(|s| everything.triplets[s.triplet as usize].segments == [0, 1, 1]);
+            assert!(ghost_fit.is_none(), "{sigma_px:?}: the ghost is answered");
+            // The edge's triplet is the answer, certain, at the edge's depth.
+            let out = run_lists(sigma_px, false);
+            assert_eq!(out.segments_3d.len(), 1, "{sigma_px:?}: {:?}", out.stats);
+            let answer = &out.segments_3d[0];
+            assert!(!answer.uncertain);
+            assert_eq!(out.triplets[answer.triplet as usize].segments, [0, 0, 0]);
+            for end in [&answer.segment.start, &answer.segment.end] {
+                assert!((end.y - 2.0).abs() < 0.01, "{sigma_px:?}: {end}");
+            }
+        }
     }
 
     #[test]

@@ -1491,15 +1491,6 @@ fn yield_to_certain_rivals(
     if newcomers.is_empty() {
         return Ok(());
     }
-    let (todo, estimates) = estimate_unfitted(request, observations, &newcomers, fits)?;
-    let factor = stats.noise_scale.powi(2);
-    for (&h, est) in todo.iter().zip(estimates) {
-        fits[h] = Some(accept(est.map(|e| rescaled(e, factor)), rig, params));
-    }
-    let chi2 = |h: usize| match &fits[h] {
-        Some(Some((e, _))) => e.chi2,
-        _ => f64::INFINITY,
-    };
     // The doubtful winners by segment, so a newcomer meets only those it may conflict with.
     let mut by_segment: FxHashMap<(usize, u32), Vec<usize>> = FxHashMap::default();
     for &h in kept.iter().filter(|&&h| doubtful[h]) {
@@ -1530,25 +1521,43 @@ fn yield_to_certain_rivals(
         rivals.dedup();
         Some(rivals)
     };
+    // Only a newcomer that could stand in is reconstructed: one that meets doubtful winners,
+    // and, without measured noise, only ghosts among them (the one test it may pass).
+    let candidates: Vec<(usize, Vec<usize>)> = newcomers
+        .into_iter()
+        .filter_map(|h| {
+            let rivals = rivals_of(h)?;
+            (!rivals.is_empty() && (measured(h) || rivals.iter().all(|&d| ghost[d])))
+                .then_some((h, rivals))
+        })
+        .collect();
+    if candidates.is_empty() {
+        return Ok(());
+    }
+    let standing_in: Vec<usize> = candidates.iter().map(|&(h, _)| h).collect();
+    let (todo, estimates) = estimate_unfitted(request, observations, &standing_in, fits)?;
+    let factor = stats.noise_scale.powi(2);
+    for (&h, est) in todo.iter().zip(estimates) {
+        fits[h] = Some(accept(est.map(|e| rescaled(e, factor)), rig, params));
+    }
+    let chi2 = |h: usize| match &fits[h] {
+        Some(Some((e, _))) => e.chi2,
+        _ => f64::INFINITY,
+    };
     let mut replaced = FxHashSet::default();
     let mut winners = Vec::new();
-    for h in newcomers {
+    for (h, rivals) in candidates {
         if quality(&fits[h]) != Some(true) {
             continue;
         }
-        let Some(rivals) = rivals_of(h) else {
-            continue;
-        };
         let (measured_noise, one_edge) = (
             measured(h),
             ends_disagreement(fits, h) <= AMBIGUITY_ENDS_AGREE,
         );
-        if !rivals.is_empty()
-            && rivals.iter().all(|&d| {
-                (measured_noise && chi2(d) > chi2(h) + YIELD_CHI2_MARGIN)
-                    || (one_edge && ghost[d] && chi2(h) <= chi2(d) + AMBIGUITY_CHI2_MARGIN)
-            })
-        {
+        if rivals.iter().all(|&d| {
+            (measured_noise && chi2(d) > chi2(h) + YIELD_CHI2_MARGIN)
+                || (one_edge && ghost[d] && chi2(h) <= chi2(d) + AMBIGUITY_CHI2_MARGIN)
+        }) {
             replaced.extend(rivals);
             winners.push(h);
         }

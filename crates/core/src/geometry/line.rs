@@ -384,10 +384,20 @@ pub fn estimate_line_constrained(
     known: Option<&KnownDirection>,
 ) -> Option<Line3Estimate> {
     let (mut x0, mut d) = linear_start(cameras, obs)?;
-    let points: Vec<(usize, VirtualPoints, f64)> = obs
-        .iter()
-        .map(|o| virtual_points(o).map(|v| (o.view, v, o.systematic_px)))
-        .collect::<Option<_>>()?;
+    // One observation per view is the rule (a triplet); pieces of a line, the exception, go
+    // to the heap. This runs for every hypothesis fitted, so the rule allocates nothing.
+    let observed = |o: &LineObservation| virtual_points(o).map(|v| (o.view, v, o.systematic_px));
+    let mut on_stack = [(0, [(Point2::origin(), 0.0); 2], 0.0); 3];
+    let on_heap: Vec<(usize, VirtualPoints, f64)>;
+    let points: &[(usize, VirtualPoints, f64)] = if obs.len() <= on_stack.len() {
+        for (slot, o) in on_stack.iter_mut().zip(obs) {
+            *slot = observed(o)?;
+        }
+        &on_stack[..obs.len()]
+    } else {
+        on_heap = obs.iter().map(observed).collect::<Option<_>>()?;
+        &on_heap
+    };
     let systematic = obs.iter().any(|o| o.systematic_px > 0.0);
     let normal = |x0: &Vector3<f64>, d: &Vector3<f64>| {
         let (e1, e2) = across_basis(d);
@@ -398,7 +408,7 @@ pub fn estimate_line_constrained(
         let mut shifted = [Vector4::<f64>::zeros(); 3];
         let mut chi2 = 0.0;
         let mut sum_px = 0.0;
-        for (view, pts, systematic_px) in &points {
+        for (view, pts, systematic_px) in points {
             let image = ImageOfLine::new(cameras[*view].projection(), x0, d, (&e1, &e2))?;
             for &(q, sigma) in pts {
                 let (r, j) = image.distance_and_gradient(q);
@@ -482,7 +492,8 @@ pub fn estimate_line_constrained(
         }
     };
     // Extent: each view's ends along the line (a view's pieces together), then their overlap.
-    let mut ends: Vec<(f64, f64)> = Vec::with_capacity(3);
+    let mut ends_of_views = [(0.0, 0.0); 3];
+    let mut n_ends = 0;
     let mut first_sign = 0.0;
     for (view, cam) in cameras.iter().enumerate() {
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -505,9 +516,11 @@ pub fn estimate_line_constrained(
             hi = hi.max(ts[0].max(ts[1]));
         }
         if lo.is_finite() && hi.is_finite() {
-            ends.push((lo, hi));
+            ends_of_views[n_ends] = (lo, hi);
+            n_ends += 1;
         }
     }
+    let ends = &ends_of_views[..n_ends];
     if ends.len() < 2 {
         return None;
     }

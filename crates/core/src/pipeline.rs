@@ -2795,40 +2795,15 @@ mod tests {
     #[test]
     fn a_doubtful_winner_gives_way_to_a_certain_rival_that_fits_better() {
         let rig = preset_rig();
-        let c1 = rig.camera(0).centre();
-        // A vertical edge 2 m ahead, 40 cm tall; views 2 and 3 see only its lower half (the
-        // upper half hidden from them). Its ghost on view 1's rays, 30% farther, is seen whole
-        // in views 2 and 3 — a line there that happens to fit — and so covers more of view 1's
-        // segment, which validation ranks first.
-        let edge = [
-            nalgebra::Point3::new(0.05, 2.0, -0.25),
-            nalgebra::Point3::new(0.05, 2.0, 0.15),
-        ];
+        // Views 2 and 3 see only the edge's lower half (the upper half hidden from them). Its
+        // ghost is seen whole in views 2 and 3 — a line there that happens to fit — and so
+        // covers more of view 1's segment, which validation ranks first.
+        let (edge, ghost) = an_edge_and_its_ghost(&rig);
         let lower = [edge[0], nalgebra::center(&edge[0], &edge[1])];
-        let ghost = edge.map(|p| c1 + (p - c1) * 1.3);
-        // `sigma_px`: the measured noise at each end, as the extractor gives it; `None`, a
-        // list's segment that says nothing of its noise.
-        let seen = |view: usize,
-                    line: &[nalgebra::Point3<f64>; 2],
-                    shift_px: f64,
-                    sigma_px: Option<f64>| {
-            let cam = rig.camera(view);
-            let (a, b) = (
-                cam.project(&line[0]).unwrap(),
-                cam.project(&line[1]).unwrap(),
-            );
-            let shift = nalgebra::Vector2::new(shift_px, 0.0);
-            Segment2 {
-                gradient: Some(20.0),
-                noise: sigma_px.map(|s| LineNoise::from_endpoint_sigma(s, (b - a).norm())),
-                ..Segment2::new(a + shift, b + shift)
-            }
+        let seen = |view, line: &[nalgebra::Point3<f64>; 2], shift_px, sigma_px| {
+            imaged(&rig, view, line, shift_px, sigma_px)
         };
-        let list = |segments: Vec<Segment2>| SegmentList {
-            segments,
-            oriented: true,
-            background_gradient: None,
-        };
+        let list = oriented;
         // The ghost's lines are imprecise (0.35 px at each end), too imprecise for the gate,
         // and its third view is 0.8 px off the ghost's place: one 3D line within its noise,
         // but a worse fit than the edge's precise lines (0.05 px). Without the rule the ghost
@@ -2845,13 +2820,7 @@ mod tests {
                     seen(2, &ghost, 0.8, Some(0.35)),
                 ]),
             ];
-            let params = MatchParams {
-                include_uncertain,
-                ..MatchParams::default()
-            };
-            run(&rig, Input::lists(&lists), &Options::with(params))
-                .unwrap()
-                .output
+            matched(&rig, &lists, include_uncertain)
         };
         // The edge's triplet is the answer, certain: the ghost, uncertain, gave way.
         let out = run_lists(Some(0.05), false);
@@ -2876,40 +2845,20 @@ mod tests {
     #[test]
     fn a_ghost_whose_ends_disagree_gives_way_to_the_edge_it_took_a_segment_from() {
         let rig = preset_rig();
-        let c1 = rig.camera(0).centre();
-        // A vertical edge 2 m ahead, 40 cm tall; views 2 and 3 see only its lower part (the
-        // rest hidden from them). A repetitive structure's ghost: on view 1's rays, 30%
-        // farther, a line that views 2 and 3 also hold — but their segments are the images of
-        // two other pieces of that line, one 6 cm higher, one 6 cm lower, as the fins of a
-        // radiator matched one fin over each way are. The three lines fit that one 3D line
-        // exactly, and the ghost covers more of view 1's segment, which validation ranks
-        // first; only the views' ends say it is three edges, not one.
-        let edge = [
-            nalgebra::Point3::new(0.05, 2.0, -0.25),
-            nalgebra::Point3::new(0.05, 2.0, 0.15),
-        ];
+        // Views 2 and 3 see only the edge's lower part (the rest hidden from them). A
+        // repetitive structure's ghost: a line on view 1's rays that views 2 and 3 also hold —
+        // but their segments are the images of two other pieces of that line, one 6 cm
+        // higher, one 6 cm lower, as the fins of a radiator matched one fin over each way are.
+        // The three lines fit that one 3D line exactly, and the ghost covers more of view 1's
+        // segment, which validation ranks first; only the views' ends say it is three edges,
+        // not one.
+        let (edge, ghost) = an_edge_and_its_ghost(&rig);
         let lower = [edge[0], edge[0] + (edge[1] - edge[0]) * 0.6];
-        let ghost = edge.map(|p| c1 + (p - c1) * 1.3);
         let shifted = |dz: f64| ghost.map(|p| p + nalgebra::Vector3::new(0.0, 0.0, dz));
-        let seen = |view: usize, line: &[nalgebra::Point3<f64>; 2], sigma_px: Option<f64>| {
-            let cam = rig.camera(view);
-            let (a, b) = (
-                cam.project(&line[0]).unwrap(),
-                cam.project(&line[1]).unwrap(),
-            );
-            Segment2 {
-                gradient: Some(20.0),
-                noise: sigma_px.map(|s| LineNoise::from_endpoint_sigma(s, (b - a).norm())),
-                ..Segment2::new(a, b)
-            }
+        let seen = |view, line: &[nalgebra::Point3<f64>; 2], sigma_px| {
+            imaged(&rig, view, line, 0.0, sigma_px)
         };
-        let list = |segments: Vec<Segment2>| SegmentList {
-            segments,
-            oriented: true,
-            background_gradient: None,
-        };
-        // `sigma_px`: the extractor's measured noise at each end, or (`None`) a list's
-        // segment that says nothing of it.
+        let list = oriented;
         let run_lists = |sigma_px: Option<f64>, include_uncertain| {
             let lists = [
                 list(vec![seen(0, &edge, sigma_px)]),
@@ -2922,13 +2871,7 @@ mod tests {
                     seen(2, &shifted(-0.06), sigma_px),
                 ]),
             ];
-            let params = MatchParams {
-                include_uncertain,
-                ..MatchParams::default()
-            };
-            run(&rig, Input::lists(&lists), &Options::with(params))
-                .unwrap()
-                .output
+            matched(&rig, &lists, include_uncertain)
         };
         for sigma_px in [Some(0.05), None] {
             // Every match: the ghost was the winner, its views' ends tens of σ apart.
@@ -3106,30 +3049,71 @@ mod tests {
         assert!(modes[0].direction.z.abs() > 0.9999);
     }
 
+    /// A vertical edge 2 m ahead of the preset rig, 40 cm tall, and its ghost: the same line
+    /// on view 1's rays, 30% farther.
+    fn an_edge_and_its_ghost(
+        rig: &Rig,
+    ) -> ([nalgebra::Point3<f64>; 2], [nalgebra::Point3<f64>; 2]) {
+        let c1 = rig.camera(0).centre();
+        let edge = [
+            nalgebra::Point3::new(0.05, 2.0, -0.25),
+            nalgebra::Point3::new(0.05, 2.0, 0.15),
+        ];
+        (edge, edge.map(|p| c1 + (p - c1) * 1.3))
+    }
+
+    /// `line` as view `view` of the preset rig sees it, moved `shift_px` along the image's x,
+    /// with `sigma_px` of measured noise at each end, as the extractor gives it (`None`: a
+    /// list's segment that says nothing of its noise).
+    fn imaged(
+        rig: &Rig,
+        view: usize,
+        line: &[nalgebra::Point3<f64>; 2],
+        shift_px: f64,
+        sigma_px: Option<f64>,
+    ) -> Segment2 {
+        let cam = rig.camera(view);
+        let (a, b) = (
+            cam.project(&line[0]).unwrap(),
+            cam.project(&line[1]).unwrap(),
+        );
+        let shift = nalgebra::Vector2::new(shift_px, 0.0);
+        Segment2 {
+            gradient: Some(20.0),
+            noise: sigma_px.map(|s| LineNoise::from_endpoint_sigma(s, (b - a).norm())),
+            ..Segment2::new(a + shift, b + shift)
+        }
+    }
+
+    /// The default answer to `lists`, or (`include_uncertain`) every match.
+    fn matched(rig: &Rig, lists: &[SegmentList; 3], include_uncertain: bool) -> MatchOutput {
+        let params = MatchParams {
+            include_uncertain,
+            ..MatchParams::default()
+        };
+        run(rig, Input::lists(lists), &Options::with(params))
+            .unwrap()
+            .output
+    }
+
+    fn oriented(segments: Vec<Segment2>) -> SegmentList {
+        SegmentList {
+            segments,
+            oriented: true,
+            background_gradient: None,
+        }
+    }
+
     /// Each 3D line imaged exactly by the preset rig as an oriented list segment, its ends
     /// good to the σ given with it (pixels): the same index in all three lists.
     fn lists_of_lines(rig: &Rig, lines: &[([nalgebra::Point3<f64>; 2], f64)]) -> [SegmentList; 3] {
         std::array::from_fn(|v| {
-            let cam = rig.camera(v);
-            let segments = lines
-                .iter()
-                .map(|(line, sigma_px)| {
-                    let (a, b) = (
-                        cam.project(&line[0]).unwrap(),
-                        cam.project(&line[1]).unwrap(),
-                    );
-                    Segment2 {
-                        gradient: Some(20.0),
-                        noise: Some(LineNoise::from_endpoint_sigma(*sigma_px, (b - a).norm())),
-                        ..Segment2::new(a, b)
-                    }
-                })
-                .collect();
-            SegmentList {
-                segments,
-                oriented: true,
-                background_gradient: None,
-            }
+            oriented(
+                lines
+                    .iter()
+                    .map(|(line, sigma_px)| imaged(rig, v, line, 0.0, Some(*sigma_px)))
+                    .collect(),
+            )
         })
     }
 

@@ -20,10 +20,13 @@ away (another edge beside it, or two merged); one 5-20 degrees off, or crossing,
 1.5 px; one that ends up to 2 px short; one 1.5-5 px away and not parallel. Needs numpy and
 pillow.
 """
-import argparse, base64, json, os, subprocess, tempfile
+import argparse, base64, json, os, subprocess, sys, tempfile
 
 import numpy as np
 from PIL import Image
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from where_length_goes import along_sets  # noqa: E402  (what runs along an edge, shared)
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--shared", default=os.path.join(os.path.dirname(__file__), "..", "..", "shared"))
@@ -78,16 +81,7 @@ for room in args.rooms.split(","):
                 uv = h[:, :2] / h[:, 2:3]
                 d = uv[-1] - uv[0]
                 d = d / (np.linalg.norm(d) + 1e-12)
-                covered = np.zeros_like(ts, bool)
-                for (u1, v1, u2, v2) in lists[v]:
-                    s = np.array([u2 - u1, v2 - v1])
-                    sl = np.linalg.norm(s)
-                    if sl < 1e-9 or abs(np.dot(s / sl, d)) < np.cos(np.radians(5)):
-                        continue
-                    w = uv - np.array([u1, v1])
-                    along = w @ (s / sl)
-                    perp = np.abs(w[:, 0] * s[1] / sl - w[:, 1] * s[0] / sl)
-                    covered |= (along >= 0) & (along <= sl) & (perp <= 1.5)
+                covered = np.array([bool(s) for s in along_sets(uv, d, lists[v])])
                 views += covered
                 per_view.append((covered, uv, d))
             total += inside.sum() / len(ts) * L

@@ -46,7 +46,6 @@ POINTS = 400
 ALONG_PX, ALONG_DEG = 1.5, 5.0
 SHORT_PX = 20.0
 EPIPOLAR_DEG = 15.0
-TOL_ABS, TOL_REL, ANGLE_DEG = 0.02, 0.01, 5.0
 
 
 def camera_centre(P):
@@ -56,7 +55,8 @@ def camera_centre(P):
 
 def along_sets(uv, d, segments):
     """Per point of `uv` (the edge's projection, unit direction `d`), the input segments
-    (rows u1 v1 u2 v2) that run along it there."""
+    (rows u1 v1 u2 v2) that run along it there (within ALONG_PX and ALONG_DEG; also what
+    tools/oracle_extracted.py counts as extracted)."""
     sets = [set() for _ in uv]
     for k, (u1, v1, u2, v2) in enumerate(segments):
         s = np.array([u2 - u1, v2 - v1])
@@ -71,21 +71,20 @@ def along_sets(uv, d, segments):
     return sets
 
 
-def geometry_failure(seg, A, B, centre):
-    """Which of the scorer's tests the 3D segment `seg` (6 numbers) fails against edge AB."""
+def geometry_failure(S, seg, A, B, centre):
+    """Which of the scorer's tests (its module `S`: tolerances and distances) the 3D segment
+    `seg` (6 numbers) fails against edge AB."""
     p1, p2 = seg[:3], seg[3:]
     eu = (B - A) / np.linalg.norm(B - A)
     su = (p2 - p1) / max(np.linalg.norm(p2 - p1), 1e-12)
-    if abs(eu @ su) < np.cos(np.radians(ANGLE_DEG)):
+    if abs(eu @ su) < np.cos(np.radians(S.ANGLE_DEG)):
         return "off in direction"
     past = False
     for p in (p1, p2, (p1 + p2) / 2):
-        tol = max(TOL_ABS, TOL_REL * np.linalg.norm(p - centre))
-        w = p - A
-        if np.linalg.norm(w - (w @ eu) * eu) > tol:
+        tol = max(S.TOL_ABS, S.TOL_REL * np.linalg.norm(p - centre))
+        if S.point_line_dist(p[None], A[None], B[None])[0] > tol:
             return "off in position"
-        t = np.clip(w @ (B - A) / ((B - A) @ (B - A)), 0, 1)
-        past |= np.linalg.norm(p - (A + t * (B - A))) > tol
+        past |= S.point_seg_dist(p[None], A[None], B[None])[0, 0] > tol
     return "past the edge's end" if past else "scored to another edge"
 
 
@@ -186,7 +185,7 @@ def main():
                         elif mine:
                             length["right triplet, uncertain"] += step
                         else:
-                            length["right triplet, " + geometry_failure(Xw[with3d[0]], A, B, centre)] += step
+                            length["right triplet, " + geometry_failure(S, Xw[with3d[0]], A, B, centre)] += step
                         continue
                     if right:
                         length["right triplet, no 3D segment"] += step

@@ -3133,6 +3133,47 @@ mod tests {
             .output
     }
 
+    /// Every match of `lists` without the scene's dominant directions and with them, having
+    /// checked what both tests of them hold: the first `certain` lines certain alone, line
+    /// `doubted` uncertain alone, and with the directions certain and aligned, the only one.
+    fn aligned_by_the_scene(
+        rig: &Rig,
+        lists: &[SegmentList; 3],
+        certain: u32,
+        doubted: u32,
+    ) -> (MatchOutput, MatchOutput) {
+        let of = reconstructed_from;
+        let alone = matched_with_directions(rig, lists, false);
+        for i in 0..certain {
+            assert!(!of(&alone, i).uncertain, "line {i}: {:?}", of(&alone, i));
+        }
+        let before = of(&alone, doubted);
+        assert!(before.uncertain, "{before:?}");
+        let along = matched_with_directions(rig, lists, true);
+        assert_eq!(
+            along.stats.along_dominant_directions, 1,
+            "{:?}",
+            along.stats
+        );
+        let after = of(&along, doubted);
+        assert!(!after.uncertain && after.aligned, "{after:?}");
+        (alone, along)
+    }
+
+    /// Asserts that both ends of `segment` lie within 1 cm of `line`'s line; returns the
+    /// segment's unit direction.
+    fn ends_on_line(
+        segment: &Reconstructed,
+        line: &[nalgebra::Point3<f64>; 2],
+    ) -> nalgebra::Vector3<f64> {
+        let truth = (line[1] - line[0]).normalize();
+        for p in [segment.segment.start, segment.segment.end] {
+            let w = p - line[0];
+            assert!((w - truth * w.dot(&truth)).norm() < 0.01, "{p}");
+        }
+        (segment.segment.end - segment.segment.start).normalize()
+    }
+
     /// The 3D segment of the triplet that takes list segment `i` in every view.
     fn reconstructed_from(out: &MatchOutput, i: u32) -> Reconstructed {
         out.segments_3d
@@ -3171,34 +3212,16 @@ mod tests {
             posts.iter().map(|p| (*p, 0.05)).collect();
         lines.extend([(short, 0.15), (slanted, 0.15), (shorter, 0.15)]);
         let lists = lists_of_lines(&rig, &lines);
-        let run_with =
-            |dominant_directions| matched_with_directions(&rig, &lists, dominant_directions);
         let of = reconstructed_from;
-        let alone = run_with(false);
+        let (alone, along) = aligned_by_the_scene(&rig, &lists, 5, 5);
         assert_eq!(alone.stats.along_dominant_directions, 0);
-        for i in 0..5 {
-            assert!(!of(&alone, i).uncertain, "post {i}: {:?}", of(&alone, i));
-        }
-        let before = of(&alone, 5);
-        assert!(before.uncertain, "{before:?}");
-        let along = run_with(true);
-        assert_eq!(
-            along.stats.along_dominant_directions, 1,
-            "{:?}",
-            along.stats
-        );
-        let after = of(&along, 5);
-        assert!(!after.uncertain && after.aligned, "{after:?}");
+        let (before, after) = (of(&alone, 5), of(&along, 5));
         assert!(!before.aligned);
         assert!(after.direction_sigma_deg < 0.5 * before.direction_sigma_deg);
         // Upright, and where the short upright is: its ends on its line.
+        let u = ends_on_line(&after, &short);
         let truth = (short[1] - short[0]).normalize();
-        let u = (after.segment.end - after.segment.start).normalize();
         assert!(u.dot(&truth).abs().acos().to_degrees() < 0.5, "{u}");
-        for p in [after.segment.start, after.segment.end] {
-            let w = p - short[0];
-            assert!((w - truth * w.dot(&truth)).norm() < 0.01, "{p}");
-        }
         // The slanted rail lies along no direction of the scene, and the 6-cm upright is too
         // short to be given one: both stay as they were.
         for i in [6, 7] {
@@ -3247,36 +3270,18 @@ mod tests {
             long.iter().map(|l| (*l, 0.05)).collect();
         lines.extend([(short, 0.15), (slanted, 0.15)]);
         let lists = lists_of_lines(&rig, &lines);
-        let run_with =
-            |dominant_directions| matched_with_directions(&rig, &lists, dominant_directions);
         let of = reconstructed_from;
         let (n_long, short_index, slanted_index) = (long.len() as u32, 8, 9);
-        let alone = run_with(false);
-        for i in 0..n_long {
-            assert!(!of(&alone, i).uncertain, "line {i}: {:?}", of(&alone, i));
-        }
-        let before = of(&alone, short_index);
-        assert!(before.uncertain, "{before:?}");
-        let along = run_with(true);
-        assert_eq!(
-            along.stats.along_dominant_directions, 1,
-            "{:?}",
-            along.stats
-        );
-        let after = of(&along, short_index);
-        assert!(!after.uncertain && after.aligned, "{after:?}");
+        let (alone, along) = aligned_by_the_scene(&rig, &lists, n_long, short_index);
+        let (before, after) = (of(&alone, short_index), of(&along, short_index));
         // The plane fixes the tilt out of it; the turn within it, which the images measure,
         // is now the direction's largest uncertainty.
         assert!(after.direction_sigma_deg < before.direction_sigma_deg);
         // Horizontal, turned as the rail is, and where it is.
+        let u = ends_on_line(&after, &short);
         let truth = (short[1] - short[0]).normalize();
-        let u = (after.segment.end - after.segment.start).normalize();
         assert!(u.z.abs() < 0.5f64.to_radians().sin(), "{u}");
         assert!(u.dot(&truth).abs().acos().to_degrees() < 2.0, "{u}");
-        for p in [after.segment.start, after.segment.end] {
-            let w = p - short[0];
-            assert!((w - truth * w.dot(&truth)).norm() < 0.01, "{p}");
-        }
         // The slanted line lies in no plane of the scene's: it stays as it was, and so do
         // the long lines.
         assert_eq!(of(&along, slanted_index), of(&alone, slanted_index));

@@ -276,6 +276,14 @@ const CHI2_2DOF_Q99: f64 = 9.210_340_372;
 /// Segments each calibration test scores, and draws it may take to find them.
 const CALIBRATION_SAMPLES: usize = 2000;
 const CALIBRATION_DRAWS: usize = 200_000;
+/// `for_each_estimate`'s box of short segments (8–25 cm, 2–4 m away): the ones whose
+/// direction the gate refuses, which a vertex, a direction or a plane is there to narrow.
+const SHORT_SEGMENTS: ([f64; 2], [f64; 2], [f64; 2]) = ([0.8, 0.6], [2.0, 4.0], [0.08, 0.25]);
+/// The variance of a known direction, or a plane's tilt, in the tests that give one: 0.3°
+/// squared, radians².
+fn known_variance() -> f64 {
+    0.3f64.to_radians().powi(2)
+}
 
 /// The calibration goal: of the squared normalised errors, >= 93% within χ²'s 95%
 /// quantile and >= 98% within its 99% (`within95`, `within99`: the shares measured).
@@ -503,7 +511,7 @@ fn a_known_vertex_narrows_a_short_segments_direction_and_stays_calibrated() {
     let n = for_each_estimate(
         &cams,
         &mut rng,
-        ([0.8, 0.6], [2.0, 4.0], [0.08, 0.25]),
+        SHORT_SEGMENTS,
         |rng, (p, q), obs, alone| {
             assert_eq!(
                 estimate_line_through(&cams, obs, 1.0, &[]),
@@ -570,10 +578,10 @@ fn a_known_direction_narrows_a_short_segment_and_stays_calibrated() {
     let n = for_each_estimate(
         &cams,
         &mut rng,
-        ([0.8, 0.6], [2.0, 4.0], [0.08, 0.25]),
+        SHORT_SEGMENTS,
         |rng, (p, q), obs, alone| {
             // The direction known to 0.3° per axis across it, and off by exactly that.
-            let variance = 0.3f64.to_radians().powi(2);
+            let variance = known_variance();
             let u = (q - p).normalize();
             let (e1, e2) = super::across_basis(&u);
             let known = (u + (e1 * rng.normal() + e2 * rng.normal()) * variance.sqrt()).normalize();
@@ -629,11 +637,11 @@ fn a_known_plane_of_directions_is_one_observation_of_the_tilt_and_stays_calibrat
     let n = for_each_estimate(
         &cams,
         &mut rng,
-        ([0.8, 0.6], [2.0, 4.0], [0.08, 0.25]),
+        SHORT_SEGMENTS,
         |rng, (p, q), obs, alone| {
             // A plane of directions through the true one: its normal any unit vector
             // across the line, tilted by exactly the stated 0.3°.
-            let variance = 0.3f64.to_radians().powi(2);
+            let variance = known_variance();
             let u = (q - p).normalize();
             let (e1, e2) = super::across_basis(&u);
             let turn = rng.uniform() * std::f64::consts::TAU;

@@ -1138,10 +1138,39 @@ fn slide_variance(
     variance.max(0.0) * along * along / floored
 }
 
+/// How far past the part all three views saw an end may move where two views carry it on
+/// (`Line3Estimate::reach_m`), as a share of the gate's position tolerance there. Measured in
+/// docs/ACCURACY.md ("Ends two views agree on"): half the tolerance adds 0.7–1.0 points of
+/// completeness in both rooms from images and from LSD lists and no wrong segment; the whole
+/// tolerance adds wrong ones past the edges' ends, the middle view's end with no bound more.
+const REACH_SHARE_OF_TOLERANCE: f64 = 0.5;
+
 /// Below this sine of the angle between a ray and its line, an end's slide is taken at this
 /// angle (3°): the line is then nearly a ray itself, and its ends are as unknown as the
 /// trim can make them.
 const END_SLIDE_MIN_SIN: f64 = 0.05;
+
+/// The segment with its ends moved along its line, each by a share of its length (`a` from
+/// the start towards the end, `b` from the end towards the start; negative moves outwards).
+/// The new ends are fixed blends of the old, so their covariance follows exactly.
+fn blended(mut est: Line3Estimate, a: f64, b: f64) -> Line3Estimate {
+    let i3 = nalgebra::Matrix3::<f64>::identity();
+    let mut blend = nalgebra::Matrix6::<f64>::zeros();
+    blend
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(i3 * (1.0 - a)));
+    blend.fixed_view_mut::<3, 3>(0, 3).copy_from(&(i3 * a));
+    blend.fixed_view_mut::<3, 3>(3, 0).copy_from(&(i3 * b));
+    blend
+        .fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&(i3 * (1.0 - b)));
+    let (start, end) = (est.start, est.end);
+    est.start = start + (end - start) * a;
+    est.end = end + (start - end) * b;
+    est.covariance = blend * est.covariance * blend.transpose();
+    est.systematic_shifts = est.systematic_shifts.map(|u| blend * u);
+    est
+}
 
 /// True when the observations are images of one 3D line within their stated noise.
 fn consistent(est: &Line3Estimate) -> bool {
@@ -1175,6 +1204,19 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     // uncertain across: `end_slide_sigma_m`) is pulled in to where it may not: the answer
     // reports the part of the line it is sure of. The new ends are fixed blends of the old,
     // so their covariance follows exactly.
+    // Where two views of three carry an end on past the part all three saw, it moves out
+    // towards where they put it, by at most a share of the tolerance there: the third view
+    // stopped short (an extractor's end, a junction) more often than the two ran on past the
+    // edge, and an end moved by less than the tolerance keeps the promise wherever the part
+    // all three saw ended.
+    let length = (est.end - est.start).norm();
+    let reach = |i: usize, at: &nalgebra::Point3<f64>| {
+        est.reach_m[i].min(REACH_SHARE_OF_TOLERANCE * tolerance(at))
+    };
+    let (reach_start, reach_end) = (reach(0, &est.start), reach(1, &est.end));
+    if reach_start + reach_end > 0.0 && length > 0.0 {
+        est = blended(est, -reach_start / length, -reach_end / length);
+    }
     let length = (est.end - est.start).norm();
     let trim = |sigma: f64, at: &nalgebra::Point3<f64>| (k * sigma - tolerance(at)).max(0.0);
     let untrimmed_shift_sigma_m = shared_shift_sigma_m(rig, &centre, &est.start, &est.end);
@@ -1192,22 +1234,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     let long_enough = trim_start + trim_end < length;
     let trimmed = trim_start + trim_end > 0.0 && long_enough;
     if trimmed {
-        let (a, b) = (trim_start / length, trim_end / length);
-        let i3 = nalgebra::Matrix3::<f64>::identity();
-        let mut blend = nalgebra::Matrix6::<f64>::zeros();
-        blend
-            .fixed_view_mut::<3, 3>(0, 0)
-            .copy_from(&(i3 * (1.0 - a)));
-        blend.fixed_view_mut::<3, 3>(0, 3).copy_from(&(i3 * a));
-        blend.fixed_view_mut::<3, 3>(3, 0).copy_from(&(i3 * b));
-        blend
-            .fixed_view_mut::<3, 3>(3, 3)
-            .copy_from(&(i3 * (1.0 - b)));
-        let (start, end) = (est.start, est.end);
-        est.start = start + u * trim_start;
-        est.end = end - u * trim_end;
-        est.covariance = blend * est.covariance * blend.transpose();
-        est.systematic_shifts = est.systematic_shifts.map(|u| blend * u);
+        est = blended(est, trim_start / length, trim_end / length);
     }
     let (e1, e2) = crate::geometry::across_basis(&u);
     let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
@@ -2499,6 +2526,7 @@ mod tests {
             residual_px: 0.05,
             end_along_sigma_m: [0.003; 2],
             ends_disagreement: ends,
+            reach_m: [0.0; 2],
         }
     }
 
@@ -2593,6 +2621,45 @@ mod tests {
         // Pulled in along the line, not off it.
         let u = original.direction();
         assert!(((est.end - original.start).cross(&u)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn an_end_two_views_carry_on_moves_out_by_at_most_half_the_tolerance() {
+        // A vertical line 2 m ahead, precise: the tolerance is 2 cm at both ends.
+        let rig = preset_rig();
+        let params = MatchParams::default();
+        let line = |reach_m| Line3Estimate {
+            reach_m,
+            ..line_at(0.1, 2.0, 0.5, 1.0)
+        };
+        let original = line([0.0; 2]);
+        let u = original.direction();
+        let tolerance = position_tolerance(&params, &rig.centroid(), &original.end);
+        assert!((tolerance - 0.02).abs() < 1e-3, "{tolerance}");
+        // 5 mm past the start: all of it; 30 cm past the end: half the tolerance.
+        let (est, quality) = accept(Some(line([0.005, 0.3])), &rig, &params).expect("kept");
+        let moved_start = (original.start - est.start).dot(&u);
+        let moved_end = (est.end - original.end).dot(&u);
+        assert!((moved_start - 0.005).abs() < 1e-12, "{moved_start}");
+        let half =
+            REACH_SHARE_OF_TOLERANCE * position_tolerance(&params, &rig.centroid(), &est.end);
+        assert!(
+            (moved_end - half).abs() < 1e-4,
+            "{moved_end} against {half}"
+        );
+        // Along the line, not off it; and the segment stays as certain as it was.
+        assert!(((est.end - original.start).cross(&u)).norm() < 1e-12);
+        let (_, unmoved) = accept(Some(original), &rig, &params).expect("kept");
+        assert_eq!(quality.certain, unmoved.certain);
+        // The ends' covariance follows the blend: an end carried past the middle of its old
+        // place and the other's grows across the line.
+        let across = |e: &Line3Estimate| e.covariance[(0, 0)] + e.covariance[(3, 3)];
+        assert!(
+            across(&est) >= across(&original),
+            "{} {}",
+            across(&est),
+            across(&original)
+        );
     }
 
     #[test]

@@ -78,6 +78,13 @@ pub struct Line3Estimate {
     /// triplet of three different edges that happen to be one 3D line can place their ends
     /// anywhere; the images of one edge agree, where nothing hides an end.
     pub ends_disagreement: f64,
+    /// How far past each end (start, end) the middle of the three views' ends lies along the
+    /// line, metres, 0 where it does not: two views of three carry the line on beyond the
+    /// part every view saw, the third stopping short (an extractor's end, a junction, an
+    /// occluder in that view alone). The extent stays the overlap; how far to trust the two
+    /// views is the caller's, who knows the tolerance the answer promises. 0 with fewer than
+    /// three views' ends.
+    pub reach_m: [f64; 2],
 }
 
 impl Line3Estimate {
@@ -536,6 +543,18 @@ pub fn estimate_line_constrained(
     if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
         return None;
     }
+    let (reach_lo, reach_hi) = match ends {
+        [a, b, c] => (
+            (lo - middle_of(a.0, b.0, c.0)).max(0.0),
+            (middle_of(a.1, b.1, c.1) - hi).max(0.0),
+        ),
+        _ => (0.0, 0.0),
+    };
+    let reach_m = if first_sign >= 0.0 {
+        [reach_lo, reach_hi]
+    } else {
+        [reach_hi, reach_lo]
+    };
     // Re-centre the line's point on the segment: moving the pivot by m along the line maps
     // the parameters (a, b) to (a + m·b, b), so the covariance follows without re-evaluating.
     let mid = 0.5 * (lo + hi);
@@ -611,8 +630,13 @@ pub fn estimate_line_constrained(
         per_view[1]
     };
     let (measured_lo, measured_hi) = (measured(lo), measured(hi));
+    // The views' ends were found before the line's point moved to the segment's middle.
     let along = |t: f64, floor: f64, pick: fn(&(f64, f64)) -> f64| {
-        let spread = ends.iter().map(|e| (pick(e) - t).powi(2)).sum::<f64>() / ends.len() as f64;
+        let spread = ends
+            .iter()
+            .map(|e| (pick(e) - mid - t).powi(2))
+            .sum::<f64>()
+            / ends.len() as f64;
         (spread + floor * floor).max(1e-12)
     };
     let (var_lo, var_hi) = (
@@ -657,5 +681,11 @@ pub fn estimate_line_constrained(
         residual_px: (sum_px / n_obs as f64).sqrt(),
         end_along_sigma_m,
         ends_disagreement,
+        reach_m,
     })
+}
+
+/// The middle one of three numbers.
+fn middle_of(a: f64, b: f64, c: f64) -> f64 {
+    a.max(b).min(a.min(b).max(c))
 }

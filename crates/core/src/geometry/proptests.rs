@@ -753,3 +753,77 @@ fn the_systematic_covariance_describes_independent_shifts_of_the_views() {
     let (m, p) = (measured.trace(), predicted.trace());
     assert!((m / p - 1.0).abs() < 0.1, "measured {m:e}, predicted {p:e}");
 }
+
+/// The exact images of `(p, q)` in every camera of `cams`, the view `short` (if any) seeing
+/// only its part from `p` to `p + share·(q − p)`.
+fn exact_images(
+    cams: &[&Camera; 3],
+    (p, q): (Point3<f64>, Point3<f64>),
+    short: &[(usize, f64)],
+) -> Vec<LineObservation> {
+    (0..3)
+        .map(|v| {
+            let share = short.iter().find(|s| s.0 == v).map_or(1.0, |s| s.1);
+            let end = p + (q - p) * share;
+            let (a, b) = (seen(cams[v], &p).unwrap(), seen(cams[v], &end).unwrap());
+            LineObservation {
+                view: v,
+                start: a,
+                end: b,
+                noise: LineNoise::for_list(0.3, (b - a).norm()),
+                systematic_px: 0.0,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn an_end_is_known_along_the_line_as_the_views_place_it_wherever_the_line_runs() {
+    // A vertical segment 3 m ahead, its middle more than a metre above the point of its line
+    // nearest the rig (where the estimate starts from): along the line each end is known to
+    // about a pixel's worth (1 px at 3 m through a 520-px focal length: 6 mm), not to the
+    // distance between those two points.
+    let rig = uneven_triangle();
+    let cams = [rig.camera(0), rig.camera(1), rig.camera(2)];
+    let segment = (Point3::new(0.4, 3.0, 1.0), Point3::new(0.4, 3.0, 1.3));
+    let est = estimate_line(&cams, &exact_images(&cams, segment, &[]), 1.0).expect("determined");
+    let u = est.direction();
+    for block in [0, 3] {
+        let along = (u.transpose() * est.covariance.fixed_view::<3, 3>(block, block) * u)[(0, 0)];
+        assert!(along.sqrt() < 0.01, "{} m along", along.sqrt());
+    }
+    // Every view saw the whole segment: no end reaches past what they all saw.
+    assert!(est.reach_m.iter().all(|&r| r < 1e-9), "{:?}", est.reach_m);
+}
+
+#[test]
+fn two_views_carrying_an_end_past_the_third_say_how_far() {
+    let rig = uneven_triangle();
+    let cams = [rig.camera(0), rig.camera(1), rig.camera(2)];
+    let (p, q) = (Point3::new(-0.3, 3.0, 0.2), Point3::new(0.5, 3.2, 0.1));
+    // The third view sees 80% of it: the segment is the part all three saw, and the other two
+    // carry its end on by the rest.
+    let est =
+        estimate_line(&cams, &exact_images(&cams, (p, q), &[(2, 0.8)]), 1.0).expect("determined");
+    let short_end = p + (q - p) * 0.8;
+    assert!((est.end - short_end).norm() < 1e-6, "{}", est.end);
+    assert!(est.reach_m[0] < 1e-9, "{:?}", est.reach_m);
+    assert!(
+        (est.reach_m[1] - 0.2 * (q - p).norm()).abs() < 1e-6,
+        "{:?}",
+        est.reach_m
+    );
+    // Two views stopping short: the end reaches to the middle one, not to the one that runs
+    // on.
+    let est = estimate_line(
+        &cams,
+        &exact_images(&cams, (p, q), &[(1, 0.8), (2, 0.7)]),
+        1.0,
+    )
+    .expect("determined");
+    assert!(
+        (est.reach_m[1] - 0.1 * (q - p).norm()).abs() < 1e-6,
+        "{:?}",
+        est.reach_m
+    );
+}

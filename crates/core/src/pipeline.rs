@@ -1140,7 +1140,7 @@ fn slide_variance(
 
 /// How far past the part all three views saw an end may move where two views carry it on
 /// (`Line3Estimate::reach_m`), as a share of the gate's position tolerance there. Measured in
-/// docs/ACCURACY.md ("Ends two views agree on"): half the tolerance adds 0.7–1.0 points of
+/// docs/ACCURACY.md ("Ends two views agree on"): half the tolerance adds 0.6–1.0 points of
 /// completeness in both rooms from images and from LSD lists and no wrong segment; the whole
 /// tolerance adds wrong ones past the edges' ends, the middle view's end with no bound more.
 const REACH_SHARE_OF_TOLERANCE: f64 = 0.5;
@@ -1150,26 +1150,40 @@ const REACH_SHARE_OF_TOLERANCE: f64 = 0.5;
 /// trim can make them.
 const END_SLIDE_MIN_SIN: f64 = 0.05;
 
-/// The segment with its ends moved along its line, each by a share of its length (`a` from
-/// the start towards the end, `b` from the end towards the start; negative moves outwards).
-/// The new ends are fixed blends of the old, so their covariance follows exactly.
-fn blended(mut est: Line3Estimate, a: f64, b: f64) -> Line3Estimate {
-    let i3 = nalgebra::Matrix3::<f64>::identity();
-    let mut blend = nalgebra::Matrix6::<f64>::zeros();
-    blend
-        .fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(i3 * (1.0 - a)));
-    blend.fixed_view_mut::<3, 3>(0, 3).copy_from(&(i3 * a));
-    blend.fixed_view_mut::<3, 3>(3, 0).copy_from(&(i3 * b));
-    blend
-        .fixed_view_mut::<3, 3>(3, 3)
-        .copy_from(&(i3 * (1.0 - b)));
+/// Moves the segment's ends along its line, each by a share of its length (`a` from the
+/// start towards the end, `b` from the end towards the start; negative moves outwards). The
+/// new ends are fixed blends of the old, so their covariance follows exactly.
+fn blend_ends(est: &mut Line3Estimate, a: f64, b: f64) {
+    // start' = (1 − a)·start + a·end, end' = b·start + (1 − b)·end: the covariance's 3x3
+    // blocks combine as scalars (every fit that reaches past its overlap comes here, so the
+    // 6x6 products are spelled out).
     let (start, end) = (est.start, est.end);
     est.start = start + (end - start) * a;
     est.end = end + (start - end) * b;
-    est.covariance = blend * est.covariance * blend.transpose();
-    est.systematic_shifts = est.systematic_shifts.map(|u| blend * u);
-    est
+    let c = &est.covariance;
+    let ss = c.fixed_view::<3, 3>(0, 0).into_owned();
+    let se = c.fixed_view::<3, 3>(0, 3).into_owned();
+    let ee = c.fixed_view::<3, 3>(3, 3).into_owned();
+    let es = se.transpose();
+    let (a1, b1) = (1.0 - a, 1.0 - b);
+    let new_ss = ss * (a1 * a1) + (se + es) * (a1 * a) + ee * (a * a);
+    let new_ee = ss * (b * b) + (se + es) * (b * b1) + ee * (b1 * b1);
+    let new_se = ss * (a1 * b) + se * (a1 * b1) + es * (a * b) + ee * (a * b1);
+    let mut covariance = nalgebra::Matrix6::<f64>::zeros();
+    covariance.fixed_view_mut::<3, 3>(0, 0).copy_from(&new_ss);
+    covariance.fixed_view_mut::<3, 3>(0, 3).copy_from(&new_se);
+    covariance
+        .fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&new_se.transpose());
+    covariance.fixed_view_mut::<3, 3>(3, 3).copy_from(&new_ee);
+    est.covariance = covariance;
+    est.systematic_shifts = est.systematic_shifts.map(|u| {
+        let (us, ue) = (u.fixed_rows::<3>(0), u.fixed_rows::<3>(3));
+        let mut moved = nalgebra::Vector6::zeros();
+        moved.fixed_rows_mut::<3>(0).copy_from(&(us * a1 + ue * a));
+        moved.fixed_rows_mut::<3>(3).copy_from(&(us * b + ue * b1));
+        moved
+    });
 }
 
 /// True when the observations are images of one 3D line within their stated noise.
@@ -1199,11 +1213,6 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     let k = round_quantile(params.gate_confidence);
     let centre = rig.centroid();
     let tolerance = |p: &nalgebra::Point3<f64>| position_tolerance(params, &centre, p);
-    // An end that may lie past the true end by more than the tolerance (a receding line, whose
-    // ends the images place poorly, and along which an end slides as far as the line is
-    // uncertain across: `end_slide_sigma_m`) is pulled in to where it may not: the answer
-    // reports the part of the line it is sure of. The new ends are fixed blends of the old,
-    // so their covariance follows exactly.
     // Where two views of three carry an end on past the part all three saw, it moves out
     // towards where they put it, by at most a share of the tolerance there: the third view
     // stopped short (an extractor's end, a junction) more often than the two ran on past the
@@ -1215,8 +1224,13 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     };
     let (reach_start, reach_end) = (reach(0, &est.start), reach(1, &est.end));
     if reach_start + reach_end > 0.0 && length > 0.0 {
-        est = blended(est, -reach_start / length, -reach_end / length);
+        blend_ends(&mut est, -reach_start / length, -reach_end / length);
     }
+    // An end that may lie past the true end by more than the tolerance (a receding line, whose
+    // ends the images place poorly, and along which an end slides as far as the line is
+    // uncertain across: `end_slide_sigma_m`) is pulled in to where it may not: the answer
+    // reports the part of the line it is sure of. The new ends are fixed blends of the old,
+    // so their covariance follows exactly.
     let length = (est.end - est.start).norm();
     let trim = |sigma: f64, at: &nalgebra::Point3<f64>| (k * sigma - tolerance(at)).max(0.0);
     let untrimmed_shift_sigma_m = shared_shift_sigma_m(rig, &centre, &est.start, &est.end);
@@ -1234,7 +1248,7 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     let long_enough = trim_start + trim_end < length;
     let trimmed = trim_start + trim_end > 0.0 && long_enough;
     if trimmed {
-        est = blended(est, trim_start / length, trim_end / length);
+        blend_ends(&mut est, trim_start / length, trim_end / length);
     }
     let (e1, e2) = crate::geometry::across_basis(&u);
     let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
@@ -2651,8 +2665,8 @@ mod tests {
         assert!(((est.end - original.start).cross(&u)).norm() < 1e-12);
         let (_, unmoved) = accept(Some(original), &rig, &params).expect("kept");
         assert_eq!(quality.certain, unmoved.certain);
-        // The ends' covariance follows the blend: an end carried past the middle of its old
-        // place and the other's grows across the line.
+        // The moved ends' covariance follows the blend: carried on past the old ends, it
+        // grows across the line.
         let across = |e: &Line3Estimate| e.covariance[(0, 0)] + e.covariance[(3, 3)];
         assert!(
             across(&est) >= across(&original),

@@ -1104,10 +1104,9 @@ fn end_slide_sigma_m(
     let block = covariance
         .fixed_view::<3, 3>(3 * which, 3 * which)
         .into_owned();
-    let mut per_view: [f64; 3] =
+    let per_view: [f64; 3] =
         std::array::from_fn(|v| slide_variance(&(at - rig.camera(v).centre()), direction, &block));
-    per_view.sort_by(f64::total_cmp);
-    per_view[1].sqrt()
+    crate::geometry::line::middle_of(per_view[0], per_view[1], per_view[2]).sqrt()
 }
 
 /// The variance of an end's slide along the line of unit `direction` for one view, whose

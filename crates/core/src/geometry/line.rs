@@ -619,15 +619,14 @@ pub fn estimate_line_constrained(
     // views' ends around it.
     let measured = |t: f64| {
         let p = x0 + d * t;
-        let mut per_view: [f64; 3] = std::array::from_fn(|v| {
+        let per_view: [f64; 3] = std::array::from_fn(|v| {
             let c = cameras[v];
             let ray = p - c.centre().coords;
             let range = ray.norm();
             let sin = (1.0 - (ray.dot(&d) / range).powi(2)).max(0.0).sqrt();
             end_sigma_px * range / c.focal_px() / sin.max(MIN_RAY_LINE_SIN)
         });
-        per_view.sort_by(f64::total_cmp);
-        per_view[1]
+        middle_of(per_view[0], per_view[1], per_view[2])
     };
     let (measured_lo, measured_hi) = (measured(lo), measured(hi));
     // The views' ends were found before the line's point moved to the segment's middle.
@@ -685,7 +684,7 @@ pub fn estimate_line_constrained(
     })
 }
 
-/// The middle one of three numbers.
-fn middle_of(a: f64, b: f64, c: f64) -> f64 {
+/// The middle one of three numbers (the median of three views' ends, or of their noise).
+pub(crate) fn middle_of(a: f64, b: f64, c: f64) -> f64 {
     a.max(b).min(a.min(b).max(c))
 }

@@ -1702,33 +1702,46 @@ fn flag_ambiguous(
     todo.sort_unstable();
     todo.dedup();
     let triplets: Vec<[u32; 3]> = todo.iter().map(|&r| hypotheses[r].segments).collect();
-    let estimates = observations.estimates(rig, &triplets);
     let factor = stats.noise_scale.powi(2);
-    for (&r, est) in todo.iter().zip(estimates) {
-        fits[r] = Some(accept(est.map(|e| rescaled(e, factor)), rig, params));
-    }
+    // Each rival's fit, accepted only when a winner asks: most rivals fit far worse than
+    // every winner they rival, which their χ² alone says (`as_likely`), and the acceptance,
+    // which changes neither χ² nor the ends' disagreement, would be wasted on them.
+    let unaccepted: Vec<Option<Line3Estimate>> = observations
+        .estimates(rig, &triplets)
+        .into_iter()
+        .map(|est| est.map(|e| rescaled(e, factor)))
+        .collect();
     let centre = rig.centroid();
     let counts = |winner: &Line3Estimate, fit: &Fit| {
         matches!(fit, Some((rival, q))
             if as_likely_elsewhere(winner, rival, &centre, params)
                 && (q.certain || significantly_apart(winner, rival)))
     };
+    let counts_unaccepted = |winner: &Line3Estimate, est: &Option<Line3Estimate>| {
+        est.filter(|rival| as_likely(winner, rival))
+            .is_some_and(|rival| counts(winner, &accept(Some(rival), rig, params)))
+    };
     for (h, rivals) in rivals_of {
-        let Some(Some((winner, _))) = &fits[h] else {
+        let Some(Some((winner, _))) = fits[h] else {
             continue;
         };
-        let ambiguous = rivals
-            .iter()
-            .any(|&r| fits[r].as_ref().is_some_and(|fit| counts(winner, fit)))
-            || flipped_rivals(
-                rig,
-                observations,
-                hypotheses[h].segments,
-                stats.noise_scale,
-                params,
-            )
-            .iter()
-            .any(|fit| counts(winner, fit));
+        let mut ambiguous = false;
+        for &r in &rivals {
+            ambiguous = match &fits[r] {
+                Some(fit) => counts(&winner, fit),
+                None => {
+                    let est = &unaccepted[todo.binary_search(&r).expect("every rival is fitted")];
+                    counts_unaccepted(&winner, est)
+                }
+            };
+            if ambiguous {
+                break;
+            }
+        }
+        ambiguous = ambiguous
+            || flipped_rivals(rig, observations, hypotheses[h].segments, stats.noise_scale)
+                .iter()
+                .any(|est| counts_unaccepted(&winner, est));
         if ambiguous {
             if let Some(Some((_, quality))) = &mut fits[h] {
                 quality.certain = false;
@@ -2270,7 +2283,7 @@ const MIN_VERTEX_CELL_PX: f64 = 0.01;
 /// pixels.
 const FLIP_REACH_PX: f64 = 16.0;
 
-/// The fits of the triplets that take one of `segments` (rectified indices) for a segment of
+/// The fits (rescaled by the noise scale, not yet accepted) of the triplets that take one of `segments` (rectified indices) for a segment of
 /// opposite contrast alongside it, reversed. Matching is oriented, so these are never
 /// hypotheses; but an edge whose contrast flips between the views (a cabinet's front edge,
 /// seen against the wall from below and against its own top from above) cannot form its
@@ -2286,8 +2299,7 @@ fn flipped_rivals(
     observations: &mut Observations,
     segments: [u32; 3],
     noise_scale: f64,
-    params: &MatchParams,
-) -> Vec<Fit> {
+) -> Vec<Option<Line3Estimate>> {
     let gradient = |observations: &Observations, v: usize, r: u32| {
         Some(observations.rect[v][r as usize].gradient).filter(|g| *g > 0.0 && g.is_finite())
     };
@@ -2347,13 +2359,18 @@ fn flipped_rivals(
             let mut obs: [LineObservation; 3] =
                 std::array::from_fn(|w| observations.lines[w][t[w] as usize]);
             std::mem::swap(&mut obs[v].start, &mut obs[v].end);
-            accept(
-                reconstruct_pieces(rig, &obs).map(|e| rescaled(e, factor)),
-                rig,
-                params,
-            )
+            reconstruct_pieces(rig, &obs).map(|e| rescaled(e, factor))
         })
         .collect()
+}
+
+/// Whether `rival` explains its images about as well as `winner`: χ² at most
+/// [`AMBIGUITY_CHI2_MARGIN`] worse, ends agreeing across the views within
+/// [`AMBIGUITY_ENDS_AGREE`] σ or no worse than the winner's. Neither changes when a fit is
+/// accepted (its ends moved), so it is asked of a rival before its acceptance.
+fn as_likely(winner: &Line3Estimate, rival: &Line3Estimate) -> bool {
+    rival.chi2 <= winner.chi2 + AMBIGUITY_CHI2_MARGIN
+        && rival.ends_disagreement <= winner.ends_disagreement.max(AMBIGUITY_ENDS_AGREE)
 }
 
 /// Whether `rival` explains its images about as well as `winner` (χ² at most
@@ -2367,9 +2384,7 @@ fn as_likely_elsewhere(
     centre: &nalgebra::Point3<f64>,
     params: &MatchParams,
 ) -> bool {
-    let as_likely = rival.chi2 <= winner.chi2 + AMBIGUITY_CHI2_MARGIN
-        && rival.ends_disagreement <= winner.ends_disagreement.max(AMBIGUITY_ENDS_AGREE);
-    if !as_likely {
+    if !as_likely(winner, rival) {
         return false;
     }
     let u = winner.direction();

@@ -12,7 +12,6 @@
 //!    rival is dropped, and one with no rival is kept.
 
 use nalgebra::Point2;
-use rustc_hash::FxHashMap;
 
 use super::{predict::Hypothesis, MatchParams, RectSegment, Views};
 use crate::checkpoint::{Checkpoint, Stopped};
@@ -270,26 +269,24 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
         .flat_map(|(i, s)| [(cell(s.a), i as u32, s.a), (cell(s.b), i as u32, s.b)])
         .collect();
     ends.sort_unstable_by_key(|e| (e.0, e.1));
-    // Each occupied cell's run of endpoints, so a search looks cells up instead of
-    // bisecting the whole list for each.
-    let mut runs: FxHashMap<(i64, i64), (usize, usize)> = FxHashMap::default();
-    for (k, e) in ends.iter().enumerate() {
-        runs.entry(e.0).or_insert((k, k)).1 = k + 1;
-    }
+    // The ends of one column of three cells are contiguous in (x, y) order: nothing sorts
+    // between (x, y − 1), (x, y) and (x, y + 1). Each column's first and last are found by
+    // cursors that move on as the ends are walked in that order (the cells asked rise with
+    // them), so the whole walk reads the list a few times over instead of looking cells up.
+    let cells: Vec<(i64, i64)> = ends.iter().map(|e| e.0).collect();
+    let mut first = [Cursor::default(); 3];
+    let mut past = [Cursor::default(); 3];
     let mut found: Vec<(u32, u32, f64, Point2<f64>)> = Vec::new();
     let mut near: Vec<(f64, u32, Point2<f64>)> = Vec::new();
     for &((cx, cy), i, p) in &ends {
         near.clear();
-        for dx in -1..=1 {
-            // Endpoints of one column of three cells are contiguous in (x, y) order: nothing
-            // sorts between (x, y − 1), (x, y) and (x, y + 1).
-            let column =
-                (-1..=1).filter_map(|dy| runs.get(&(cx.saturating_add(dx), cy.saturating_add(dy))));
-            let (Some(lo), Some(hi)) =
-                (column.clone().map(|r| r.0).min(), column.map(|r| r.1).max())
-            else {
+        for (column, dx) in (-1..=1).enumerate() {
+            let x = cx.saturating_add(dx);
+            let lo = first[column].seek(&cells, (x, cy.saturating_sub(1)), false);
+            let hi = past[column].seek(&cells, (x, cy.saturating_add(1)), true);
+            if lo >= hi {
                 continue;
-            };
+            }
             for &(_, j, q) in ends[lo..hi].iter().take(MAX_ENDS_SCANNED_PER_COLUMN) {
                 if j <= i {
                     continue;
@@ -313,6 +310,32 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
     found.sort_unstable_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)).then(a.2.total_cmp(&b.2)));
     found.dedup_by_key(|e| (e.0, e.1));
     found.into_iter().map(|(a, b, _, v)| (a, b, v)).collect()
+}
+
+/// A position in a sorted list of cells, moved on from the last cell asked.
+#[derive(Debug, Clone, Copy, Default)]
+struct Cursor {
+    at: usize,
+    cell: Option<(i64, i64)>,
+}
+
+impl Cursor {
+    /// The first position in `cells` (sorted) at or past `cell` (`past`: after it). Cells
+    /// asked in rising order move the cursor over the list once in all; one lower than the
+    /// last (a cell index saturated at the edge of `i64`, where a step no longer rises) is
+    /// searched for.
+    fn seek(&mut self, cells: &[(i64, i64)], cell: (i64, i64), past: bool) -> usize {
+        let before = |c: &(i64, i64)| if past { *c <= cell } else { *c < cell };
+        if self.cell.is_some_and(|last| cell < last) {
+            self.at = cells.partition_point(before);
+        } else {
+            while self.at < cells.len() && before(&cells[self.at]) {
+                self.at += 1;
+            }
+        }
+        self.cell = Some(cell);
+        self.at
+    }
 }
 
 #[cfg(test)]
@@ -429,5 +452,52 @@ mod tests {
         let pairs = adjacency(&segments, 1e-17);
         assert_eq!(pairs.len(), 1);
         assert_eq!((pairs[0].0, pairs[0].1), (0, 1));
+    }
+
+    #[test]
+    fn shared_ends_are_every_pair_of_ends_within_the_radius_however_far_out() {
+        // Scattered segments and, at the edge of i64's cells, a few more: the cursors walk
+        // the cells in order and must find what comparing every pair of ends finds.
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut uniform = |range: f64| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * range
+        };
+        let mut segments: Vec<RectSegment> = (0..300)
+            .map(|i| {
+                let (x, y) = (uniform(300.0), uniform(300.0));
+                seg(x, y, x + uniform(40.0) - 20.0, y + uniform(40.0) - 20.0, i)
+            })
+            .collect();
+        for (k, (x, y)) in [(1e30, 5.0), (1e30, 9.0), (-1e30, 1e30), (-1e30, 1e30 + 3.0)]
+            .into_iter()
+            .enumerate()
+        {
+            segments.push(seg(x, y, x + 50.0, y, 300 + k as u32));
+        }
+        let radius = 6.0;
+        let mut expected = Vec::new();
+        for i in 0..segments.len() {
+            for j in i + 1..segments.len() {
+                let (a, b) = (&segments[i], &segments[j]);
+                let closest = [(a.a, b.a), (a.a, b.b), (a.b, b.a), (a.b, b.b)]
+                    .into_iter()
+                    .map(|(p, q)| ((q - p).norm(), nalgebra::center(&p, &q)))
+                    .min_by(|x, y| x.0.total_cmp(&y.0))
+                    .expect("four pairs");
+                if closest.0 <= radius {
+                    expected.push((i as u32, j as u32, closest.1));
+                }
+            }
+        }
+        let found = adjacency(&segments, radius);
+        assert!(expected.len() > 100, "{} pairs", expected.len());
+        assert_eq!(found.len(), expected.len());
+        for (f, e) in found.iter().zip(&expected) {
+            assert_eq!((f.0, f.1), (e.0, e.1));
+            assert!((f.2 - e.2).norm() <= 1e-9 * (1.0 + e.2.coords.abs().max()));
+        }
     }
 }

@@ -1729,10 +1729,9 @@ fn flag_ambiguous(
         for &r in &rivals {
             ambiguous = match &fits[r] {
                 Some(fit) => counts(&winner, fit),
-                None => {
-                    let est = &unaccepted[todo.binary_search(&r).expect("every rival is fitted")];
-                    counts_unaccepted(&winner, est)
-                }
+                None => todo
+                    .binary_search(&r)
+                    .is_ok_and(|i| counts_unaccepted(&winner, &unaccepted[i])),
             };
             if ambiguous {
                 break;
@@ -2283,8 +2282,8 @@ const MIN_VERTEX_CELL_PX: f64 = 0.01;
 /// pixels.
 const FLIP_REACH_PX: f64 = 16.0;
 
-/// The fits (rescaled by the noise scale, not yet accepted) of the triplets that take one of `segments` (rectified indices) for a segment of
-/// opposite contrast alongside it, reversed. Matching is oriented, so these are never
+/// The fits (rescaled by the noise scale, not yet accepted) of the triplets that take one of
+/// `segments` (rectified indices) for a segment of opposite contrast alongside it, reversed. Matching is oriented, so these are never
 /// hypotheses; but an edge whose contrast flips between the views (a cabinet's front edge,
 /// seen against the wall from below and against its own top from above) cannot form its
 /// true triplet, and where one view alone fixes the depth the other two meet a neighbouring
@@ -2373,11 +2372,9 @@ fn as_likely(winner: &Line3Estimate, rival: &Line3Estimate) -> bool {
         && rival.ends_disagreement <= winner.ends_disagreement.max(AMBIGUITY_ENDS_AGREE)
 }
 
-/// Whether `rival` explains its images about as well as `winner` (χ² at most
-/// [`AMBIGUITY_CHI2_MARGIN`] worse, ends agreeing across the views within
-/// [`AMBIGUITY_ENDS_AGREE`] σ or no worse than the winner's) with a 3D line somewhere else:
-/// its midpoint off the winner's line by more than the gate's position tolerance, or its
-/// direction by more than the gate's direction tolerance.
+/// Whether `rival` explains its images about as well as `winner` ([`as_likely`]) with a 3D
+/// line somewhere else: its midpoint off the winner's line by more than the gate's position
+/// tolerance, or its direction by more than the gate's direction tolerance.
 fn as_likely_elsewhere(
     winner: &Line3Estimate,
     rival: &Line3Estimate,

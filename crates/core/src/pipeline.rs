@@ -1281,7 +1281,8 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
         )
         && within_radius(midpoint_var, tolerance(&mid), confidence)
         && within_radius(start_var, tolerance(&est.start), confidence)
-        && within_radius(end_var, tolerance(&est.end), confidence);
+        && within_radius(end_var, tolerance(&est.end), confidence)
+        && seen_long_enough(rig, &est);
     Some((
         est,
         Quality {
@@ -1292,6 +1293,21 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
             certain,
         },
     ))
+}
+
+/// Whether the segment is at least [`matching::predict::MIN_OVERLAP_PX`] long in the image of
+/// one of the views (pinhole projection), what the matcher asks of any part the views share.
+/// A receding line's trim, or an overlap of short pieces, can leave a piece of line a pixel
+/// long in every view: its direction is what its line's covariance says, but a 5-cm piece of
+/// it vouches for nothing the views measured as a segment, and the scorer of a map counts its
+/// every degree (docs/ACCURACY.md, "A piece of line no view sees as a segment").
+fn seen_long_enough(rig: &Rig, est: &Line3Estimate) -> bool {
+    (0..3).any(|v| {
+        let p = rig.camera(v).projection();
+        let (a, b) = (p * est.start.to_homogeneous(), p * est.end.to_homogeneous());
+        let (a, b) = (a.xy() / a.z, b.xy() / b.z);
+        (a - b).norm() >= matching::predict::MIN_OVERLAP_PX
+    })
 }
 
 /// Validation ranks hypotheses and resolves rivalries; only its winners are reconstructed.
@@ -2646,6 +2662,43 @@ mod tests {
         // Pulled in along the line, not off it.
         let u = original.direction();
         assert!(((est.end - original.start).cross(&u)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn a_piece_of_line_shorter_than_the_matchers_overlap_in_every_view_is_not_certain() {
+        // A well-measured line 2 m in front of the first camera, across its axis, 40 cm
+        // long; then the same line cut to its middle 2 mm as a trim cuts (the ends blended,
+        // so its direction stays as well known): about half a pixel in every image of the
+        // preset rig.
+        let rig = preset_rig();
+        let params = MatchParams::default();
+        let camera = rig.camera(0);
+        let centre = camera.centre() + camera.axis() * 2.0;
+        let across = crate::geometry::across_basis(&camera.axis()).0;
+        let long = Line3Estimate {
+            start: centre - across * 0.2,
+            end: centre + across * 0.2,
+            ..line_at(0.0, 2.0, 0.5, 1.0)
+        };
+        let mut short = long;
+        let cut = 0.5 * (1.0 - 0.002 / 0.4);
+        blend_ends(&mut short, cut, cut);
+        let in_pixels = |e: &Line3Estimate| {
+            (0..3)
+                .map(|v| {
+                    let p = rig.camera(v).projection();
+                    let (a, b) = (p * e.start.to_homogeneous(), p * e.end.to_homogeneous());
+                    (a.xy() / a.z - b.xy() / b.z).norm()
+                })
+                .fold(0.0, f64::max)
+        };
+        assert!(in_pixels(&long) > 100.0, "{}", in_pixels(&long));
+        assert!(in_pixels(&short) < 1.0, "{}", in_pixels(&short));
+        let (_, quality) = accept(Some(long), &rig, &params).expect("kept");
+        assert!(quality.certain);
+        let (_, quality) = accept(Some(short), &rig, &params).expect("kept, flagged");
+        assert!(quality.direction_sigma_deg < 1.0, "{quality:?}");
+        assert!(!quality.certain);
     }
 
     #[test]

@@ -1296,18 +1296,24 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
 }
 
 /// Whether the segment is at least [`matching::predict::MIN_OVERLAP_PX`] long in the image of
-/// one of the views (pinhole projection), what the matcher asks of any part the views share.
-/// A receding line's trim, or an overlap of short pieces, can leave a piece of line a pixel
+/// one of the views, what the matcher asks of any part the views share. A trim of ends the
+/// line cannot vouch for, or an overlap of short pieces, can leave a piece of line a pixel
 /// long in every view: its direction is what its line's covariance says, but a 5-cm piece of
-/// it vouches for nothing the views measured as a segment, and the scorer of a map counts its
-/// every degree (docs/ACCURACY.md, "A piece of line no view sees as a segment").
+/// it is nothing the views measured as a segment, and a scorer counts every degree of it
+/// (docs/ACCURACY.md, "A piece of line no view sees as a segment").
 fn seen_long_enough(rig: &Rig, est: &Line3Estimate) -> bool {
-    (0..3).any(|v| {
-        let p = rig.camera(v).projection();
-        let (a, b) = (p * est.start.to_homogeneous(), p * est.end.to_homogeneous());
-        let (a, b) = (a.xy() / a.z, b.xy() / b.z);
-        (a - b).norm() >= matching::predict::MIN_OVERLAP_PX
-    })
+    longest_image_px(rig, est) >= matching::predict::MIN_OVERLAP_PX
+}
+
+/// The segment's longest image among the views, pixels (pinhole projection).
+fn longest_image_px(rig: &Rig, est: &Line3Estimate) -> f64 {
+    (0..3)
+        .map(|v| {
+            let p = rig.camera(v).projection();
+            let (a, b) = (p * est.start.to_homogeneous(), p * est.end.to_homogeneous());
+            (a.xy() / a.z - b.xy() / b.z).norm()
+        })
+        .fold(0.0, f64::max)
 }
 
 /// Validation ranks hypotheses and resolves rivalries; only its winners are reconstructed.
@@ -2683,17 +2689,11 @@ mod tests {
         let mut short = long;
         let cut = 0.5 * (1.0 - 0.002 / 0.4);
         blend_ends(&mut short, cut, cut);
-        let in_pixels = |e: &Line3Estimate| {
-            (0..3)
-                .map(|v| {
-                    let p = rig.camera(v).projection();
-                    let (a, b) = (p * e.start.to_homogeneous(), p * e.end.to_homogeneous());
-                    (a.xy() / a.z - b.xy() / b.z).norm()
-                })
-                .fold(0.0, f64::max)
-        };
-        assert!(in_pixels(&long) > 100.0, "{}", in_pixels(&long));
-        assert!(in_pixels(&short) < 1.0, "{}", in_pixels(&short));
+        let (long_px, short_px) = (
+            longest_image_px(&rig, &long),
+            longest_image_px(&rig, &short),
+        );
+        assert!(long_px > 100.0 && short_px < 1.0, "{long_px} {short_px}");
         let (_, quality) = accept(Some(long), &rig, &params).expect("kept");
         assert!(quality.certain);
         let (_, quality) = accept(Some(short), &rig, &params).expect("kept, flagged");

@@ -1725,9 +1725,10 @@ fn flag_ambiguous(
     todo.dedup();
     let triplets: Vec<[u32; 3]> = todo.iter().map(|&r| hypotheses[r].segments).collect();
     let factor = stats.noise_scale.powi(2);
-    // Each rival's fit, accepted only when a winner asks: most rivals fit far worse than
-    // every winner they rival, which their χ² alone says (`as_likely`), and the acceptance,
-    // which changes neither χ² nor the ends' disagreement, would be wasted on them.
+    // Each rival's fit, accepted (and kept in `fits`) only when a winner asks: most rivals
+    // fit far worse than every winner they rival, which their χ² alone says (`as_likely`),
+    // and the acceptance, which changes neither χ² nor the ends' disagreement, would be
+    // wasted on them.
     let unaccepted: Vec<Option<Line3Estimate>> = observations
         .estimates(rig, &triplets)
         .into_iter()
@@ -1749,13 +1750,17 @@ fn flag_ambiguous(
         };
         let mut ambiguous = false;
         for &r in &rivals {
-            ambiguous = match &fits[r] {
-                Some(fit) => counts(&winner, fit),
-                None => todo
-                    .binary_search(&r)
-                    .is_ok_and(|i| counts_unaccepted(&winner, &unaccepted[i])),
-            };
-            if ambiguous {
+            if fits[r].is_none() {
+                let Some(rival) = todo.binary_search(&r).ok().and_then(|i| unaccepted[i]) else {
+                    continue;
+                };
+                if !as_likely(&winner, &rival) {
+                    continue;
+                }
+                fits[r] = Some(accept(Some(rival), rig, params));
+            }
+            if fits[r].as_ref().is_some_and(|fit| counts(&winner, fit)) {
+                ambiguous = true;
                 break;
             }
         }
@@ -2305,11 +2310,12 @@ const MIN_VERTEX_CELL_PX: f64 = 0.01;
 const FLIP_REACH_PX: f64 = 16.0;
 
 /// The fits (rescaled by the noise scale, not yet accepted) of the triplets that take one of
-/// `segments` (rectified indices) for a segment of opposite contrast alongside it, reversed. Matching is oriented, so these are never
-/// hypotheses; but an edge whose contrast flips between the views (a cabinet's front edge,
-/// seen against the wall from below and against its own top from above) cannot form its
-/// true triplet, and where one view alone fixes the depth the other two meet a neighbouring
-/// edge of that view in a ghost that fits as well as any true line. The flipped triplet
+/// `segments` (rectified indices) for a segment of opposite contrast alongside it, reversed.
+/// Matching is oriented, so these are never hypotheses; but an edge whose contrast flips
+/// between the views (a cabinet's front edge, seen against the wall from below and against its
+/// own top from above) cannot form its true triplet, and where one view alone fixes the depth
+/// the other two meet a neighbouring edge of that view in a ghost that fits as well as any
+/// true line. The flipped triplet
 /// is the ghost's rival — when its contrast's strength agrees with the other two views at
 /// least as well as the winner's own segment does: the flipped sign is evidence for the
 /// winner, and only the magnitude can weigh against it (the office's ghosts: 36 grey levels

@@ -1305,14 +1305,12 @@ fn seen_long_enough(rig: &Rig, est: &Line3Estimate) -> bool {
     longest_image_px(rig, est) >= matching::predict::MIN_OVERLAP_PX
 }
 
-/// The segment's longest image among the views, pixels (pinhole projection).
+/// The segment's longest image among the views, pixels (pinhole projection; a view that has
+/// an end behind it sees none of it).
 fn longest_image_px(rig: &Rig, est: &Line3Estimate) -> f64 {
-    (0..3)
-        .map(|v| {
-            let p = rig.camera(v).projection();
-            let (a, b) = (p * est.start.to_homogeneous(), p * est.end.to_homogeneous());
-            (a.xy() / a.z - b.xy() / b.z).norm()
-        })
+    rig.cameras()
+        .iter()
+        .filter_map(|c| Some((c.pinhole(&est.end)? - c.pinhole(&est.start)?).norm()))
         .fold(0.0, f64::max)
 }
 
@@ -1823,10 +1821,7 @@ fn join_at_vertices(
             continue;
         }
         for (point, block) in [(est.start, 0), (est.end, 3)] {
-            let image = cameras.map(|c| {
-                let x = c.projection() * point.to_homogeneous();
-                (x.z > 0.0).then(|| Point2::new(x.x / x.z, x.y / x.z))
-            });
+            let image = cameras.map(|c| c.pinhole(&point));
             let [Some(a), Some(b), Some(c)] = image else {
                 continue;
             };

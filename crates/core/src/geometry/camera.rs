@@ -346,6 +346,13 @@ impl Camera {
         Some(Point2::new(p.x, p.y))
     }
 
+    /// The undistorted pixel where the ideal pinhole (`P`) images a rig-frame point, the
+    /// frame the matcher works in; `None` behind or on the camera plane.
+    pub fn pinhole(&self, point: &Point3<f64>) -> Option<Point2<f64>> {
+        let x = self.projection * point.to_homogeneous();
+        (x.z > 0.0).then(|| Point2::new(x.x / x.z, x.y / x.z))
+    }
+
     /// Depth of a rig-frame point along the optical axis, metres.
     pub fn depth(&self, point: &Point3<f64>) -> f64 {
         (self.rotation * point.coords + self.translation).z

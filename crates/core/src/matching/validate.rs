@@ -263,7 +263,7 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
     // past 10¹⁶ px) has its neighbouring cells found with saturating steps.
     let size = radius.max(MIN_CELL_PX);
     let cell = |p: Point2<f64>| ((p.x / size).floor() as i64, (p.y / size).floor() as i64);
-    let mut ends: Vec<((i64, i64), u32, Point2<f64>)> = segments
+    let mut ends: Vec<CellEnd> = segments
         .iter()
         .enumerate()
         .flat_map(|(i, s)| [(cell(s.a), i as u32, s.a), (cell(s.b), i as u32, s.b)])
@@ -273,7 +273,6 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
     // between (x, y − 1), (x, y) and (x, y + 1). Each column's first and last are found by
     // cursors that move on as the ends are walked in that order (the cells asked rise with
     // them), so the whole walk reads the list a few times over instead of looking cells up.
-    let cells: Vec<(i64, i64)> = ends.iter().map(|e| e.0).collect();
     let mut first = [Cursor::default(); 3];
     let mut past = [Cursor::default(); 3];
     let mut found: Vec<(u32, u32, f64, Point2<f64>)> = Vec::new();
@@ -282,8 +281,8 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
         near.clear();
         for (column, dx) in (-1..=1).enumerate() {
             let x = cx.saturating_add(dx);
-            let lo = first[column].seek(&cells, (x, cy.saturating_sub(1)), false);
-            let hi = past[column].seek(&cells, (x, cy.saturating_add(1)), true);
+            let lo = first[column].seek(&ends, (x, cy.saturating_sub(1)), false);
+            let hi = past[column].seek(&ends, (x, cy.saturating_add(1)), true);
             if lo >= hi {
                 continue;
             }
@@ -312,7 +311,10 @@ pub fn adjacency(segments: &[RectSegment], radius: f64) -> Vec<(u32, u32, Point2
     found.into_iter().map(|(a, b, _, v)| (a, b, v)).collect()
 }
 
-/// A position in a sorted list of cells, moved on from the last cell asked.
+/// An end of a segment in [`adjacency`]'s grid: its cell, its segment, its point.
+type CellEnd = ((i64, i64), u32, Point2<f64>);
+
+/// A position in a list of ends sorted by cell, moved on from the last cell asked.
 #[derive(Debug, Clone, Copy, Default)]
 struct Cursor {
     at: usize,
@@ -320,16 +322,16 @@ struct Cursor {
 }
 
 impl Cursor {
-    /// The first position in `cells` (sorted) at or past `cell` (`past`: after it). Cells
-    /// asked in rising order move the cursor over the list once in all; one lower than the
-    /// last (a cell index saturated at the edge of `i64`, where a step no longer rises) is
-    /// searched for.
-    fn seek(&mut self, cells: &[(i64, i64)], cell: (i64, i64), past: bool) -> usize {
-        let before = |c: &(i64, i64)| if past { *c <= cell } else { *c < cell };
+    /// The first position in `ends` (sorted by cell) at or past `cell` (`past`: after it).
+    /// Cells asked in rising order move the cursor over the list once in all; one lower than
+    /// the last (a cell index saturated at the edge of `i64`, where a step no longer rises)
+    /// is searched for.
+    fn seek(&mut self, ends: &[CellEnd], cell: (i64, i64), past: bool) -> usize {
+        let before = |e: &CellEnd| if past { e.0 <= cell } else { e.0 < cell };
         if self.cell.is_some_and(|last| cell < last) {
-            self.at = cells.partition_point(before);
+            self.at = ends.partition_point(before);
         } else {
-            while self.at < cells.len() && before(&cells[self.at]) {
+            while self.at < ends.len() && before(&ends[self.at]) {
                 self.at += 1;
             }
         }

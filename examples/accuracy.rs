@@ -8,7 +8,7 @@
 //! `poses=1` is the one capture facing the bookshelf that the figures used until 2026-11-29.
 //! e.g. `-- 5 include_uncertain=1` for every segment, not only those that meet the gate;
 //! `defects.FIELD=value` changes one field of the realistic defects (`synth::Defects`), e.g.
-//! `-- 5 defects.disturbed_share=0 defects.crowded_share=0` for lists without the measured
+//! `-- 5 defects.disturbed_share=0 defects.neighbour_shift=0` for lists without the measured
 //! tail; `wrong` lists the realistic lists' wrong 3D segments (class, whether the match was
 //! right, and per view the image segment's edge, its length, how far its ends lie off that
 //! edge's image and the nearest listed parallel segment beside it).
@@ -104,11 +104,17 @@ fn main() {
             "gate_confidence" => params.gate_confidence = value,
             "neighbour_radius_px" => params.neighbour_radius_px = value,
             "defects.endpoint_noise_px" => realistic.endpoint_noise_px = value,
-            "defects.crowded_share" => realistic.crowded_share = value,
-            "defects.crowded_view_prob" => realistic.crowded_view_prob = value,
+            "defects.shift_shared_px" => realistic.shift_shared_px = value,
+            "defects.shift_view_px" => realistic.shift_view_px = value,
+            "defects.turn_px" => realistic.turn_px = value,
+            "defects.neighbour_shift" => realistic.neighbour_shift = value,
+            "defects.neighbour_turn_share" => realistic.neighbour_turn_share = value,
+            "defects.merge_same_contrast_px" => realistic.merge_same_contrast_px = value,
             "defects.disturbed_share" => realistic.disturbed_share = value,
             "defects.disturbed_view_prob" => realistic.disturbed_view_prob = value,
             "defects.disturbed_noise_px" => realistic.disturbed_noise_px = value,
+            "defects.disturbed_view_px" => realistic.disturbed_view_px = value,
+            "defects.disturbed_turn_px" => realistic.disturbed_turn_px = value,
             "defects.end_noise_px" => realistic.end_noise_px = value,
             "defects.end_shortfall_px" => realistic.end_shortfall_px = value,
             "defects.fragment_prob" => realistic.fragment_prob = value,

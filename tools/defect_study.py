@@ -26,7 +26,16 @@ along the line; the nearest if several). Prints, pooled over both rooms:
   with none; per edge that all three views show, in how many views it was found (misses that
   go together: `faint_share`, `faint_miss_prob`, `miss_prob`);
 - the segments of at least 8 px along no visible piece, as a share of those along one
-  (`clutter_fraction`).
+  (`clutter_fraction`);
+- the structure of the offsets (signed toward each segment's brighter side, so lists must be
+  oriented): how alike one edge's line is shifted in two views (the correlation of the shifts
+  of the longest segment per view, for lines with no other true edge alongside within 3 px and
+  for those with one; `shift_shared_px` against `shift_view_px`), by the shorter one's length;
+  and, by the distance between the true lines of the nearest other edge alongside within 5 px
+  (20 px or longer, overlapping at least 70% of the segment) and by that edge's contrast (the
+  same or opposite, from the rendered image), the median shift of the segment's midpoint
+  toward it and the robust spread about it (`NEIGHBOUR_SHIFT_OPPOSITE`, `NEIGHBOUR_SHIFT_SAME`).
+  Needs Pillow for the images.
 """
 import argparse
 import json
@@ -36,6 +45,7 @@ import sys
 import tempfile
 
 import numpy as np
+from PIL import Image
 
 sys.path.insert(0, os.path.dirname(__file__))
 from eval_rooms import request_for  # noqa: E402
@@ -98,6 +108,102 @@ def beside(s, others, reach):
     return False
 
 
+NEIGHBOUR_REACH_PX = 5.0
+MIN_OVERLAP_SHARE = 0.7
+
+
+def brighter_normal(image, a, b):
+    """The unit normal of the image line a -> b toward its brighter side (grey levels 1.5 px
+    either side, median of nine points along it)."""
+    d = b - a
+    n = np.array([d[1], -d[0]]) / np.linalg.norm(d)
+    h, w = image.shape
+
+    def grey(p):
+        return image[min(max(int(round(p[1])), 0), h - 1), min(max(int(round(p[0])), 0), w - 1)]
+    c = np.median([grey(a + s * d + 1.5 * n) - grey(a + s * d - 1.5 * n) for s in np.linspace(0.1, 0.9, 9)])
+    return n if c >= 0 else -n
+
+
+def nearest_alongside(p, q, a, t, n, pieces, edge):
+    """The nearest other edge's piece alongside the segment p-q (assigned to the piece through a
+    with direction t, normal n): parallel within ANGLE_DEG, at least MIN_PIECE_PX long,
+    overlapping at least MIN_OVERLAP_SHARE of the segment, its line within NEIGHBOUR_REACH_PX
+    of the true line at the middle of the overlap. Returns (signed distance along n, (c, e))."""
+    sp, sq = sorted((t @ (p - a), t @ (q - a)))
+    best = None
+    for c, e, other in pieces:
+        if other == edge or np.linalg.norm(e - c) < MIN_PIECE_PX:
+            continue
+        u = (e - c) / np.linalg.norm(e - c)
+        if abs(u @ t) < np.cos(np.radians(ANGLE_DEG)):
+            continue
+        s0, s1 = t @ (c - a), t @ (e - a)
+        lo, hi = max(min(s0, s1), sp), min(max(s0, s1), sq)
+        if hi - lo < MIN_OVERLAP_SHARE * (sq - sp):
+            continue
+        at = c + (e - c) * ((0.5 * (lo + hi) - s0) / (s1 - s0))
+        dist = n @ (at - a)
+        if 0.05 <= abs(dist) <= NEIGHBOUR_REACH_PX and (best is None or abs(dist) < abs(best[0])):
+            best = (dist, (c, e))
+    return best
+
+
+def shift_structure(oriented):
+    """Prints how alike the views of one edge shift its line: per capture, edge and camera the
+    longest segment, paired across cameras."""
+    by = {}
+    for key, edge, cam, shift, length, crowded in oriented:
+        k = (key, edge)
+        if cam not in by.setdefault(k, {}) or by[k][cam][1] < length:
+            by[k][cam] = (shift, length, crowded)
+
+    def robust(x):
+        return 1.4826 * np.median(np.abs(x - np.median(x)))
+    for crowded, name in ((False, "alone"), (True, "beside another true edge within 3 px")):
+        rows = []
+        for views in by.values():
+            cams = sorted(views)
+            for i in range(len(cams)):
+                for j in range(i + 1, len(cams)):
+                    x, y = views[cams[i]], views[cams[j]]
+                    if x[2] == crowded and y[2] == crowded:
+                        rows.append((x[0], y[0], min(x[1], y[1])))
+        r = np.asarray(rows)
+        if len(r) < 20:
+            continue
+        x, y = np.clip(r[:, 0], -1, 1), np.clip(r[:, 1], -1, 1)
+        print(f"a line's shift toward its brighter side in two views of its edge, {name}: "
+              f"{len(r)} pairs, correlation {np.corrcoef(x, y)[0, 1]:.2f}; |shift| percentiles "
+              "50/75/90/95/99: " + " / ".join(f"{v:.3f}" for v in np.percentile(np.abs(r[:, :2]), [50, 75, 90, 95, 99])))
+        if crowded:
+            continue
+        for lo, hi in ((8, 30), (30, 60), (60, 120), (120, 1e9)):
+            b = r[(r[:, 2] >= lo) & (r[:, 2] < hi)]
+            if len(b) < 20:
+                continue
+            both = robust(np.concatenate([b[:, 0], b[:, 1]]))
+            apart = robust(b[:, 0] - b[:, 1]) / np.sqrt(2)
+            print(f"  the shorter {lo:.0f}-{hi:.0f} px ({len(b)} pairs): robust sigma {both:.3f} px, "
+                  f"of it each view's own {apart:.3f}, shared {np.sqrt(max(both ** 2 - apart ** 2, 0)):.3f}; "
+                  f"correlation {np.corrcoef(np.clip(b[:, 0], -1, 1), np.clip(b[:, 1], -1, 1))[0, 1]:.2f}")
+
+
+def neighbour_table(neighbours):
+    r = np.asarray(neighbours, float)
+    bins = ((0.0, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, 2.5), (2.5, 3.0), (3.0, 3.5), (3.5, 4.0), (4.0, 5.0))
+    for same, name in ((0, "opposite"), (1, "same")):
+        for lo, hi in bins:
+            sel = (r[:, 0] == same) & (r[:, 1] >= lo) & (r[:, 1] < hi)
+            if sel.sum() < 5:
+                continue
+            t = r[sel, 2]
+            med = np.median(t)
+            print(f"beside an edge of {name} contrast {lo:.1f}-{hi:.1f} px away ({sel.sum()}): the midpoint "
+                  f"{med:+.2f} px toward it, robust spread {1.4826 * np.median(np.abs(t - med)):.2f}, "
+                  f"over 0.4 px off {np.mean(np.abs(t) > 0.4):.2f}")
+
+
 def lists_for(cdir, source, binary, work):
     if source == "lsd":
         lsd = json.load(open(os.path.join(cdir, "segments_lsd.json")))
@@ -130,6 +236,11 @@ def main():
     # per assigned segment: (end off by more than TAIL_PX, a listed parallel neighbour beside
     # it, a true edge piece beside its own)
     crowded = []
+    # per segment: capture key, edge, camera, shift toward its brighter side, length, crowded
+    oriented = []
+    # per segment with another edge alongside within NEIGHBOUR_REACH_PX: same contrast,
+    # distance between the true lines, midpoint's offset toward it
+    neighbours = []
     cos_tol = np.cos(np.radians(ANGLE_DEG))
     for room in a.rooms.split(","):
         data = os.path.join(a.shared, "data", room)
@@ -145,6 +256,7 @@ def main():
             for cam, segs in enumerate(lists):
                 P = np.asarray(calib["cameras"][cam]["P"], float)
                 pieces = pieces_of(vis, E, P, cam)
+                image = np.asarray(Image.open(os.path.join(cdir, f"img{cam + 1}.png")).convert("L"), float)
                 counts = np.zeros(len(pieces), int)
                 for s in segs:
                     p, q = s[:2], s[2:]
@@ -179,6 +291,19 @@ def main():
                                     beside(s, [np.concatenate([a_, b_]) for a_, b_, e_ in pieces
                                                if e_ != pieces[k][2]], NEIGHBOUR_PX)))
                     counts[k] += 1
+                    a_, b_, edge_k = pieces[k]
+                    t = (b_ - a_) / np.linalg.norm(b_ - a_)
+                    n = np.array([-t[1], t[0]])
+                    # The list is oriented: the brighter side is on the left of p -> q.
+                    toward_bright = np.sign(n @ np.array([d[1], -d[0]]))
+                    oriented.append(((room, cap), edge_k, cam, 0.5 * (dp + dq) * toward_bright,
+                                     length, crowded[-1][2]))
+                    near = nearest_alongside(p, q, a_, t, n, pieces, edge_k)
+                    if near is not None:
+                        dist, (c_, e_) = near
+                        same = brighter_normal(image, c_, e_) @ brighter_normal(image, a_, b_) > 0
+                        mid = n @ (0.5 * (p + q) - a_)
+                        neighbours.append((same, abs(dist), mid * np.sign(dist)))
                     across += [dp, dq]
                     shift_turn.append((0.5 * (dp + dq), 0.5 * (dq - dp), length))
                     edge = pieces[k][2]
@@ -251,6 +376,8 @@ def main():
               f"without {np.mean(cr[~w, 0]):.3f}")
     print(f"segments along no visible piece (clutter): {n_clutter / max(n_assigned, 1):.3f} "
           f"of those along one")
+    shift_structure(oriented)
+    neighbour_table(neighbours)
 
 
 if __name__ == "__main__":

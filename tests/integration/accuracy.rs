@@ -163,8 +163,9 @@ fn realistic_turntables() -> Pool {
 
 #[test]
 #[ignore = "issue 12's completeness goal is missed on the synthetic room with LSD's measured \
-            defects (5 seeds x 12 poses: 2.97% wrong, 25.6% complete, 2 of 775 far; exact \
-            lists reach 58%): docs/ACCURACY.md, run with --ignored to see it fail"]
+            defects (5 seeds x 12 poses: 1.53% wrong, 49.1% complete, 2 of 1,373 far), and \
+            cannot be met there: its exact lists reach 58%: docs/ACCURACY.md, run with \
+            --ignored to see it fail"]
 fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
     let pooled = realistic_turntables();
     println!("realistic lists, default answer: {}", pooled.cells());
@@ -180,10 +181,9 @@ fn realistic_lists_meet_the_goals_of_lsd_lists_under_the_gate() {
 }
 
 /// The part of issue 12's goals the synthetic room meets with LSD's measured defects: the 3D
-/// error (2.97% of 775 segments since 2026-12-07; 2.98% of 605 since an end's slide along a
-/// receding line is in its trim, 3.14% before) and segments near no true edge (3 of 637 when
-/// written, 2 of 605 since each view's own shift is reported, 2 of 775 now), which are wrong
-/// correspondences, not imprecision.
+/// error (1.53% of 1,373 segments since the lists' noise has LSD's structure, 2026-12-07;
+/// 2.97% of 775 before) and segments near no true edge (2 of 1,373; 2 of 775 before), which
+/// are wrong correspondences, not imprecision.
 #[test]
 fn realistic_lists_meet_the_error_goals_of_lsd_lists() {
     let pooled = realistic_turntables();
@@ -203,19 +203,21 @@ fn realistic_lists_meet_the_error_goals_of_lsd_lists() {
     );
 }
 
-/// Issue 12's calibration goal, its first half for the position: of the segments on their true
-/// edge (`includeUncertain`, as the goal is measured), ≥ 93% within χ²'s 95% quantile of the
-/// midpoint's error under the reported covariance.
+/// Issue 12's calibration goal: of the segments on their true edge (`includeUncertain`, as the
+/// goal is measured), ≥ 93% within χ²'s 95% quantile and ≥ 98% within its 99% quantile of the
+/// direction's and the midpoint's errors under the reported covariance.
 const CALIBRATION_GOAL_WITHIN_Q95: f64 = 0.93;
+const CALIBRATION_GOAL_WITHIN_Q99: f64 = 0.98;
 
-/// The synthetic room's lists with LSD's measured defects report a position covariance that
-/// holds their errors: the share the goal asks for at q95. Each list line's own shift
-/// (`MatchParams::list_shift_px`) is what brings it there: 92.0% without it, 95.2% with it
-/// (five seeds of 12 captures, 2,289 segments on their edge, when written). This room's direction (92.5%)
-/// and the 99% halves (96.6% position, 95.3% direction) miss the goal, which the shared rooms
-/// meet (docs/ACCURACY.md): the generator's tails are heavier than LSD's on them.
+/// The synthetic room's lists with LSD's measured defects report a covariance that holds
+/// their errors: the three of the goal's four shares that this room meets — the direction
+/// within q95 (96.3%) and the position within q95 and q99 (98.6% / 99.3%; five seeds of 12
+/// captures, 2026-12-07, since the lists' noise has LSD's structure: 95.2% / 96.6% and a
+/// direction of 92.5% before). The direction within q99 is printed, not asserted: 97.8%
+/// against the goal's 98% (docs/ACCURACY.md). Each list line's own shift
+/// (`MatchParams::list_shift_px`) is part of the position's.
 #[test]
-fn realistic_lists_report_a_position_covariance_that_holds_their_errors() {
+fn realistic_lists_report_a_covariance_that_holds_their_errors() {
     let params = MatchParams {
         include_uncertain: true,
         ..MatchParams::default()
@@ -232,12 +234,22 @@ fn realistic_lists_report_a_position_covariance_that_holds_their_errors() {
          direction {direction:.3?}, position {position:.3?}",
         calibration.segments
     );
-    // A share of a couple of thousand, not of an answer emptied by some regression.
+    // Shares of a couple of thousand, not of an answer emptied by some regression.
     assert!(calibration.segments >= 1000, "{calibration:?}");
+    assert!(
+        direction[0] >= CALIBRATION_GOAL_WITHIN_Q95,
+        "direction within q95: {:.3}",
+        direction[0]
+    );
     assert!(
         position[0] >= CALIBRATION_GOAL_WITHIN_Q95,
         "position within q95: {:.3}",
         position[0]
+    );
+    assert!(
+        position[1] >= CALIBRATION_GOAL_WITHIN_Q99,
+        "position within q99: {:.3}",
+        position[1]
     );
 }
 

@@ -1948,7 +1948,8 @@ const ALONG_POSTERIOR: f64 = 0.95;
 /// Nor a winner shorter than this in any view, pixels: a direction does not place a line,
 /// and a short segment's place and correspondence are the least sure of all (with none, or
 /// 12 px, a segment near no edge in the office; with 16 px, lines a neighbour pulled off
-/// their edge in the synthetic room's realistic lists, 3.1% wrong: docs/ACCURACY.md).
+/// their edge in the synthetic room's realistic lists as they were drawn until 2026-12-07,
+/// 3.1% wrong: docs/ACCURACY.md).
 const ALONG_MIN_PX: f64 = 20.0;
 /// Two dominant directions are square to each other when their cosine is under this
 /// (88°): a line along one lies in the other's plane.

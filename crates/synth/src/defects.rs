@@ -51,32 +51,86 @@ pub const MAX_CLUTTER_FRACTION: f64 = 10.0;
 /// Gap between fragments of one edge, pixels.
 pub const FRAGMENT_GAP_PX: (f64, f64) = (2.0, 10.0);
 /// Another edge's image this close alongside a segment's (and parallel within
-/// [`CROWDING_ANGLE_DEG`]) may pull an extractor's line fit: [`Defects::crowded_share`].
+/// [`CROWDING_ANGLE_DEG`]) is crowding it: no line there is [`Defects::disturbed_share`]'s.
 pub const CROWDING_REACH_PX: f64 = 3.0;
 pub const CROWDING_ANGLE_DEG: f64 = 4.0;
 /// Neighbours shorter than this are not counted (as in the measurement on LSD's lists).
 pub const CROWDING_MIN_LENGTH_PX: f64 = 20.0;
+/// How a line lies off its edge when another edge's image runs alongside it, by the distance
+/// between the two true lines (pixels): the median shift toward that neighbour and the
+/// robust spread about it (pixels), for a neighbour of opposite contrast (the other side of
+/// a stripe: the line is pushed away) and of the same contrast (the face of a board and the
+/// wall behind: pushed away when under 2 px, drawn toward it from 2 to 4 px, where LSD
+/// merges the two into one region). OpenCV LSD's lines on the shared rooms, measured by
+/// `tools/defect_study.py` (docs/ACCURACY.md, "LSD's errors have a structure"); linear
+/// between the rows, nothing from [`NEIGHBOUR_REACH_PX`] on.
+pub const NEIGHBOUR_SHIFT_OPPOSITE: [(f64, f64, f64); 8] = [
+    (0.5, -0.78, 0.13),
+    (1.25, -0.55, 0.20),
+    (1.75, -0.49, 0.13),
+    (2.25, -0.29, 0.16),
+    (2.75, -0.22, 0.07),
+    (3.25, -0.16, 0.05),
+    (3.75, -0.07, 0.06),
+    (4.5, -0.03, 0.07),
+];
+pub const NEIGHBOUR_SHIFT_SAME: [(f64, f64, f64); 8] = [
+    (0.5, -0.16, 0.20),
+    (1.25, -0.21, 0.15),
+    (1.75, -0.24, 0.26),
+    (2.25, 0.48, 0.24),
+    (2.75, 0.49, 0.34),
+    (3.25, 0.41, 0.30),
+    (3.75, 0.31, 0.46),
+    (4.5, 0.04, 0.12),
+];
+pub const NEIGHBOUR_REACH_PX: f64 = 5.0;
+/// The length at which [`Defects::shift_view_px`] and [`Defects::turn_px`] are stated: a
+/// line fitted to its edge points is off by less the longer it is, as `1/√length`.
+pub const LINE_NOISE_REFERENCE_PX: f64 = 25.0;
 
 /// What goes wrong between the ideal projection and an extractor's output.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Defects {
-    /// Standard deviation of each endpoint's offset across its segment's line, pixels: what
-    /// the extractor's line fit leaves.
+    /// Standard deviation of each endpoint's offset across its segment's line, pixels, each
+    /// end and each view on its own: noise with no structure (the `noisy` lists').
     pub endpoint_noise_px: f64,
-    /// Segments that an extractor's lines follow poorly have their endpoints off the line by
-    /// `disturbed_noise_px` instead. In a view where another edge's image runs alongside
-    /// within [`CROWDING_REACH_PX`] (a neighbouring edge merged into the fit or pulling it),
-    /// a share `crowded_share` of the edges is pulled, in each such view with probability
-    /// `crowded_view_prob`; elsewhere, a share `disturbed_share` of the edges (texture beside
-    /// them, a soft edge) is disturbed, in each view where nothing runs alongside with
-    /// probability `disturbed_view_prob`. Lists
-    /// that state their noise (`states_noise`) state the ordinary `endpoint_noise_px` for
-    /// them too: an extractor does not know which of its lines were pulled.
-    pub crowded_share: f64,
-    pub crowded_view_prob: f64,
+    /// A line fitted to an edge's points is off it as a whole: shifted across itself (the
+    /// mean of its two ends' offsets) and turned (half their difference). Standard
+    /// deviations, pixels: a shift every view of the edge shares (`shift_shared_px`: the
+    /// edge's own blur and shading, rendered alike from nearby viewpoints), each view's own
+    /// shift (`shift_view_px`) and its turn (`turn_px`), these two for a segment of
+    /// [`LINE_NOISE_REFERENCE_PX`] and as `1/√length` for others.
+    pub shift_shared_px: f64,
+    pub shift_view_px: f64,
+    pub turn_px: f64,
+    /// The nearest other edge's image alongside within [`NEIGHBOUR_REACH_PX`] moves the line
+    /// as [`NEIGHBOUR_SHIFT_OPPOSITE`] and [`NEIGHBOUR_SHIFT_SAME`] say, times
+    /// `neighbour_shift` (1: as measured on LSD; 0: not at all) and the share of the line it
+    /// runs beside; the measured spread about that is the edge's own (drawn once, for every
+    /// view: the neighbour is beside it in each), and each view turns the line by a further
+    /// `neighbour_turn_share` of the shift (σ).
+    pub neighbour_shift: f64,
+    pub neighbour_turn_share: f64,
+    /// Two edges' images of the same contrast alongside within `merge_px`, pixels, are one
+    /// line to the extractor (LSD grows one region over both: its lists hold two such lines
+    /// beside each other for 0.3% of their segments, where the projections have them for
+    /// 12%): the longer is reported. 0: each is reported (under a pixel apart, any two are one
+    /// line whatever this says: [`DUPLICATE_DISTANCE_PX`]).
+    pub merge_same_contrast_px: f64,
+    /// A share `disturbed_share` of the edges (texture beside them, a soft edge) are
+    /// followed poorly, in each view where no other edge's image runs alongside within
+    /// [`CROWDING_REACH_PX`] with probability `disturbed_view_prob`: there the line is
+    /// shifted by the edge's own disturbance (σ `disturbed_noise_px`, the same in each such
+    /// view) and by `disturbed_view_px` of the view's own, and turned by
+    /// `disturbed_turn_px` (σ), in place of the ordinary shift and turn. Lists that state
+    /// their noise (`states_noise`) state the ordinary `endpoint_noise_px` for them too: an
+    /// extractor does not know which of its lines it followed poorly.
     pub disturbed_share: f64,
     pub disturbed_view_prob: f64,
     pub disturbed_noise_px: f64,
+    pub disturbed_view_px: f64,
+    pub disturbed_turn_px: f64,
     /// Standard deviation of each endpoint's place along its segment, pixels, and how far
     /// each end falls short of where the edge's visible part ends (an extractor's ends stop
     /// where the gradient fades, inside the edge), pixels.
@@ -107,11 +161,17 @@ impl Defects {
     pub fn clean() -> Defects {
         Defects {
             endpoint_noise_px: 0.0,
-            crowded_share: 0.0,
-            crowded_view_prob: 0.0,
+            shift_shared_px: 0.0,
+            shift_view_px: 0.0,
+            turn_px: 0.0,
+            neighbour_shift: 0.0,
+            neighbour_turn_share: 0.0,
+            merge_same_contrast_px: 0.0,
             disturbed_share: 0.0,
             disturbed_view_prob: 0.0,
             disturbed_noise_px: 0.0,
+            disturbed_view_px: 0.0,
+            disturbed_turn_px: 0.0,
             end_noise_px: 0.0,
             end_shortfall_px: 0.0,
             fragment_prob: 0.0,
@@ -127,40 +187,50 @@ impl Defects {
     /// What a good extractor reports from a rendered image of the scene: OpenCV's LSD on the
     /// shared rendered rooms, measured against their exact ground truth
     /// (`tools/defect_study.py --input lsd`, both rooms, 5,207 segments along 5,496 visible
-    /// edge pieces of 20 px and 4 grey levels or more; docs/ACCURACY.md). The offsets of its
-    /// ends across the true line have a robust σ of 0.14 px and a tail — |offset| over
-    /// 0.61 px for 5% of the ends and over 1.06 px for 1%, where a Gaussian of 0.14 px gives
-    /// 0.27 and 0.36 — that belongs to where edges crowd, and to edges more than to views: a
-    /// segment with another true edge's image alongside within 3 px (18% of them) has an end
-    /// over 0.4 px off in 45% of views, the others in 7.0%; per edge, a crowded view is off in
-    /// 43% and, given one, 83% of the edge's other crowded views are; an uncrowded view is
-    /// off in 5.7% and, given one, 34% of the others. Here 85% of the edges are pulled in
-    /// every view where another edge's image runs alongside, and elsewhere one edge in ten is
-    /// disturbed, each of its views with probability 0.47, the ends then drawn at 0.65 px (so
-    /// 0.4 px off four times in five), the others at 0.12 px: shares chosen so that the
-    /// generator's lists, measured as the tool measures LSD's (the unit test below), show
-    /// LSD's figures — 47% / 6.7% off with and without a true edge alongside, 0.147 px robust
-    /// σ — since its crowding, judged between ideal projections, is not quite the tool's,
-    /// judged from each listed segment.
+    /// edge pieces of 20 px and 4 grey levels or more; docs/ACCURACY.md, "LSD's errors have a
+    /// structure"). Its lines are off their edges as wholes, and alike in the views of an
+    /// edge: a line alone is shifted toward its brighter side by a part its edge's views
+    /// share (robust σ 0.036–0.040 px) and one of the view's own (0.058 px for a segment of
+    /// 8–30 px, 0.018 px from 120 px: as 1/√length), the two views' shifts correlated 0.60,
+    /// and turned by 0.45 px/√length (robust σ 0.085 px at 20–40 px, 0.050 px at 80–160 px);
+    /// a line beside another edge is moved by it as [`NEIGHBOUR_SHIFT_OPPOSITE`] and
+    /// [`NEIGHBOUR_SHIFT_SAME`] say, alike in every view (correlation 0.80), and two lines of
+    /// one contrast within 3 px are one (0.26% of its segments have such a neighbour listed,
+    /// 12% of the exact projections'). The tail where no edge runs alongside (an end over
+    /// 0.4 px off in 5.7% of such views and, given one, in 34% of the edge's others) is one
+    /// edge in fourteen disturbed, in each such view with probability 0.47, shifted by the
+    /// edge's own 0.4 px and the view's 0.15 px and turned by 0.4 px.
     /// Its ends fall 1.0 px short of the edge's end (median) with a robust σ of 0.7 px; 7% of
     /// the pieces it finds are in two or more segments; of the edges all three views could
     /// show, it finds 81.4% in all three, 4.7% in two, 4.8% in one and 9.1% in none — misses
-    /// that go together, which one edge in seven missed in each view with probability 0.85,
-    /// the rest with 0.015, reproduces (82.2%, 4.6%, 4.6%, 8.6%); 18% of its segments lie
+    /// that go together: one edge in eleven is missed in each view with probability 0.85, the
+    /// rest with 0.015, which with the merges finds 9.4% in none; 18% of its segments lie
     /// along no edge. Like LSD's lists, these state no noise.
+    /// Figures chosen so that `tools/lists_on_rooms.py`, which lays this model on the shared
+    /// rooms' own edges, measures there as LSD's lists do (ends' robust σ 0.126 against
+    /// 0.139 px, |offset| 95th / 99th percentile 0.49 / 0.91 against 0.61 / 1.06 px, shift
+    /// correlations 0.56 and 0.84 against 0.60 and 0.80) and costs the matcher about what
+    /// they cost it (docs/ACCURACY.md); the unit tests below measure the structure on the
+    /// standard room.
     pub fn realistic() -> Defects {
         Defects {
-            endpoint_noise_px: 0.12,
-            crowded_share: 0.85,
-            crowded_view_prob: 1.0,
-            disturbed_share: 0.1,
+            endpoint_noise_px: 0.0,
+            shift_shared_px: 0.035,
+            shift_view_px: 0.06,
+            turn_px: 0.1,
+            neighbour_shift: 1.0,
+            neighbour_turn_share: 0.4,
+            merge_same_contrast_px: 3.0,
+            disturbed_share: 0.07,
             disturbed_view_prob: 0.47,
-            disturbed_noise_px: 0.65,
+            disturbed_noise_px: 0.4,
+            disturbed_view_px: 0.15,
+            disturbed_turn_px: 0.4,
             end_noise_px: 0.7,
             end_shortfall_px: 1.0,
             fragment_prob: 0.07,
             miss_prob: 0.015,
-            faint_share: 0.14,
+            faint_share: 0.09,
             faint_miss_prob: 0.85,
             clutter_fraction: 0.18,
             min_length_px: 8.0,
@@ -174,11 +244,17 @@ impl Defects {
     pub fn noisy() -> Defects {
         Defects {
             endpoint_noise_px: 0.5,
-            crowded_share: 0.0,
-            crowded_view_prob: 0.0,
+            shift_shared_px: 0.0,
+            shift_view_px: 0.0,
+            turn_px: 0.0,
+            neighbour_shift: 0.0,
+            neighbour_turn_share: 0.0,
+            merge_same_contrast_px: 0.0,
             disturbed_share: 0.0,
             disturbed_view_prob: 0.0,
             disturbed_noise_px: 0.0,
+            disturbed_view_px: 0.0,
+            disturbed_turn_px: 0.0,
             end_noise_px: 0.5,
             end_shortfall_px: 0.0,
             fragment_prob: 0.2,
@@ -274,6 +350,9 @@ struct Candidate {
     edge: usize,
     /// Another edge's image runs alongside this one ([`runs_alongside`]).
     crowded: bool,
+    /// How the nearest neighbour alongside moves the line: the median shift and its spread,
+    /// pixels along the normal to the brighter side ([`Defects::neighbour_shift`]).
+    neighbour: (f64, f64),
 }
 
 impl Candidate {
@@ -428,6 +507,7 @@ fn candidates<T: Tracer>(
                     left_brighter: class_sign > 0,
                     edge,
                     crowded: false,
+                    neighbour: (0.0, 0.0),
                 });
             }
         }
@@ -505,12 +585,139 @@ fn mark_crowded(mut cands: Vec<Candidate>) -> Vec<Candidate> {
     cands
 }
 
-/// Keeps the longest of each group of near-coincident candidates.
-fn remove_duplicates(mut cands: Vec<Candidate>) -> Vec<Candidate> {
+/// The unit normal of a candidate's image toward its brighter side (DESIGN §1: walking from
+/// start to end, the brighter side is on the left on screen).
+fn brighter_normal(c: &Candidate) -> Vector2<f64> {
+    let t = (c.p_to - c.p_from)
+        .try_normalize(1e-12)
+        .unwrap_or_else(Vector2::x);
+    let left_of_from_to = Vector2::new(t.y, -t.x);
+    if c.left_brighter {
+        left_of_from_to
+    } else {
+        -left_of_from_to
+    }
+}
+
+/// The measured shift toward a neighbour `distance_px` away and its spread
+/// ([`NEIGHBOUR_SHIFT_OPPOSITE`]): linear between the rows, the first row's below it,
+/// nothing from [`NEIGHBOUR_REACH_PX`] on.
+fn neighbour_shift(table: &[(f64, f64, f64)], distance_px: f64) -> (f64, f64) {
+    let mut below: Option<(f64, f64, f64)> = None;
+    for row in table
+        .iter()
+        .copied()
+        .chain([(NEIGHBOUR_REACH_PX, 0.0, 0.0)])
+    {
+        if distance_px <= row.0 {
+            let Some(below) = below else {
+                return (row.1, row.2);
+            };
+            let w = (distance_px - below.0) / (row.0 - below.0);
+            return (
+                below.1 + w * (row.1 - below.1),
+                below.2 + w * (row.2 - below.2),
+            );
+        }
+        below = Some(row);
+    }
+    (0.0, 0.0)
+}
+
+/// Each candidate's neighbour shift ([`Defects::neighbour_shift`]): the nearest other edge's
+/// candidate alongside (parallel within [`CROWDING_ANGLE_DEG`], at least
+/// [`CROWDING_MIN_LENGTH_PX`] long, overlapping it) at distance `d` across the middle of
+/// their overlap moves it toward that neighbour by the measured median for `d` and its
+/// contrast (the same when the brighter normals agree), times the share of the line it runs
+/// beside. Between ideal projections: the push happens whether or not the neighbour is
+/// reported.
+fn mark_neighbours(mut cands: Vec<Candidate>) -> Vec<Candidate> {
+    let shifts: Vec<(f64, f64)> = cands
+        .iter()
+        .map(|c| {
+            let len = c.length_px();
+            if len <= 0.0 {
+                return (0.0, 0.0);
+            }
+            let u = (c.p_to - c.p_from) / len;
+            let n = brighter_normal(c);
+            let parallel = CROWDING_ANGLE_DEG.to_radians().cos();
+            cands
+                .iter()
+                .filter(|o| o.edge != c.edge && o.length_px() >= CROWDING_MIN_LENGTH_PX)
+                .filter_map(|o| {
+                    let facing = brighter_normal(o).dot(&n);
+                    if facing.abs() < parallel {
+                        return None;
+                    }
+                    let (s0, s1) = (u.dot(&(o.p_from - c.p_from)), u.dot(&(o.p_to - c.p_from)));
+                    let (lo, hi) = (s0.min(s1).max(0.0), s0.max(s1).min(len));
+                    if hi <= lo || (s1 - s0).abs() <= 0.0 {
+                        return None;
+                    }
+                    let mid = 0.5 * (lo + hi);
+                    let at = o.p_from + (o.p_to - o.p_from) * ((mid - s0) / (s1 - s0));
+                    let across = n.dot(&(at - c.p_from));
+                    (0.05..NEIGHBOUR_REACH_PX)
+                        .contains(&across.abs())
+                        .then_some((across, facing > 0.0, (hi - lo) / len))
+                })
+                .min_by(|x, y| x.0.abs().total_cmp(&y.0.abs()))
+                .map_or((0.0, 0.0), |(across, same, share)| {
+                    let table: &[(f64, f64, f64)] = if same {
+                        &NEIGHBOUR_SHIFT_SAME
+                    } else {
+                        &NEIGHBOUR_SHIFT_OPPOSITE
+                    };
+                    let (toward, spread) = neighbour_shift(table, across.abs());
+                    (across.signum() * toward * share, spread * share)
+                })
+        })
+        .collect();
+    for (c, shift) in cands.iter_mut().zip(shifts) {
+        c.neighbour = shift;
+    }
+    cands
+}
+
+/// Whether `short` is one line with `long` to an extractor that merges neighbours of the same
+/// contrast within `merge_px` ([`Defects::merge_same_contrast_px`]): their brighter sides
+/// agree, `short` runs alongside `long` within `merge_px` ([`CROWDING_ANGLE_DEG`]) and half
+/// of it or more overlaps `long`.
+fn merged(long: &Candidate, short: &Candidate, merge_px: f64) -> bool {
+    let len = long.length_px();
+    let len_s = short.length_px();
+    if merge_px <= 0.0 || len <= 0.0 || len_s <= 0.0 {
+        return false;
+    }
+    if brighter_normal(long).dot(&brighter_normal(short)) <= 0.0 {
+        return false;
+    }
+    let u = (long.p_to - long.p_from) / len;
+    if (u.perp(&(short.p_to - short.p_from)) / len_s).abs() > CROWDING_ANGLE_DEG.to_radians().sin()
+    {
+        return false;
+    }
+    let across = |p: Point2<f64>| u.perp(&(p - long.p_from)).abs();
+    if across(short.p_from) > merge_px || across(short.p_to) > merge_px {
+        return false;
+    }
+    let along = |p: Point2<f64>| u.dot(&(p - long.p_from));
+    let (s0, s1) = (along(short.p_from), along(short.p_to));
+    let overlap = (s0.max(s1).min(len) - s0.min(s1).max(0.0)).max(0.0);
+    overlap >= 0.5 * len_s
+}
+
+/// Keeps the longest of each group of near-coincident candidates, and of each group that an
+/// extractor merges ([`merged`]).
+fn remove_duplicates(mut cands: Vec<Candidate>, merge_px: f64) -> Vec<Candidate> {
     cands.sort_by(|x, y| y.length_px().total_cmp(&x.length_px()));
     let mut kept: Vec<Candidate> = Vec::with_capacity(cands.len());
     for c in cands {
-        if !kept.iter().any(|k| duplicates(k, &c)) {
+        if !kept
+            .iter()
+            .any(|k| duplicates(k, &c) || merged(k, &c, merge_px))
+        {
             kept.push(c);
         }
     }
@@ -569,7 +776,63 @@ fn clamp_to_image(p: Point2<f64>, camera: &Camera) -> Point2<f64> {
 struct EdgeTraits {
     faint: bool,
     disturbed: bool,
-    pulled_when_crowded: bool,
+    /// Standard normal draws of the edge's own, scaled per view: its shared shift
+    /// ([`Defects::shift_shared_px`]), where its neighbour's shift falls within the measured
+    /// spread ([`Defects::neighbour_shift`]) and its disturbance
+    /// ([`Defects::disturbed_noise_px`]). Zero where the defect is off (nothing drawn).
+    shift_z: f64,
+    neighbour_z: f64,
+    disturbance_z: f64,
+}
+
+impl EdgeTraits {
+    fn draw(defects: &Defects, rng: &mut Rng) -> EdgeTraits {
+        let faint = rng.chance(defects.faint_share);
+        let disturbed = rng.chance(defects.disturbed_share);
+        let mut z = |on: bool| if on { rng.normal() } else { 0.0 };
+        EdgeTraits {
+            faint,
+            disturbed,
+            shift_z: z(defects.shift_shared_px > 0.0),
+            neighbour_z: z(defects.neighbour_shift > 0.0),
+            disturbance_z: z(disturbed && defects.disturbed_noise_px > 0.0),
+        }
+    }
+}
+
+/// A line's shift toward its brighter side and its turn (half the difference of its ends'
+/// offsets, the end's offset being +turn), pixels, for an image segment `length_px` long of
+/// `cand` in a view where the edge is followed poorly (`disturbed`) or not ([`Defects`]).
+/// Draws nothing for a term whose σ is zero, so lists without structured noise stay as they
+/// were drawn.
+fn line_offset(
+    cand: &Candidate,
+    edge: &EdgeTraits,
+    length_px: f64,
+    disturbed: bool,
+    defects: &Defects,
+    rng: &mut Rng,
+) -> (f64, f64) {
+    let mut draw = |sigma: f64| {
+        if sigma > 0.0 {
+            sigma * rng.normal()
+        } else {
+            0.0
+        }
+    };
+    if disturbed {
+        let shift =
+            defects.disturbed_noise_px * edge.disturbance_z + draw(defects.disturbed_view_px);
+        return (shift, draw(defects.disturbed_turn_px));
+    }
+    let shorter = (LINE_NOISE_REFERENCE_PX / length_px.max(1.0)).sqrt();
+    let (toward, spread) = cand.neighbour;
+    let pushed = defects.neighbour_shift * (toward + spread * edge.neighbour_z);
+    let shift = defects.shift_shared_px * shorter * edge.shift_z
+        + draw(defects.shift_view_px * shorter)
+        + pushed;
+    let turn = draw(defects.turn_px * shorter) + draw(defects.neighbour_turn_share * pushed.abs());
+    (shift, turn)
 }
 
 /// Final 2D segments of one camera, with truth, before shuffling.
@@ -583,7 +846,12 @@ fn apply_defects(
     let mut out = Vec::new();
     let moves_ends = defects.endpoint_noise_px > 0.0
         || defects.end_noise_px > 0.0
-        || defects.end_shortfall_px > 0.0;
+        || defects.end_shortfall_px > 0.0
+        || defects.shift_shared_px > 0.0
+        || defects.shift_view_px > 0.0
+        || defects.turn_px > 0.0
+        || defects.neighbour_shift > 0.0
+        || defects.disturbed_share > 0.0;
     for cand in cands {
         let edge = &traits[cand.edge];
         let miss = if edge.faint {
@@ -601,21 +869,18 @@ fn apply_defects(
             if moves_ends {
                 let t = (q - p).try_normalize(1e-12).unwrap_or_else(Vector2::x);
                 let n = Vector2::new(-t.y, t.x);
-                let pulled = if cand.crowded {
-                    edge.pulled_when_crowded && rng.chance(defects.crowded_view_prob)
-                } else {
-                    edge.disturbed && rng.chance(defects.disturbed_view_prob)
-                };
-                let across_sigma = if pulled {
-                    defects.disturbed_noise_px
-                } else {
-                    defects.endpoint_noise_px
-                };
-                // Each end moves inward by the shortfall: +t at the start, −t at the end.
+                let disturbed =
+                    !cand.crowded && edge.disturbed && rng.chance(defects.disturbed_view_prob);
+                let (shift, turn) =
+                    line_offset(cand, edge, (q - p).norm(), disturbed, defects, rng);
+                let towards_brighter = brighter_normal(cand).dot(&n);
+                // Each end moves inward by the shortfall: +t at the start, −t at the end;
+                // across, by the line's shift and −turn at the start, +turn at the end.
                 for (e, inward) in [(&mut p, 1.0), (&mut q, -1.0)] {
                     let (along, across) = (rng.normal(), rng.normal());
                     *e += t * (inward * defects.end_shortfall_px + along * defects.end_noise_px)
-                        + n * (across * across_sigma);
+                        + n * (across * defects.endpoint_noise_px
+                            + towards_brighter * (shift - inward * turn));
                 }
             }
             let (p, q) = (clamp_to_image(p, camera), clamp_to_image(q, camera));
@@ -682,16 +947,12 @@ pub fn observe(scene: &Scene, rig: &Rig, defects: &Defects, seed: u64) -> Observ
     let classes = collinear_classes(&edges);
     let index = SceneIndex::new(scene);
     let root = Rng::new(seed).fork(0xDEFEC7);
-    // Which edges are faint, which disturbed and which pulled where crowded is the edge's own,
-    // the same in every view.
+    // Which edges are faint or disturbed, and how their lines are off, is the edge's own, the
+    // same in every view.
     let mut edge_rng = root.fork(0xFA1);
     let traits: Vec<EdgeTraits> = edges
         .iter()
-        .map(|_| EdgeTraits {
-            faint: edge_rng.chance(defects.faint_share),
-            disturbed: edge_rng.chance(defects.disturbed_share),
-            pulled_when_crowded: edge_rng.chance(defects.crowded_share),
-        })
+        .map(|_| EdgeTraits::draw(defects, &mut edge_rng))
         .collect();
     let per_camera: [(SegmentList, Vec<Option<usize>>); 3] = std::array::from_fn(|c| {
         let camera = &rig.cameras()[c];
@@ -704,7 +965,11 @@ pub fn observe(scene: &Scene, rig: &Rig, defects: &Defects, seed: u64) -> Observ
             &visibility,
             defects.min_length_px,
         );
-        let cands = remove_duplicates(mark_crowded(cands));
+        // Neighbours move a line whether or not the extractor reports them apart.
+        let cands = remove_duplicates(
+            mark_neighbours(mark_crowded(cands)),
+            defects.merge_same_contrast_px,
+        );
         let mut rng = root.fork(c as u64);
         let mut items = apply_defects(&cands, camera, defects, &traits, &mut rng);
         rng.shuffle(&mut items);
@@ -838,6 +1103,77 @@ mod tests {
     }
 
     #[test]
+    fn neighbour_shift_interpolates_the_measured_rows_and_ends_at_the_reach() {
+        let table = [(1.0, -0.5, 0.2), (2.0, -0.3, 0.1)];
+        assert_eq!(neighbour_shift(&table, 0.2), (-0.5, 0.2));
+        let (toward, spread) = neighbour_shift(&table, 1.5);
+        assert!((toward + 0.4).abs() < 1e-12 && (spread - 0.15).abs() < 1e-12);
+        // Between the last row and the reach, down to nothing.
+        let (toward, _) = neighbour_shift(&table, 0.5 * (2.0 + NEIGHBOUR_REACH_PX));
+        assert!((toward + 0.15).abs() < 1e-12, "{toward}");
+        assert_eq!(neighbour_shift(&table, NEIGHBOUR_REACH_PX), (0.0, 0.0));
+        assert_eq!(neighbour_shift(&table, 9.0), (0.0, 0.0));
+    }
+
+    /// A candidate of edge `edge` from `(u0, v)` to `(u1, v)` in the image.
+    fn horizontal(edge: usize, u0: f64, u1: f64, v: f64, left_brighter: bool) -> Candidate {
+        Candidate {
+            from: Point3::origin(),
+            to: Point3::origin(),
+            p_from: Point2::new(u0, v),
+            p_to: Point2::new(u1, v),
+            contrast: 20.0,
+            left_brighter,
+            edge,
+            crowded: false,
+            neighbour: (0.0, 0.0),
+        }
+    }
+
+    #[test]
+    fn lines_of_one_contrast_side_by_side_are_merged_into_the_longer() {
+        let long = horizontal(0, 0.0, 100.0, 50.0, true);
+        let beside = horizontal(1, 10.0, 60.0, 52.0, true);
+        assert!(merged(&long, &beside, 3.0));
+        assert!(!merged(&long, &beside, 0.0), "merging off");
+        assert!(
+            !merged(&long, &horizontal(1, 10.0, 60.0, 54.0, true), 3.0),
+            "too far"
+        );
+        assert!(
+            !merged(&long, &horizontal(1, 10.0, 60.0, 52.0, false), 3.0),
+            "opposite contrast stays apart"
+        );
+        assert!(
+            !merged(&long, &horizontal(1, 80.0, 140.0, 52.0, true), 3.0),
+            "a third beside"
+        );
+        let kept = remove_duplicates(vec![beside, long], 3.0);
+        assert_eq!(kept.len(), 1);
+        assert_eq!(kept[0].edge, 0);
+    }
+
+    #[test]
+    fn a_neighbour_of_opposite_contrast_pushes_a_line_away() {
+        // Brighter above (smaller v) for the first: walking +u on screen (v down), the left is
+        // toward −v.
+        let line = horizontal(0, 0.0, 100.0, 50.0, true);
+        let other = horizontal(1, 0.0, 100.0, 51.5, false);
+        let marked = mark_neighbours(vec![line, other]);
+        let n = brighter_normal(&marked[0]);
+        assert!(n.y < 0.0, "{n:?}");
+        // The neighbour is below (+v), on the darker side: pushed away means toward −v, i.e.
+        // along the brighter normal, by the measured 1.25–1.75 px median.
+        let (toward_brighter, spread) = marked[0].neighbour;
+        let expected = -neighbour_shift(&NEIGHBOUR_SHIFT_OPPOSITE, 1.5).0;
+        assert!(
+            (toward_brighter - expected).abs() < 1e-12,
+            "{toward_brighter} {expected}"
+        );
+        assert!(toward_brighter > 0.4 && spread > 0.0);
+    }
+
+    #[test]
     fn touching_collinear_pieces_stay_apart() {
         let merged = union_overlapping(vec![(0.5, 1.0), (0.0, 0.5), (0.9, 1.4), (2.0, 3.0)], 1e-9);
         assert_eq!(merged, vec![(0.0, 0.5), (0.5, 1.4), (2.0, 3.0)]);
@@ -864,23 +1200,61 @@ mod tests {
     /// A segment's ends in an image.
     type ImageLine = (Point2<f64>, Point2<f64>);
 
-    /// The realistic lists carry the defects measured on OpenCV LSD (the doc of
-    /// [`Defects::realistic`]): measured here on the standard room the way
-    /// `tools/defect_study.py` measures LSD on the shared rooms — each segment's ends against
-    /// the projected line of the edge it came from, and whether another edge runs alongside.
-    #[test]
-    fn realistic_lists_are_off_their_edges_as_measured_on_a_real_extractor() {
-        let (mut across, mut disturbed_views) = (Vec::new(), 0usize);
-        let mut per_edge: HashMap<(u64, usize), [bool; 3]> = HashMap::new();
-        // (segments, of them off) with another true edge alongside, and without.
-        let (mut crowded, mut alone) = ((0usize, 0usize), (0usize, 0usize));
-        for seed in 1..=4 {
-            let (_, rig, obs) = crate::standard_capture(seed, Defects::realistic(), false);
-            // Per camera, the visible pieces of the true edges that the measurement on LSD
-            // counted as neighbours: 20 px or longer, 4 grey levels or more.
-            let pieces = |c: usize| -> Vec<(usize, ImageLine)> {
+    /// How a listed segment lies off the edge it came from, measured as
+    /// `tools/defect_study.py` measures OpenCV LSD's lists on the shared rooms: its ends'
+    /// offsets across the edge's projected line toward the brighter side, the line's shift
+    /// and turn (their mean and half difference), its length, and the nearest other edge's
+    /// visible piece (20 px or longer, 4 grey levels or more) alongside within 3 px — its
+    /// distance from the edge's line and whether its contrast is the same.
+    struct Offset {
+        seed: u64,
+        camera: usize,
+        edge: usize,
+        ends: [f64; 2],
+        shift: f64,
+        turn: f64,
+        length: f64,
+        neighbour: Option<(f64, bool)>,
+    }
+
+    fn median(mut v: Vec<f64>) -> f64 {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    }
+
+    fn robust_sigma(v: &[f64]) -> f64 {
+        let m = median(v.to_vec());
+        1.4826 * median(v.iter().map(|x| (x - m).abs()).collect())
+    }
+
+    fn quantile(v: &mut [f64], q: f64) -> f64 {
+        v.sort_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * q).round() as usize]
+    }
+
+    /// The realistic lists of the standard room (seeds 1..=`seeds`), each segment's
+    /// [`Offset`].
+    fn realistic_offsets(seeds: u64) -> Vec<Offset> {
+        let mut out = Vec::new();
+        for seed in 1..=seeds {
+            let (scene, rig, obs) = crate::standard_capture(seed, Defects::realistic(), false);
+            for c in 0..3 {
                 let cam = &rig.cameras()[c];
-                obs.visibility
+                // The brighter side's normal of a piece of an edge's image.
+                let brighter = |(p, q): ImageLine| {
+                    let d = (q - p).normalize();
+                    let n = Vector2::new(d.y, -d.x);
+                    let mid = p + (q - p) * 0.5;
+                    let contrast = pixel_radiance(&scene, cam, mid + n * 1.5)
+                        - pixel_radiance(&scene, cam, mid - n * 1.5);
+                    if contrast >= 0.0 {
+                        n
+                    } else {
+                        -n
+                    }
+                };
+                let pieces: Vec<(usize, ImageLine)> = obs
+                    .visibility
                     .iter()
                     .enumerate()
                     .filter(|(_, v)| v.contrast[c].is_some_and(|k| k >= MIN_CONTRAST))
@@ -892,82 +1266,144 @@ mod tests {
                             ((q - p).norm() >= 20.0).then_some((e, (p, q)))
                         })
                     })
-                    .collect()
-            };
-            for c in 0..3 {
-                let cam = &rig.cameras()[c];
-                let pieces = pieces(c);
+                    .collect();
                 for (seg, truth) in obs.lists[c].segments.iter().zip(&obs.truth[c]) {
-                    let Some(edge) = truth else { continue };
-                    let g = obs.ground_truth[*edge];
+                    let Some(edge) = *truth else { continue };
+                    // Noise unstated, as LSD's.
+                    assert!(seg.noise.is_none());
+                    let g = obs.ground_truth[edge];
                     let (Some(a), Some(b)) = (cam.project(&g.start), cam.project(&g.end)) else {
                         continue;
                     };
-                    let n = {
-                        let d = (b - a).normalize();
-                        Vector2::new(-d.y, d.x)
+                    // The list is oriented: its brighter side's normal.
+                    let d = (seg.end - seg.start).normalize();
+                    let n = Vector2::new(d.y, -d.x);
+                    let across = |p: Point2<f64>| {
+                        let u = (b - a).normalize();
+                        let normal = Vector2::new(-u.y, u.x);
+                        normal.dot(&(p - a)) * normal.dot(&n).signum()
                     };
-                    let (p, q) = (n.dot(&(seg.start - a)), n.dot(&(seg.end - a)));
-                    across.extend([p.abs(), q.abs()]);
-                    let off = p.abs().max(q.abs()) > 0.4;
-                    if off {
-                        disturbed_views += 1;
-                        per_edge.entry((seed, *edge)).or_default()[c] = true;
-                    }
-                    let beside = pieces.iter().any(|&(other, piece)| {
-                        other != *edge && runs_alongside((seg.start, seg.end), piece)
+                    let ends = [across(seg.start), across(seg.end)];
+                    let neighbour = pieces
+                        .iter()
+                        .filter(|&&(other, piece)| {
+                            other != edge && runs_alongside((seg.start, seg.end), piece)
+                        })
+                        .map(|&(_, (p, q))| {
+                            let mid = p + (q - p) * 0.5;
+                            (across(mid), brighter((p, q)).dot(&n) > 0.0)
+                        })
+                        .min_by(|x, y| x.0.abs().total_cmp(&y.0.abs()));
+                    out.push(Offset {
+                        seed,
+                        camera: c,
+                        edge,
+                        ends,
+                        shift: 0.5 * (ends[0] + ends[1]),
+                        turn: 0.5 * (ends[1] - ends[0]),
+                        length: seg.length(),
+                        neighbour,
                     });
-                    let tally = if beside { &mut crowded } else { &mut alone };
-                    tally.0 += 1;
-                    tally.1 += usize::from(off);
-                    // Noise unstated, as LSD's.
-                    assert!(seg.noise.is_none());
                 }
             }
         }
-        let quantile = |v: &mut Vec<f64>, q: f64| {
-            v.sort_by(f64::total_cmp);
-            v[((v.len() - 1) as f64 * q).round() as usize]
+        out
+    }
+
+    /// The realistic lists are off their edges the way OpenCV LSD's are on the shared rooms
+    /// (the doc of [`Defects::realistic`]; LSD's figures from `tools/defect_study.py
+    /// --input lsd`): the ends' offsets have LSD's robust σ; a line alone is shifted alike in
+    /// the views of its edge (LSD: correlation 0.55) and turned less the longer it is (LSD:
+    /// robust σ 0.085 px at 20–40 px, 0.050 px at 80–160 px); a line beside an edge of
+    /// opposite contrast 1–2.5 px away is pushed away from it (LSD: median 0.28–0.55 px).
+    #[test]
+    fn realistic_lists_are_off_their_edges_as_measured_on_a_real_extractor() {
+        let offsets = realistic_offsets(4);
+        let ends: Vec<f64> = offsets.iter().flat_map(|o| o.ends).collect();
+        let robust = robust_sigma(&ends);
+        let mut magnitudes: Vec<f64> = ends.iter().map(|x| x.abs()).collect();
+        let (q95, q99) = (
+            quantile(&mut magnitudes, 0.95),
+            quantile(&mut magnitudes, 0.99),
+        );
+        // The tail follows the room's crowding, which is not the shared rooms' (LSD there:
+        // 0.61 / 1.06 px): printed, not asserted.
+        println!(
+            "{} ends: robust σ {robust:.3} px, |offset| 95th / 99th percentile {q95:.3} / {q99:.3} px",
+            ends.len()
+        );
+        // LSD: 0.139 px over both rooms (0.10 px alone, where most lines are).
+        assert!((0.09..=0.17).contains(&robust), "{robust}");
+
+        // Alone: the shift of one edge's line in two views, correlated as LSD's. The longest
+        // segment of each view, as the tool takes them.
+        let mut longest: HashMap<(u64, usize), [Option<&Offset>; 3]> = HashMap::new();
+        for o in &offsets {
+            let views = longest.entry((o.seed, o.edge)).or_default();
+            if views[o.camera].is_none_or(|l| o.length > l.length) {
+                views[o.camera] = Some(o);
+            }
+        }
+        let mut pairs = Vec::new();
+        for views in longest.values() {
+            for i in 0..3 {
+                for j in i + 1..3 {
+                    if let (Some(x), Some(y)) = (views[i], views[j]) {
+                        if x.neighbour.is_none() && y.neighbour.is_none() {
+                            pairs.push((x.shift.clamp(-1.0, 1.0), y.shift.clamp(-1.0, 1.0)));
+                        }
+                    }
+                }
+            }
+        }
+        let n = pairs.len() as f64;
+        let (mx, my) = (
+            pairs.iter().map(|p| p.0).sum::<f64>() / n,
+            pairs.iter().map(|p| p.1).sum::<f64>() / n,
+        );
+        let cov: f64 = pairs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        let (vx, vy): (f64, f64) = (
+            pairs.iter().map(|p| (p.0 - mx).powi(2)).sum(),
+            pairs.iter().map(|p| (p.1 - my).powi(2)).sum(),
+        );
+        let correlation = cov / (vx * vy).sqrt();
+        println!(
+            "{} view pairs of lines alone: shift correlation {correlation:.2}",
+            pairs.len()
+        );
+        assert!(pairs.len() >= 200, "{}", pairs.len());
+        assert!((0.3..=0.8).contains(&correlation), "{correlation}");
+
+        // Alone: turned less the longer the line.
+        let alone: Vec<&Offset> = offsets.iter().filter(|o| o.neighbour.is_none()).collect();
+        let turn_between = |lo: f64, hi: f64| {
+            let turns: Vec<f64> = alone
+                .iter()
+                .filter(|o| (lo..hi).contains(&o.length))
+                .map(|o| o.turn)
+                .collect();
+            (robust_sigma(&turns), turns.len())
         };
-        let robust_sigma = quantile(&mut across, 0.5) / 0.6745;
-        let (p95, p99) = (quantile(&mut across, 0.95), quantile(&mut across, 0.99));
-        println!(
-            "{} ends: robust σ {robust_sigma:.3} px, 95th / 99th percentile {p95:.3} / {p99:.3} px",
-            across.len()
-        );
-        // The tail belongs to edges: an edge off in one view is off in another far more often
-        // than the views' base rate (LSD: 62% against 12.6%).
-        let edges_off: Vec<usize> = per_edge
-            .values()
-            .map(|v| v.iter().filter(|&&x| x).count())
+        let (short, long) = (turn_between(20.0, 40.0), turn_between(80.0, 160.0));
+        println!("turn of lines alone: robust σ {short:?} at 20–40 px, {long:?} at 80–160 px");
+        assert!(short.1 >= 100 && long.1 >= 100, "{short:?} {long:?}");
+        assert!(short.0 >= 1.4 * long.0, "{short:?} {long:?}");
+        assert!((0.05..=0.12).contains(&short.0), "{short:?}");
+
+        // Beside an edge of opposite contrast 1–2.5 px away: pushed away from it.
+        let pushed: Vec<f64> = offsets
+            .iter()
+            .filter_map(|o| {
+                let (at, same) = o.neighbour?;
+                (!same && (1.0..2.5).contains(&at.abs())).then_some(o.shift * at.signum())
+            })
             .collect();
-        let pairs = edges_off.iter().filter(|&&k| k >= 2).count();
+        let toward = median(pushed.clone());
         println!(
-            "{pairs} of {} edges off in two views or more ({disturbed_views} views off)",
-            edges_off.len()
+            "{} lines beside an opposite contrast 1–2.5 px away: median shift toward it {toward:.2} px",
+            pushed.len()
         );
-        // And to where edges crowd: LSD's segments with another true edge alongside are off
-        // 6x as often as the others (45.2% against 7.0%).
-        let share = |(n, off): (usize, usize)| off as f64 / n.max(1) as f64;
-        println!(
-            "off: {:.3} of {} segments with another edge's alongside, {:.3} of {} without",
-            share(crowded),
-            crowded.0,
-            share(alone),
-            alone.0
-        );
-        // LSD: 0.14 px, and 0.61 / 1.06 px where a Gaussian of 0.14 px gives 0.27 / 0.36.
-        assert!((0.11..=0.17).contains(&robust_sigma), "{robust_sigma}");
-        assert!((0.45..=0.8).contains(&p95), "{p95}");
-        assert!((0.8..=1.4).contains(&p99), "{p99}");
-        assert!(
-            pairs * 4 >= edges_off.len(),
-            "{pairs} of {} edges off in two views or more ({disturbed_views} views off)",
-            edges_off.len()
-        );
-        assert!(
-            share(crowded) >= 3.0 * share(alone),
-            "{crowded:?} crowded, {alone:?} alone"
-        );
+        assert!(pushed.len() >= 20, "{}", pushed.len());
+        assert!((-0.7..=-0.2).contains(&toward), "{toward}");
     }
 }

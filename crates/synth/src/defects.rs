@@ -517,6 +517,12 @@ fn candidates<T: Tracer>(
 
 /// Whether `short` lies on `long` in the image: parallel, within a pixel, overlapping.
 fn duplicates(long: &Candidate, short: &Candidate) -> bool {
+    lies_along(long, short, DUPLICATE_ANGLE_DEG, DUPLICATE_DISTANCE_PX)
+}
+
+/// Whether `short` lies along `long` in the image: parallel within `angle_deg`, both its ends
+/// within `within_px` of `long`'s line, and half of it or more beside `long`.
+fn lies_along(long: &Candidate, short: &Candidate, angle_deg: f64, within_px: f64) -> bool {
     let d = long.p_to - long.p_from;
     let len = d.norm();
     let e = short.p_to - short.p_from;
@@ -525,11 +531,11 @@ fn duplicates(long: &Candidate, short: &Candidate) -> bool {
         return false;
     }
     let u = d / len;
-    if (u.perp(&e) / len_s).abs() > DUPLICATE_ANGLE_DEG.to_radians().sin() {
+    if (u.perp(&e) / len_s).abs() > angle_deg.to_radians().sin() {
         return false;
     }
     let across = |p: Point2<f64>| u.perp(&(p - long.p_from)).abs();
-    if across(short.p_from) > DUPLICATE_DISTANCE_PX || across(short.p_to) > DUPLICATE_DISTANCE_PX {
+    if across(short.p_from) > within_px || across(short.p_to) > within_px {
         return false;
     }
     let along = |p: Point2<f64>| u.dot(&(p - long.p_from));
@@ -685,27 +691,9 @@ fn mark_neighbours(mut cands: Vec<Candidate>) -> Vec<Candidate> {
 /// agree, `short` runs alongside `long` within `merge_px` ([`CROWDING_ANGLE_DEG`]) and half
 /// of it or more overlaps `long`.
 fn merged(long: &Candidate, short: &Candidate, merge_px: f64) -> bool {
-    let len = long.length_px();
-    let len_s = short.length_px();
-    if merge_px <= 0.0 || len <= 0.0 || len_s <= 0.0 {
-        return false;
-    }
-    if brighter_normal(long).dot(&brighter_normal(short)) <= 0.0 {
-        return false;
-    }
-    let u = (long.p_to - long.p_from) / len;
-    if (u.perp(&(short.p_to - short.p_from)) / len_s).abs() > CROWDING_ANGLE_DEG.to_radians().sin()
-    {
-        return false;
-    }
-    let across = |p: Point2<f64>| u.perp(&(p - long.p_from)).abs();
-    if across(short.p_from) > merge_px || across(short.p_to) > merge_px {
-        return false;
-    }
-    let along = |p: Point2<f64>| u.dot(&(p - long.p_from));
-    let (s0, s1) = (along(short.p_from), along(short.p_to));
-    let overlap = (s0.max(s1).min(len) - s0.min(s1).max(0.0)).max(0.0);
-    overlap >= 0.5 * len_s
+    merge_px > 0.0
+        && brighter_normal(long).dot(&brighter_normal(short)) > 0.0
+        && lies_along(long, short, CROWDING_ANGLE_DEG, merge_px)
 }
 
 /// Keeps the longest of each group of near-coincident candidates, and of each group that an

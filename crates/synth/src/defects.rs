@@ -242,28 +242,16 @@ impl Defects {
     /// one segment in five split — for tests of robustness rather than of accuracy (the
     /// generator's `realistic` defects until they were measured).
     pub fn noisy() -> Defects {
+        // Unstructured: independent noise at every end, none of `realistic`'s structure.
         Defects {
             endpoint_noise_px: 0.5,
-            shift_shared_px: 0.0,
-            shift_view_px: 0.0,
-            turn_px: 0.0,
-            neighbour_shift: 0.0,
-            neighbour_turn_share: 0.0,
-            merge_same_contrast_px: 0.0,
-            disturbed_share: 0.0,
-            disturbed_view_prob: 0.0,
-            disturbed_noise_px: 0.0,
-            disturbed_view_px: 0.0,
-            disturbed_turn_px: 0.0,
             end_noise_px: 0.5,
-            end_shortfall_px: 0.0,
             fragment_prob: 0.2,
             miss_prob: 0.05,
-            faint_share: 0.0,
-            faint_miss_prob: 0.0,
             clutter_fraction: 0.2,
             min_length_px: 8.0,
             states_noise: true,
+            ..Defects::clean()
         }
     }
 }

@@ -344,7 +344,8 @@ def main():
         if len(b) >= 20:
             print(f"  {lo:.0f}-{hi:.0f} px ({len(b)}): shift robust sigma {robust(b[:, 0]):.3f} px, "
                   f"90th pct |shift| {np.percentile(np.abs(b[:, 0]), 90):.3f}; turn {robust(b[:, 1]):.3f} px, "
-                  f"90th pct |turn| {np.percentile(np.abs(b[:, 1]), 90):.3f}")
+                  f"90th / 97th / 99th pct |turn| "
+                  + " / ".join(f"{v:.3f}" for v in np.percentile(np.abs(b[:, 1]), [90, 97, 99])))
     print(f"along the line, ends within {END_NEAR_PX:.0f} px of the piece's end ({len(along)}): "
           f"robust sigma {robust(along):.3f} px, median {np.median(along):+.3f} px (positive: past it)")
     print(f"pieces with none: {np.mean(per_piece == 0):.3f}; "

@@ -21,12 +21,12 @@ Then, `--model`:
 - `realistic`: `synth::Defects::realistic()` (crates/synth/src/defects.rs), its figures repeated
   here: of two segments of the same contrast alongside within 3 px only the longer is listed
   (LSD grows one region over both); a line's shift toward its brighter side shared by the edge's views (0.035 px) and each
-  view's own (0.06 px) and its turn (0.10 px), these for 25 px and as 1/sqrt(length); the nearest
+  view's own (0.06 px) and its turn (0.085 px), these for 25 px and as 1/sqrt(length); the nearest
   other edge alongside within 5 px moves it as `NEIGHBOUR_SHIFT_OPPOSITE` / `NEIGHBOUR_SHIFT_SAME`
   say (times the share of the line it runs beside, the spread the edge's own, a further turn of
-  0.4 of the shift per view); 7% of the edges disturbed where nothing runs alongside within 3 px
+  0.4 of the shift per view, as 1/sqrt(length) beyond 60 px); 7% of the edges disturbed where nothing runs alongside within 3 px
   (in each such view with probability 0.47: shifted by the edge's own 0.4 px and the view's
-  0.15 px, turned by 0.4 px);
+  0.15 px, turned by 0.4 px, as 1/sqrt(length) beyond 60 px);
 - `independent`: the generator's model before 2026-12-07 (each end on its own at 0.12 px; where
   another edge runs alongside within 3 px, 85% of the edges at 0.65 px; elsewhere one edge in ten
   disturbed, each view with probability 0.47, at 0.65 px; one edge in seven faint);
@@ -53,6 +53,7 @@ from defect_study import beside  # noqa: E402
 MIN_PX = 8.0
 MIN_CONTRAST = 4.0
 REFERENCE_PX = 25.0
+TAIL_TURN_REFERENCE_PX = 60.0  # synth::defects::TAIL_TURN_REFERENCE_PX
 CROWDING_PX = 3.0
 MERGE_PX = 3.0
 NEIGHBOUR_REACH_PX = 5.0
@@ -253,13 +254,14 @@ def main():
                         bright = np.array([u[1], -u[0]])
                         if a.model == "realistic":
                             scale = np.sqrt(REFERENCE_PX / piece)
+                            tail = min(1.0, np.sqrt(TAIL_TURN_REFERENCE_PX / piece))
                             if not crowded and t["disturbed"] and rng.random() < 0.47:
                                 shift = 0.4 * t["disturbance"] + rng.normal(0, 0.15)
-                                turn = rng.normal(0, 0.4)
+                                turn = rng.normal(0, 0.4 * tail)
                             else:
                                 pushed = toward + spread * t["neighbour"]
                                 shift = 0.035 * scale * t["shift"] + rng.normal(0, 0.06 * scale) + pushed
-                                turn = rng.normal(0, 0.10 * scale) + rng.normal(0, 0.4 * abs(pushed))
+                                turn = rng.normal(0, 0.085 * scale) + rng.normal(0, 0.4 * abs(pushed) * tail)
                             off_p, off_q = shift - turn, shift + turn
                         else:
                             pulled = t["pulled"] if crowded else (t["disturbed"] and rng.random() < 0.47)

@@ -88,6 +88,13 @@ pub const NEIGHBOUR_REACH_PX: f64 = 5.0;
 /// The length at which [`Defects::shift_view_px`] and [`Defects::turn_px`] are stated: a
 /// line fitted to its edge points is off by less the longer it is, as `1/√length`.
 pub const LINE_NOISE_REFERENCE_PX: f64 = 25.0;
+/// The length up to which a disturbed line's turn ([`Defects::disturbed_turn_px`]) and a
+/// neighbour's ([`Defects::neighbour_turn_share`]) are as stated; longer lines are turned
+/// less, as `1/√length`. LSD's lines turn less the longer they are in their tail as in their
+/// bulk: the 97th / 99th percentiles of |turn| are 0.42 / 0.58 px at 40–80 px, 0.19 / 0.30 at
+/// 80–160 px and 0.15 / 0.22 from 160 px (`tools/defect_study.py --input lsd`); a tail turn
+/// drawn at one σ for every length gave long lines twice LSD's 99th percentile.
+pub const TAIL_TURN_REFERENCE_PX: f64 = 60.0;
 
 /// What goes wrong between the ideal projection and an extractor's output.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -192,7 +199,9 @@ impl Defects {
     /// edge: a line alone is shifted toward its brighter side by a part its edge's views
     /// share (robust σ 0.036–0.040 px) and one of the view's own (0.058 px for a segment of
     /// 8–30 px, 0.018 px from 120 px: as 1/√length), the two views' shifts correlated 0.60,
-    /// and turned by 0.45 px/√length (robust σ 0.085 px at 20–40 px, 0.050 px at 80–160 px);
+    /// and turned by 0.085 px at 25 px, as 1/√length (with the turns below, robust σ 0.092 px
+    /// at 20–40 px and 0.050 px at 80–160 px where LSD's are 0.090 and 0.052; the tail's turns
+    /// fall with length too: [`TAIL_TURN_REFERENCE_PX`]);
     /// a line beside another edge is moved by it as [`NEIGHBOUR_SHIFT_OPPOSITE`] and
     /// [`NEIGHBOUR_SHIFT_SAME`] say, alike in every view (correlation 0.80), and two lines of
     /// one contrast within 3 px are one (0.26% of its segments have such a neighbour listed,
@@ -207,9 +216,10 @@ impl Defects {
     /// rest with 0.015, which with the merges finds 9.4% in none; 18% of its segments lie
     /// along no edge. Like LSD's lists, these state no noise.
     /// Figures chosen so that `tools/lists_on_rooms.py`, which lays this model on the shared
-    /// rooms' own edges, measures there as LSD's lists do (ends' robust σ 0.126 against
-    /// 0.139 px, |offset| 95th / 99th percentile 0.49 / 0.91 against 0.61 / 1.06 px, shift
-    /// correlations 0.56 and 0.84 against 0.60 and 0.80) and costs the matcher about what
+    /// rooms' own edges, measures there as LSD's lists do (ends' robust σ 0.117 against
+    /// 0.139 px, |offset| 95th / 99th percentile 0.48 / 0.89 against 0.61 / 1.06 px, shift
+    /// correlations 0.55 and 0.84 against 0.60 and 0.80, the direction's χ² as LSD's:
+    /// docs/ACCURACY.md, "Turns that fall with length") and costs the matcher about what
     /// they cost it (docs/ACCURACY.md); the unit tests below measure the structure on the
     /// standard room.
     pub fn realistic() -> Defects {
@@ -217,7 +227,7 @@ impl Defects {
             endpoint_noise_px: 0.0,
             shift_shared_px: 0.035,
             shift_view_px: 0.06,
-            turn_px: 0.1,
+            turn_px: 0.085,
             neighbour_shift: 1.0,
             neighbour_turn_share: 0.4,
             merge_same_contrast_px: 3.0,
@@ -799,15 +809,22 @@ fn line_offset(
     if disturbed {
         let shift =
             defects.disturbed_noise_px * edge.disturbance_z + draw(defects.disturbed_view_px);
-        return (shift, draw(defects.disturbed_turn_px));
+        let tail_shorter = (TAIL_TURN_REFERENCE_PX / length_px.max(1.0))
+            .sqrt()
+            .min(1.0);
+        return (shift, draw(defects.disturbed_turn_px * tail_shorter));
     }
     let shorter = (LINE_NOISE_REFERENCE_PX / length_px.max(1.0)).sqrt();
+    let tail_shorter = (TAIL_TURN_REFERENCE_PX / length_px.max(1.0))
+        .sqrt()
+        .min(1.0);
     let (toward, spread) = cand.neighbour;
     let pushed = defects.neighbour_shift * (toward + spread * edge.neighbour_z);
     let shift = defects.shift_shared_px * shorter * edge.shift_z
         + draw(defects.shift_view_px * shorter)
         + pushed;
-    let turn = draw(defects.turn_px * shorter) + draw(defects.neighbour_turn_share * pushed.abs());
+    let turn = draw(defects.turn_px * shorter)
+        + draw(defects.neighbour_turn_share * pushed.abs() * tail_shorter);
     (shift, turn)
 }
 
@@ -1289,8 +1306,8 @@ mod tests {
     /// The realistic lists are off their edges the way OpenCV LSD's are on the shared rooms
     /// (the doc of [`Defects::realistic`]; LSD's figures from `tools/defect_study.py
     /// --input lsd`): the ends' offsets have LSD's robust σ; a line alone is shifted alike in
-    /// the views of its edge (LSD: correlation 0.55) and turned less the longer it is (LSD:
-    /// robust σ 0.085 px at 20–40 px, 0.050 px at 80–160 px); a line beside an edge of
+    /// the views of its edge (LSD: correlation 0.55) and turned less the longer it is, in its
+    /// tail too (LSD: robust σ 0.090 px at 20–40 px, 0.052 px at 80–160 px); a line beside an edge of
     /// opposite contrast 1–2.5 px away is pushed away from it (LSD: median 0.28–0.55 px).
     #[test]
     fn realistic_lists_are_off_their_edges_as_measured_on_a_real_extractor() {
@@ -1365,6 +1382,24 @@ mod tests {
         assert!(short.1 >= 100 && long.1 >= 100, "{short:?} {long:?}");
         assert!(short.0 >= 1.4 * long.0, "{short:?} {long:?}");
         assert!((0.05..=0.12).contains(&short.0), "{short:?}");
+
+        // Alone, the tail too: a long line's rare large turn is no larger than a short one's
+        // (LSD: 97th percentile of |turn| 0.36 px at 20–40 px, 0.19 / 0.15 px at 80–160 /
+        // 160+ px; this room's lines with a tail drawn alike at every length: 0.20 and 0.36).
+        let tail_between = |lo: f64, hi: f64| {
+            let mut turns: Vec<f64> = alone
+                .iter()
+                .filter(|o| (lo..hi).contains(&o.length))
+                .map(|o| o.turn.abs())
+                .collect();
+            quantile(&mut turns, 0.97)
+        };
+        let (short_tail, long_tail) = (tail_between(20.0, 40.0), tail_between(80.0, f64::MAX));
+        println!(
+            "97th percentile of |turn| of lines alone: {short_tail:.3} px at 20–40 px, \
+             {long_tail:.3} px from 80 px"
+        );
+        assert!(long_tail <= short_tail, "{short_tail} {long_tail}");
 
         // Beside an edge of opposite contrast 1–2.5 px away: pushed away from it.
         let pushed: Vec<f64> = offsets

@@ -234,26 +234,12 @@ fn realistic_lists_report_a_covariance_that_holds_their_errors() {
     );
     // Shares of a couple of thousand, not of an answer emptied by some regression.
     assert!(calibration.segments >= 1000, "{calibration:?}");
-    assert!(
-        direction[0] >= CALIBRATION_GOAL_WITHIN_Q95,
-        "direction within q95: {:.3}",
-        direction[0]
-    );
-    assert!(
-        direction[1] >= CALIBRATION_GOAL_WITHIN_Q99,
-        "direction within q99: {:.3}",
-        direction[1]
-    );
-    assert!(
-        position[0] >= CALIBRATION_GOAL_WITHIN_Q95,
-        "position within q95: {:.3}",
-        position[0]
-    );
-    assert!(
-        position[1] >= CALIBRATION_GOAL_WITHIN_Q99,
-        "position within q99: {:.3}",
-        position[1]
-    );
+    let goals = [CALIBRATION_GOAL_WITHIN_Q95, CALIBRATION_GOAL_WITHIN_Q99];
+    for (what, shares) in [("direction", direction), ("position", position)] {
+        for ((share, goal), quantile) in shares.iter().zip(goals).zip(["q95", "q99"]) {
+            assert!(*share >= goal, "{what} within {quantile}: {share:.3}");
+        }
+    }
 }
 
 #[test]

@@ -806,18 +806,14 @@ fn line_offset(
             0.0
         }
     };
+    let length_px = length_px.max(1.0);
+    let tail_shorter = (TAIL_TURN_REFERENCE_PX / length_px).sqrt().min(1.0);
     if disturbed {
         let shift =
             defects.disturbed_noise_px * edge.disturbance_z + draw(defects.disturbed_view_px);
-        let tail_shorter = (TAIL_TURN_REFERENCE_PX / length_px.max(1.0))
-            .sqrt()
-            .min(1.0);
         return (shift, draw(defects.disturbed_turn_px * tail_shorter));
     }
-    let shorter = (LINE_NOISE_REFERENCE_PX / length_px.max(1.0)).sqrt();
-    let tail_shorter = (TAIL_TURN_REFERENCE_PX / length_px.max(1.0))
-        .sqrt()
-        .min(1.0);
+    let shorter = (LINE_NOISE_REFERENCE_PX / length_px).sqrt();
     let (toward, spread) = cand.neighbour;
     let pushed = defects.neighbour_shift * (toward + spread * edge.neighbour_z);
     let shift = defects.shift_shared_px * shorter * edge.shift_z

@@ -108,6 +108,28 @@ fn segment_noise_and_the_accuracy_gate_are_checked_by_name() {
     let mut r = request_json();
     with_noise(&mut r, json!(0.05), json!(0.1));
     assert!(run(&r).is_ok(), "both given and valid: accepted");
+    // A shift goes with the two, within 0 to 1 px.
+    for (shift, with_sigmas, field) in [
+        (json!(0.05), false, "offset_sigma_px"),
+        (json!("NaN"), true, "shift_sigma_px"),
+        (json!(-0.01), true, "shift_sigma_px"),
+        (json!(1.5), true, "shift_sigma_px"),
+    ] {
+        let mut r = request_json();
+        if with_sigmas {
+            with_noise(&mut r, json!(0.05), json!(0.1));
+        }
+        r["segments"]["lists"][1]["segments"][0]["shiftSigmaPx"] = shift.clone();
+        assert_eq!(
+            field_of(&r),
+            format!("segments.lists[1].segments[0].{field}"),
+            "{shift}"
+        );
+    }
+    let mut r = request_json();
+    with_noise(&mut r, json!(0.05), json!(0.1));
+    r["segments"]["lists"][1]["segments"][0]["shiftSigmaPx"] = json!(0.0);
+    assert!(run(&r).is_ok(), "a shift of 0 with both sigmas: accepted");
     for (option, value, field) in [
         ("gateConfidence", json!(1.0), "options.gate_confidence"),
         ("gateDirectionDeg", json!(0.0), "options.gate_direction_deg"),

@@ -228,6 +228,80 @@ fn rendered_triplets_match_end_to_end() {
     );
 }
 
+#[test]
+fn extracted_segments_sent_back_as_lists_match_as_the_images_did() {
+    // A client that keeps our extracted lists (their noise and shift stated) and matches them
+    // again later gets the same answer, every segment and its covariance, through JSON.
+    let seed = 2;
+    let (scene, rig, _) = standard_capture(seed, Defects::clean(), false);
+    let images = render_triplet(&scene, &rig, &RenderParams::default(), seed);
+    let raw = |img: &GreyImage| json!({"raw": {"width": img.width(), "height": img.height(), "data": b64(&img.to_u8())}});
+    let calibration: Value =
+        serde_json::from_str(&api::to_json(&api::calibration_to_pb(&rig))).unwrap();
+    let options = json!({"includeUncertain": true});
+    let from_images = run(&json!({
+        "calibration": calibration,
+        "options": {"includeUncertain": true, "returnExtracted": true},
+        "images": {"images": images.iter().map(raw).collect::<Vec<_>>()},
+    }))
+    .expect("accepted");
+    assert!(
+        from_images.segments_3d.len() > 50,
+        "{:?}",
+        from_images.stats
+    );
+    let stated = from_images.extracted.iter().flat_map(|l| &l.segments);
+    for s in stated.clone() {
+        assert!(s.offset_sigma_px.is_some() && s.angle_sigma_deg.is_some());
+        assert_eq!(s.shift_sigma_px, Some(extract::EXTRACTED_SHIFT_PX));
+    }
+    let lists: Value = serde_json::from_str(&api::to_json(&pb::SegmentTriplet {
+        lists: from_images.extracted.clone(),
+    }))
+    .unwrap();
+    let from_lists = run(&json!({
+        "calibration": calibration,
+        "options": options,
+        "segments": lists,
+    }))
+    .expect("accepted");
+    assert_eq!(from_lists.triplets, from_images.triplets);
+    // The same to rounding: a segment's angle σ crosses the schema in degrees.
+    assert_eq!(from_lists.segments_3d.len(), from_images.segments_3d.len());
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-6);
+    for (a, b) in from_lists.segments_3d.iter().zip(&from_images.segments_3d) {
+        let numbers = |s: &pb::Segment3| {
+            let (p, q) = (s.start.unwrap(), s.end.unwrap());
+            let mut v = vec![p.x, p.y, p.z, q.x, q.y, q.z, s.direction_sigma_deg];
+            v.extend(&s.covariance);
+            v
+        };
+        assert!(
+            numbers(a).iter().zip(numbers(b)).all(|(&x, y)| close(x, y)),
+            "{a:?}\n{b:?}"
+        );
+        assert_eq!((a.uncertain, &a.triplets), (b.uncertain, &b.triplets));
+    }
+    // Without their shift the same lines report narrower covariances: the shift is what
+    // the lists carry back.
+    let mut unshifted = from_images.extracted.clone();
+    for s in unshifted.iter_mut().flat_map(|l| &mut l.segments) {
+        s.shift_sigma_px = None;
+    }
+    let lists: Value =
+        serde_json::from_str(&api::to_json(&pb::SegmentTriplet { lists: unshifted })).unwrap();
+    let narrower = run(&json!({"calibration": calibration, "options": options, "segments": lists}))
+        .expect("accepted");
+    assert_eq!(narrower.triplets, from_images.triplets);
+    let trace = |r: &pb::MatchResponse| -> f64 {
+        r.segments_3d
+            .iter()
+            .map(|s| (0..6).map(|i| s.covariance[7 * i]).sum::<f64>())
+            .sum()
+    };
+    assert!(trace(&narrower) < trace(&from_images));
+}
+
 // ---- golden files --------------------------------------------------------------------
 
 fn golden_path(name: &str) -> PathBuf {

@@ -174,10 +174,12 @@ def _is_grey_png(p: Path) -> bool:
 def test_match_segments_from_extracted(client, demo):
     cal = demo / "calibration.json"
     images = client.match_images(cal, *_paths(demo), options={"returnExtracted": True})
-    assert len(images.extracted) == 3 and all(e.shape[1] == 7 for e in images.extracted)
-    # extracted segments carry their measured line sigmas (columns 5, 6), both or neither
+    assert len(images.extracted) == 3 and all(e.shape[1] == 8 for e in images.extracted)
+    # extracted segments carry their measured line sigmas (columns 5, 6), both or neither, and
+    # the extractor's shift with them (column 7)
     for e in images.extracted:
         assert np.array_equal(np.isfinite(e[:, 5]), np.isfinite(e[:, 6]))
+        assert np.array_equal(np.isfinite(e[:, 5]), np.isfinite(e[:, 7]))
         assert np.isfinite(e[:, 5]).any() and (e[np.isfinite(e[:, 5]), 5:] > 0).all()
     oriented = all(l.oriented for l in images.extracted_lists)
     segs = client.match_segments(cal, images.extracted, oriented=oriented)
@@ -242,6 +244,12 @@ def test_covariances_and_uncertain(client, demo):
     assert len(everything.segments_3d) - len(default.segments_3d) == default.stats["uncertain"]
     # the certain ones are the default answer
     np.testing.assert_allclose(everything.segments_3d[~everything.uncertain], default.segments_3d)
+    # lists that state no noise: the model's, each view's own shift in what is reported
+    images = client.match_images(cal, *_paths(demo), options={"returnExtracted": True})
+    plain = client.match_segments(cal, [e[:, :5] for e in images.extracted],
+                                  options={"includeUncertain": True})
+    assert len(plain.segments_3d) > 10
+    _assert_covariances(plain)
 
 
 def test_gate_options(client, demo):
@@ -271,7 +279,7 @@ def test_segment_sigmas(client, demo):
     base = client.match_segments(cal, images.extracted, options=opts, oriented=oriented)
     noisier = [e.copy() for e in images.extracted]
     for e in noisier:
-        e[:, 5:] *= 10
+        e[:, 5:7] *= 10
     loose = client.match_segments(cal, noisier, options=opts, oriented=oriented)
     assert len(base.segments_3d) > 0 and len(loose.segments_3d) > 0
     assert np.median(loose.position_sigma_m) > 3 * np.median(base.position_sigma_m)
@@ -280,6 +288,24 @@ def test_segment_sigmas(client, demo):
     half[1][np.flatnonzero(np.isfinite(half[1][:, 6]))[0], 6] = np.nan
     with pytest.raises(ValueError, match="both"):
         client.match_segments(cal, half, oriented=oriented)
+    # a shift without the sigmas: refused by the client; out of range: by the server, named
+    lone = [e.copy() for e in images.extracted]
+    lone[0][0, 5:7] = np.nan
+    with pytest.raises(ValueError, match="shift_sigma_px"):
+        client.match_segments(cal, lone, oriented=oriented)
+    far = [e.copy() for e in images.extracted]
+    far[2][np.flatnonzero(np.isfinite(far[2][:, 7]))[0], 7] = 2.0
+    with pytest.raises(InvalidArgument) as e:
+        client.match_segments(cal, far, oriented=oriented)
+    assert e.value.field.endswith(".shift_sigma_px") and e.value.field.startswith(
+        "segments.lists[2]"), e.value.field
+    # a shift stated widens what is reported, not what is matched
+    shifted = [e.copy() for e in images.extracted]
+    for e in shifted:
+        e[:, 7] = np.where(np.isfinite(e[:, 7]), 0.5, np.nan)
+    wider = client.match_segments(cal, shifted, options=opts, oriented=oriented)
+    np.testing.assert_array_equal(wider.triplets, base.triplets)
+    assert np.median(wider.position_sigma_m) > np.median(base.position_sigma_m)
 
 
 def test_invalid_calibration_names_the_field(client, demo):

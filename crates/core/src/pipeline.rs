@@ -187,14 +187,16 @@ pub struct Reconstructed {
     /// RMS distance of the image lines from the reprojected 3D line, pixels.
     pub residual_px: f64,
     /// Covariance of the two endpoints `(start, end)` stacked, metres²: the estimate's own
-    /// ([`Line3Estimate::covariance`]) and the shift its three views share
+    /// ([`Line3Estimate::covariance`]), each view's own shift
+    /// ([`Line3Estimate::systematic_covariance`]) and the shift its three views share
     /// ([`shared_shift_covariance`] of `shift_sigma_m`).
     pub covariance: nalgebra::Matrix6<f64>,
     /// σ of the shift across the line that the three views share ([`SHARED_SHIFT_PX`]),
     /// metres, included in `covariance`: segments of one scene compared with one another
     /// (a session) take it out again, since they share most of it.
     pub shift_sigma_m: f64,
-    /// 1σ uncertainty of the direction (largest across the line), degrees.
+    /// 1σ uncertainty of the direction (largest across the line), degrees: `covariance`'s
+    /// ([`Reconstructed::direction_covariance`]).
     pub direction_sigma_deg: f64,
     /// 1σ uncertainty of the midpoint's position across the line (largest), metres.
     pub position_sigma_m: f64,
@@ -383,6 +385,16 @@ pub enum MatchError {
         index: usize,
         field: &'static str,
     },
+    #[error(
+        "list {list}, segment {index}: shift_sigma_px = {value} must be a finite number from 0 \
+         to {max}",
+        max = crate::matching::MAX_LIST_SHIFT_PX
+    )]
+    ShiftOutOfRange {
+        list: usize,
+        index: usize,
+        value: f64,
+    },
     /// The lists are so repetitive (many copies of one line, or one crowd of parallel lines)
     /// that matching them would make more hypotheses than a request may.
     #[error(
@@ -529,6 +541,13 @@ fn check_list(rig: &Rig, list_index: usize, list: &SegmentList) -> Result<u32, M
                     });
                 }
             }
+            if !(0.0..=crate::matching::MAX_LIST_SHIFT_PX).contains(&n.shift_px) {
+                return Err(MatchError::ShiftOutOfRange {
+                    list: list_index,
+                    index,
+                    value: n.shift_px,
+                });
+            }
         }
         if s.length() < ZERO_LENGTH_PX {
             zero += 1;
@@ -596,12 +615,8 @@ fn prepare(
         let noise = s
             .noise
             .unwrap_or_else(|| LineNoise::for_list(params.line_noise_px, (q - p).norm()));
-        // A list that states a segment's noise has said all it knows about it.
-        let systematic_px = if s.noise.is_none() {
-            params.list_shift_px
-        } else {
-            0.0
-        };
+        // A list that states a segment's noise has said all it knows about it, its shift too.
+        let systematic_px = s.noise.map_or(params.list_shift_px, |n| n.shift_px);
         observed.push(LineObservation {
             view,
             start: p,
@@ -1292,7 +1307,12 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     } else {
         (untrimmed_shift_sigma_m, untrimmed)
     };
-    let direction_var = principal_variances(&est.direction_covariance(), &basis);
+    // The direction judged and reported is the reported covariance's: the views' own shifts
+    // turn the line (the shift they share does not).
+    let direction_var = principal_variances(
+        &crate::geometry::line::direction_covariance(&est.start, &est.end, &reported),
+        &basis,
+    );
     let direction_sigma_deg = direction_var.0.sqrt().to_degrees();
     if direction_sigma_deg > params.max_direction_sigma_deg {
         return None;
@@ -2125,13 +2145,17 @@ fn align_with_dominant_directions(
         checkpoint,
         ..
     } = *request;
-    // A fit's direction, the basis across it, its direction covariance and that covariance
-    // in the basis.
+    // A fit's direction, the basis across it, its direction covariance (the views' own
+    // shifts in it, as reported) and that covariance in the basis.
     let direction_of = |est: &Line3Estimate| {
         let u = est.direction();
         let (e1, e2) = crate::geometry::across_basis(&u);
         let basis = nalgebra::Matrix3x2::from_columns(&[e1, e2]);
-        let covariance = est.direction_covariance();
+        let covariance = crate::geometry::line::direction_covariance(
+            &est.start,
+            &est.end,
+            &(est.covariance + est.systematic_covariance()),
+        );
         let across = basis.transpose() * covariance * basis;
         (u, basis, covariance, across)
     };
@@ -2855,6 +2879,25 @@ mod tests {
         // segment's reported covariance is its estimate's with the shift its range gives, and
         // what a session compares by is the estimate's alone.
         let rig = preset_rig();
+        let out = lines_ahead_matched(&rig, None);
+        assert!(out.segments_3d.len() >= 6, "{:?}", out.stats);
+        let focal = (0..3).map(|v| rig.camera(v).focal_px()).sum::<f64>() / 3.0;
+        assert!((shared_shift_per_metre(&rig) - SHARED_SHIFT_PX / focal).abs() < 1e-18);
+        for r in &out.segments_3d {
+            let mid = nalgebra::center(&r.segment.start, &r.segment.end);
+            let expected = SHARED_SHIFT_PX * (mid - rig.centroid()).norm() / focal;
+            assert!((r.shift_sigma_m - expected).abs() <= 1e-12 * expected);
+            let relative = r.relative_covariance();
+            let shift = shared_shift_covariance(&r.segment.start, &r.segment.end, r.shift_sigma_m);
+            assert!((relative + shift - r.covariance).abs().max() <= 1e-15);
+            // The reported position σ holds the shift: at least σ of the shift itself.
+            assert!(r.position_sigma_m >= r.shift_sigma_m * (1.0 - 1e-9));
+        }
+    }
+
+    /// Exact projections of eight lines 2–3.5 m ahead of `rig`, each segment stating `noise`
+    /// (or none), matched with every segment in the answer.
+    fn lines_ahead_matched(rig: &Rig, noise: Option<LineNoise>) -> MatchOutput {
         let ahead = rig.camera(0).axis();
         let (side, up) = crate::geometry::across_basis(&ahead);
         let lines: Vec<[nalgebra::Point3<f64>; 2]> = (0..8)
@@ -2872,6 +2915,7 @@ mod tests {
                     let cam = rig.camera(view);
                     Segment2 {
                         gradient: Some(20.0),
+                        noise,
                         ..Segment2::new(cam.project(&l[0]).unwrap(), cam.project(&l[1]).unwrap())
                     }
                 })
@@ -2884,21 +2928,66 @@ mod tests {
             include_uncertain: true,
             ..MatchParams::default()
         };
-        let out = run(&rig, Input::lists(&lists), &Options::with(params))
+        run(rig, Input::lists(&lists), &Options::with(params))
             .expect("lines match")
-            .output;
-        assert!(out.segments_3d.len() >= 6, "{:?}", out.stats);
-        let focal = (0..3).map(|v| rig.camera(v).focal_px()).sum::<f64>() / 3.0;
-        assert!((shared_shift_per_metre(&rig) - SHARED_SHIFT_PX / focal).abs() < 1e-18);
-        for r in &out.segments_3d {
-            let mid = nalgebra::center(&r.segment.start, &r.segment.end);
-            let expected = SHARED_SHIFT_PX * (mid - rig.centroid()).norm() / focal;
-            assert!((r.shift_sigma_m - expected).abs() <= 1e-12 * expected);
-            let relative = r.relative_covariance();
-            let shift = shared_shift_covariance(&r.segment.start, &r.segment.end, r.shift_sigma_m);
-            assert!((relative + shift - r.covariance).abs().max() <= 1e-15);
-            // The reported position σ holds the shift: at least σ of the shift itself.
-            assert!(r.position_sigma_m >= r.shift_sigma_m * (1.0 - 1e-9));
+            .output
+    }
+
+    #[test]
+    fn the_reported_direction_sigma_is_the_reported_covariances_each_views_shift_in_it() {
+        // Lists that state no noise (the model's, with `list_shift_px`), and lists that state
+        // it with and without a shift of their own: the direction σ each segment reports is
+        // the one its reported covariance gives, and a shift of each view's line turns the
+        // 3D line, so it widens that σ where the same lines state none (a little for these
+        // lines, which every view sees broadside: a shift mostly moves them; much for a line
+        // along a baseline, whose ends two different views place).
+        let rig = preset_rig();
+        let stated = |shift_px| LineNoise {
+            offset_px: 0.05,
+            angle_rad: 0.0005,
+            shift_px,
+        };
+        let model = lines_ahead_matched(&rig, None);
+        let (plain, shifted) = (
+            lines_ahead_matched(&rig, Some(stated(0.0))),
+            lines_ahead_matched(&rig, Some(stated(0.3))),
+        );
+        for out in [&model, &plain, &shifted] {
+            assert!(out.segments_3d.len() >= 6, "{:?}", out.stats);
+            for r in &out.segments_3d {
+                let (major, _) = principal_variances(
+                    &r.direction_covariance(),
+                    &nalgebra::Matrix3x2::from_columns(&{
+                        let u = (r.segment.end - r.segment.start).normalize();
+                        let (e1, e2) = crate::geometry::across_basis(&u);
+                        [e1, e2]
+                    }),
+                );
+                let from_covariance = major.sqrt().to_degrees();
+                assert!(
+                    (r.direction_sigma_deg - from_covariance).abs() <= 1e-9 * from_covariance,
+                    "{} against {from_covariance}",
+                    r.direction_sigma_deg
+                );
+            }
+        }
+        assert_eq!(
+            plain.triplets, shifted.triplets,
+            "a shift is not matched by"
+        );
+        assert_eq!(plain.segments_3d.len(), shifted.segments_3d.len());
+        for a in &plain.segments_3d {
+            let b = shifted
+                .segments_3d
+                .iter()
+                .find(|b| b.triplets == a.triplets)
+                .expect("the same triplets make the same segments");
+            assert!(
+                b.direction_sigma_deg > a.direction_sigma_deg,
+                "{} with the shift, {} without",
+                b.direction_sigma_deg,
+                a.direction_sigma_deg
+            );
         }
     }
 

@@ -28,6 +28,11 @@ pub struct Segment2 {
 pub struct LineNoise {
     pub offset_px: f64,
     pub angle_rad: f64,
+    /// σ of a shift of the whole line across itself that `offset_px` leaves out, pixels: the
+    /// source's systematic error, which no number of points along the line averages away and
+    /// which the views do not share. It widens what the 3D segment reports, not the fit or
+    /// the tests between the views ([`crate::geometry::line::LineObservation::systematic_px`]).
+    pub shift_px: f64,
 }
 
 impl LineNoise {
@@ -42,6 +47,7 @@ impl LineNoise {
         LineNoise {
             offset_px: sigma_px / std::f64::consts::SQRT_2,
             angle_rad: std::f64::consts::SQRT_2 * sigma_px / length_px.max(1e-9),
+            shift_px: 0.0,
         }
     }
 
@@ -52,6 +58,7 @@ impl LineNoise {
         LineNoise {
             offset_px: sigma_px / n.sqrt(),
             angle_rad: sigma_px * (12.0 / n).sqrt() / length_px.max(1e-9),
+            shift_px: 0.0,
         }
     }
 
@@ -257,6 +264,7 @@ impl LineNoise {
         LineNoise {
             offset_px: self.offset_px.hypot(other.offset_px),
             angle_rad: self.angle_rad.hypot(other.angle_rad),
+            ..self
         }
     }
 }
@@ -288,6 +296,7 @@ impl LineNoise {
             LineNoise {
                 offset_px: self.offset_px.hypot(residual.offset_px),
                 angle_rad: self.angle_rad.hypot(residual.angle_rad),
+                ..self
             }
         } else {
             self.crowded(distance_px, length_px, model)

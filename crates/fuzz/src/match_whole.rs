@@ -29,7 +29,8 @@ struct Head {
 struct Raw {
     view: u8,
     index: u16,
-    /// u1, v1, u2, v2, gradient, offset sigma, angle sigma for 0 to 6; none for the rest
+    /// u1, v1, u2, v2, gradient, offset sigma, angle sigma, shift sigma for 0 to 7; none for
+    /// the rest
     /// (most inputs: a random number would make nearly every request fail its checks).
     field: u8,
     value: f64,
@@ -336,6 +337,7 @@ fn lists(cams: &[Camera; 3], input: &Input) -> [Vec<pb::Segment>; 3] {
                 4 => s.gradient = Some(raw.value),
                 5 => s.offset_sigma_px = Some(raw.value),
                 6 => s.angle_sigma_deg = Some(raw.value),
+                7 => s.shift_sigma_px = Some(raw.value),
                 _ => {}
             }
         }

@@ -538,6 +538,14 @@ pub fn segment_lists(
                     format!("missing: {given} is given, and the two go together"),
                 ));
             }
+            // A shift is part of a stated noise: alone it would be silently ignored.
+            if s.shift_sigma_px.is_some() && s.offset_sigma_px.is_none() {
+                return Err(InputError::new(
+                    format!("segments.lists[{i}].segments[{j}].offset_sigma_px"),
+                    "missing: shift_sigma_px is given, and it goes with offset_sigma_px and \
+                     angle_sigma_deg",
+                ));
+            }
         }
     }
     Ok(std::array::from_fn(|i| {
@@ -560,6 +568,7 @@ pub fn segment_lists(
                         gradient,
                         offset_sigma_px,
                         angle_sigma_deg,
+                        shift_sigma_px,
                     } = *s;
                     Segment2 {
                         start: Point2::new(u1, v1),
@@ -569,6 +578,7 @@ pub fn segment_lists(
                             (Some(offset_px), Some(angle)) => Some(LineNoise {
                                 offset_px,
                                 angle_rad: angle.to_radians(),
+                                shift_px: shift_sigma_px.unwrap_or(0.0),
                             }),
                             _ => None,
                         },
@@ -657,6 +667,7 @@ pub fn segment_list_to_pb(list: &SegmentList) -> pb::SegmentList {
                 gradient: s.gradient,
                 offset_sigma_px: s.noise.map(|n| n.offset_px),
                 angle_sigma_deg: s.noise.map(|n| n.angle_rad.to_degrees()),
+                shift_sigma_px: s.noise.map(|n| n.shift_px).filter(|&shift| shift > 0.0),
             })
             .collect(),
     }
@@ -689,6 +700,9 @@ pub fn match_error(e: MatchError) -> Result<InputError, &'static str> {
         }
         MatchError::NonPositiveSigma { list, index, field } => {
             format!("segments.lists[{list}].segments[{index}].{field}")
+        }
+        MatchError::ShiftOutOfRange { list, index, .. } => {
+            format!("segments.lists[{list}].segments[{index}].shift_sigma_px")
         }
         MatchError::Extract(p) => format!("options.extract.{}", p.field()),
         MatchError::ImageSize { view, .. } => format!("images.images[{view}]"),

@@ -79,6 +79,8 @@ struct Segment {
     offset_sigma_px: Option<Plain>,
     #[serde(default, rename = "angleSigmaDeg")]
     angle_sigma_deg: Option<Plain>,
+    #[serde(default, rename = "shiftSigmaPx")]
+    shift_sigma_px: Option<Plain>,
 }
 
 #[derive(Deserialize)]
@@ -163,6 +165,7 @@ fn triplet_to_pb(t: SegmentTriplet) -> pb::SegmentTriplet {
                         gradient: s.gradient.map(|g| g.0),
                         offset_sigma_px: s.offset_sigma_px.map(|g| g.0),
                         angle_sigma_deg: s.angle_sigma_deg.map(|g| g.0),
+                        shift_sigma_px: s.shift_sigma_px.map(|g| g.0),
                     })
                     .collect(),
             })
@@ -205,13 +208,15 @@ mod tests {
             proptest::option::of(0.0..1e6f64),
             proptest::option::of(1e-9..1e3f64),
             proptest::option::of(1e-9..90.0f64),
+            proptest::option::of(0.0..1.0f64),
         )
-            .prop_map(|([u1, v1, u2, v2], gradient, offset, angle)| {
+            .prop_map(|([u1, v1, u2, v2], gradient, offset, angle, shift)| {
                 let mut s = serde_json::json!({"u1": u1, "v1": v1, "u2": u2, "v2": v2});
                 for (name, value) in [
                     ("gradient", gradient),
                     ("offsetSigmaPx", offset),
                     ("angleSigmaDeg", angle),
+                    ("shiftSigmaPx", shift),
                 ] {
                     if let Some(v) = value {
                         s[name] = serde_json::json!(v);

@@ -101,22 +101,24 @@ def _images(imgs: Sequence[ImageLike]) -> "pb.ImageTriplet":
 
 def to_segment_list(lst, oriented: bool = False) -> "pb.SegmentList":
     """A SegmentList from a message, or N×4 (u1, v1, u2, v2) / N×5 (+ gradient) / N×7
-    (+ gradient, offset_sigma_px, angle_sigma_deg) numbers; NaN: absent. The two sigmas (1σ of
-    the line's position across itself at the midpoint, pixels, and of its direction, degrees)
-    go together: both or neither per segment (neither: the server's line_noise_px model)."""
+    (+ gradient, offset_sigma_px, angle_sigma_deg) / N×8 (+ shift_sigma_px) numbers; NaN:
+    absent. The two sigmas (1σ of the line's position across itself at the midpoint, pixels,
+    and of its direction, degrees) go together: both or neither per segment (neither: the
+    server's line_noise_px model). The shift (1σ of the source's systematic shift of the
+    line, pixels, independent per view) goes with them, or is absent."""
     if isinstance(lst, pb.SegmentList):
         return lst
     arr = np.asarray(lst, dtype=float)
     if arr.size == 0:
         return pb.SegmentList(oriented=oriented)
-    if arr.ndim != 2 or arr.shape[1] not in (4, 5, 7):
-        raise ValueError(f"a segment list must be N×4, N×5 or N×7, got shape {arr.shape}")
+    if arr.ndim != 2 or arr.shape[1] not in (4, 5, 7, 8):
+        raise ValueError(f"a segment list must be N×4, N×5, N×7 or N×8, got shape {arr.shape}")
     segs = []
     for i, row in enumerate(arr):
         s = pb.Segment(u1=row[0], v1=row[1], u2=row[2], v2=row[3])
         if arr.shape[1] >= 5 and np.isfinite(row[4]):
             s.gradient = row[4]
-        if arr.shape[1] == 7:
+        if arr.shape[1] >= 7:
             known = np.isfinite(row[5:7])
             if known.all():
                 s.offset_sigma_px, s.angle_sigma_deg = row[5], row[6]
@@ -125,6 +127,13 @@ def to_segment_list(lst, oriented: bool = False) -> "pb.SegmentList":
                     f"segment {i}: give both offset_sigma_px and angle_sigma_deg or neither "
                     f"(NaN), got {row[5]}, {row[6]}"
                 )
+        if arr.shape[1] == 8 and np.isfinite(row[7]):
+            if not np.isfinite(row[5]):
+                raise ValueError(
+                    f"segment {i}: shift_sigma_px goes with offset_sigma_px and "
+                    f"angle_sigma_deg, got {row[7]} without them"
+                )
+            s.shift_sigma_px = row[7]
         segs.append(s)
     return pb.SegmentList(segments=segs, oriented=oriented)
 
@@ -138,9 +147,9 @@ def _segments(lists, oriented: bool) -> "pb.SegmentTriplet":
 
 
 def segment_list_array(lst: "pb.SegmentList") -> np.ndarray:
-    """N×7 array (u1, v1, u2, v2, gradient, offset_sigma_px, angle_sigma_deg — NaN when
-    absent); the form `to_segment_list` takes back."""
-    out = np.full((len(lst.segments), 7), np.nan)
+    """N×8 array (u1, v1, u2, v2, gradient, offset_sigma_px, angle_sigma_deg,
+    shift_sigma_px — NaN when absent); the form `to_segment_list` takes back."""
+    out = np.full((len(lst.segments), 8), np.nan)
     for i, s in enumerate(lst.segments):
         out[i, :4] = (s.u1, s.v1, s.u2, s.v2)
         if s.HasField("gradient"):
@@ -149,6 +158,8 @@ def segment_list_array(lst: "pb.SegmentList") -> np.ndarray:
             out[i, 5] = s.offset_sigma_px
         if s.HasField("angle_sigma_deg"):
             out[i, 6] = s.angle_sigma_deg
+        if s.HasField("shift_sigma_px"):
+            out[i, 7] = s.shift_sigma_px
     return out
 
 
@@ -193,7 +204,7 @@ def _points(pairs) -> np.ndarray:
 class MatchResult:
     """One capture's match. `triplets`: N×3 indices into the three input (or extracted) lists;
     `segments_3d`: M×2×3 endpoints, metres, rig frame; `residual_px`: M reprojection residuals
-    of the 3D segments; `extracted`: the three extracted lists as N×7 arrays (image input with
+    of the 3D segments; `extracted`: the three extracted lists as N×8 arrays (image input with
     options {"returnExtracted": true}; see `segment_list_array`), `extracted_lists` the same as
     SegmentList messages.
 
@@ -493,7 +504,8 @@ class Client:
 
     def match_segments(self, calibration, lists, options=None, oriented: bool = False) -> MatchResult:
         """Matches three segment lists (each N×4 (u1, v1, u2, v2), N×5 with gradient, N×7
-        with gradient, offset_sigma_px and angle_sigma_deg, or a SegmentList; NaN: absent);
+        with gradient, offset_sigma_px and angle_sigma_deg, N×8 with shift_sigma_px too, or a
+        SegmentList; NaN: absent);
         `oriented`: the lists are oriented by contrast. `MatchResult.extracted` of an image
         match can be passed back with oriented=True."""
         req = pb.MatchRequest(calibration=load_calibration(calibration),

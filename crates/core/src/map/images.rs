@@ -1571,6 +1571,7 @@ mod tests {
                         noise: Some(LineNoise {
                             offset_px: 0.05,
                             angle_rad: 0.002,
+                            shift_px: 0.0,
                         }),
                         ..Segment2::new(a, b)
                     })

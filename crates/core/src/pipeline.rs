@@ -925,9 +925,7 @@ pub fn shared_shift_covariance(
 /// What a segment's answer reports, and the gate judges: the estimate's own covariance and
 /// the shift of σ `shift_sigma_m` its three views share.
 fn reported_covariance(est: &Line3Estimate, shift_sigma_m: f64) -> nalgebra::Matrix6<f64> {
-    est.covariance
-        + est.systematic_covariance()
-        + shared_shift_covariance(&est.start, &est.end, shift_sigma_m)
+    est.covariance_with_own_shifts() + shared_shift_covariance(&est.start, &est.end, shift_sigma_m)
 }
 
 /// The largest and smallest variance across the line of a 3x3 covariance whose part along
@@ -2154,7 +2152,7 @@ fn align_with_dominant_directions(
         let covariance = crate::geometry::line::direction_covariance(
             &est.start,
             &est.end,
-            &(est.covariance + est.systematic_covariance()),
+            &est.covariance_with_own_shifts(),
         );
         let across = basis.transpose() * covariance * basis;
         (u, basis, covariance, across)

@@ -111,6 +111,12 @@ impl Line3Estimate {
         }
         out
     }
+
+    /// `covariance` with each view's own shift ([`Self::systematic_covariance`]): all the
+    /// uncertainty of this line that its views do not share.
+    pub fn covariance_with_own_shifts(&self) -> Matrix6<f64> {
+        self.covariance + self.systematic_covariance()
+    }
 }
 
 /// Covariance of the unit direction of the segment `start`–`end` whose endpoints, stacked,

@@ -26,7 +26,7 @@ use crate::matching::{self, Hypothesis, MatchParams, ParamErrors, RectSegment, V
 use crate::reconstruct::{
     fragment_groups, reconstruct, reconstruct_fragments, reconstruct_pieces, END_SIGMA_PX,
 };
-use crate::segment::{CrowdingModel, LineNoise, Segment3, SegmentList};
+use crate::segment::{root_sum_square, CrowdingModel, LineNoise, Segment3, SegmentList};
 
 /// How far outside the image a segment endpoint may lie, in image sizes: farther is not a
 /// detector's imprecision but a unit or index mix-up.
@@ -1282,11 +1282,17 @@ fn accept(est: Option<Line3Estimate>, rig: &Rig, params: &MatchParams) -> Fit {
     let untrimmed = reported_covariance(&est, untrimmed_shift_sigma_m);
     let (trim_start, trim_end) = (
         trim(
-            est.end_along_sigma_m[0].hypot(end_slide_sigma_m(rig, &est.start, &u, &untrimmed, 0)),
+            root_sum_square(
+                est.end_along_sigma_m[0],
+                end_slide_sigma_m(rig, &est.start, &u, &untrimmed, 0),
+            ),
             &est.start,
         ),
         trim(
-            est.end_along_sigma_m[1].hypot(end_slide_sigma_m(rig, &est.end, &u, &untrimmed, 1)),
+            root_sum_square(
+                est.end_along_sigma_m[1],
+                end_slide_sigma_m(rig, &est.end, &u, &untrimmed, 1),
+            ),
             &est.end,
         ),
     );

@@ -3,6 +3,15 @@
 
 use nalgebra::{Point2, Point3};
 
+/// √(a² + b²), two independent σ combined, or a vector's length, for the magnitudes a match
+/// meets (pixels, metres, radians): `f64::hypot` guards against an overflow and underflow
+/// these never reach at several times the cost, and the fits and the gate take it thousands
+/// of times per match.
+#[inline]
+pub fn root_sum_square(a: f64, b: f64) -> f64 {
+    (a * a + b * b).sqrt()
+}
+
 /// A 2D segment in (distorted, as observed) image pixels, from `start` to `end`.
 ///
 /// When its list is oriented, walking from `start` to `end` the brighter side is on the
@@ -262,8 +271,8 @@ impl LineNoise {
         .min(0.5 * distance_px);
         let other = LineNoise::from_endpoint_sigma(extra, length_px);
         LineNoise {
-            offset_px: self.offset_px.hypot(other.offset_px),
-            angle_rad: self.angle_rad.hypot(other.angle_rad),
+            offset_px: root_sum_square(self.offset_px, other.offset_px),
+            angle_rad: root_sum_square(self.angle_rad, other.angle_rad),
             ..self
         }
     }
@@ -294,8 +303,8 @@ impl LineNoise {
                 length_px,
             );
             LineNoise {
-                offset_px: self.offset_px.hypot(residual.offset_px),
-                angle_rad: self.angle_rad.hypot(residual.angle_rad),
+                offset_px: root_sum_square(self.offset_px, residual.offset_px),
+                angle_rad: root_sum_square(self.angle_rad, residual.angle_rad),
                 ..self
             }
         } else {

@@ -25,7 +25,7 @@ const MIN_RAY_LINE_SIN: f64 = 1e-3;
 
 fn image_line(start: Point2<f64>, end: Point2<f64>) -> Option<Vector3<f64>> {
     let l = Vector3::new(start.x, start.y, 1.0).cross(&Vector3::new(end.x, end.y, 1.0));
-    let n = l.x.hypot(l.y);
+    let n = crate::segment::root_sum_square(l.x, l.y);
     (n > 1e-12).then(|| l / n)
 }
 
@@ -186,8 +186,10 @@ struct ImageOfLine {
     a: Vector3<f64>,
     b: Vector3<f64>,
     l: Vector3<f64>,
-    n: f64,
-    n2: f64,
+    /// 1/n and 1/n³, n the norm of the line's normal (l₀, l₁): each point multiplies by
+    /// them, a division per coordinate being several times the cost of a product.
+    inv_n: f64,
+    inv_n3: f64,
     /// The image motions (homogeneous) of moving a point of the line along `e1` and `e2`.
     m_e1: Vector3<f64>,
     m_e2: Vector3<f64>,
@@ -209,12 +211,13 @@ impl ImageOfLine {
         if n2 < 1e-24 {
             return None;
         }
+        let inv_n = 1.0 / n2.sqrt();
         Some(ImageOfLine {
             a,
             b,
             l,
-            n: n2.sqrt(),
-            n2,
+            inv_n,
+            inv_n3: inv_n / n2,
             m_e1: m * e1,
             m_e2: m * e2,
         })
@@ -224,12 +227,12 @@ impl ImageOfLine {
     /// the line's four parameters: the point moved along `e1`, `e2`, the direction turned
     /// towards `e1`, `e2`.
     fn distance_and_gradient(&self, q: Point2<f64>) -> (f64, Vector4<f64>) {
-        let (l, n, n2) = (&self.l, self.n, self.n2);
+        let (l, inv_n) = (&self.l, self.inv_n);
         let qh = Vector3::new(q.x, q.y, 1.0);
         let dot = l.dot(&qh);
         // dr/dl = q̃/n − dot·(l₀, l₁, 0)/n³; l = a × b, so gᵀ(δa × b) = δaᵀ(b × g) and
         // gᵀ(a × δb) = δbᵀ(g × a), with δa = M·δx0 and δb = M·δd.
-        let g = qh / n - Vector3::new(l.x, l.y, 0.0) * (dot / (n2 * n));
+        let g = qh * inv_n - Vector3::new(l.x, l.y, 0.0) * (dot * self.inv_n3);
         let grad_a = self.b.cross(&g);
         let grad_b = g.cross(&self.a);
         let j = Vector4::new(
@@ -238,7 +241,7 @@ impl ImageOfLine {
             grad_b.dot(&self.m_e1),
             grad_b.dot(&self.m_e2),
         );
-        (dot / n, j)
+        (dot * inv_n, j)
     }
 }
 
@@ -262,17 +265,25 @@ fn linear_start(
     cameras: &[&Camera; 3],
     obs: &[LineObservation],
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-    let mut planes = Vec::with_capacity(obs.len());
-    for o in obs {
+    let plane = |o: &LineObservation| {
         let l = image_line(o.start, o.end)?;
         let pi: Vector4<f64> = cameras[o.view].projection().transpose() * l;
         let n = Vector3::new(pi.x, pi.y, pi.z);
         let norm = n.norm();
-        if !(norm > 0.0 && norm.is_finite()) {
-            return None;
+        (norm > 0.0 && norm.is_finite()).then(|| (n / norm, pi.w / norm, o.view))
+    };
+    // As in `estimate_line_constrained`: a triplet's three planes stay on the stack.
+    let mut on_stack = [(Vector3::zeros(), 0.0, 0); 3];
+    let on_heap: Vec<(Vector3<f64>, f64, usize)>;
+    let planes: &[(Vector3<f64>, f64, usize)] = if obs.len() <= on_stack.len() {
+        for (slot, o) in on_stack.iter_mut().zip(obs) {
+            *slot = plane(o)?;
         }
-        planes.push((n / norm, pi.w / norm, o.view));
-    }
+        &on_stack[..obs.len()]
+    } else {
+        on_heap = obs.iter().map(plane).collect::<Option<_>>()?;
+        &on_heap
+    };
     let mut best: Option<(f64, Vector3<f64>)> = None;
     for (i, a) in planes.iter().enumerate() {
         for b in &planes[i + 1..] {
@@ -299,7 +310,7 @@ fn linear_start(
         / 3.0;
     let mut normal_matrix = dir * dir.transpose();
     let mut rhs = dir * dir.dot(&centroid);
-    for (n, d, _) in &planes {
+    for (n, d, _) in planes {
         normal_matrix += n * n.transpose();
         rhs -= n * *d;
     }
@@ -425,9 +436,10 @@ pub fn estimate_line_constrained(
             let image = ImageOfLine::new(cameras[*view].projection(), x0, d, (&e1, &e2))?;
             for &(q, sigma) in pts {
                 let (r, j) = image.distance_and_gradient(q);
-                let j = j / sigma;
-                let rn = r / sigma;
-                h += j * j.transpose();
+                let inv_sigma = 1.0 / sigma;
+                let j = j * inv_sigma;
+                let rn = r * inv_sigma;
+                h.ger(1.0, &j, &j, 1.0);
                 g += j * rn;
                 if systematic {
                     shifted[*view] += j * (systematic_px / sigma);

@@ -122,6 +122,7 @@ struct Pair<'a> {
     /// Epipolar vector c1 − cj (metres) and its unit direction.
     e_j: Vector2<f64>,
     e_j_len: f64,
+    inv_e_j_len: f64,
     /// c1 − ck.
     e_k: Vector2<f64>,
     grid_j: &'a Buckets,
@@ -244,6 +245,7 @@ pub fn predict_in_frames_until(
             first: first[frame],
             e_j,
             e_j_len: e_j.norm(),
+            inv_e_j_len: 1.0 / e_j.norm(),
             e_k: rect.epipolar(0, k),
             grid_j,
             grid_k,
@@ -523,19 +525,23 @@ impl Search<'_> {
         if hi - lo < MIN_OVERLAP_PX {
             return;
         }
-        let x1 = |y: f64| ax + (bx - ax) * ((y - ay) / (by - ay));
-        let xj = |y: f64| cx_ + (dx_ - cx_) * ((y - cy_) / (dy_ - cy_));
-        let slack = tol / pair.e_j_len;
+        // In products by reciprocals: a division costs several products, and every
+        // candidate took nine of them.
+        let inv_dy1 = 1.0 / (by - ay);
+        let inv_dyj = 1.0 / (dy_ - cy_);
+        let x1 = |y: f64| ax + (bx - ax) * ((y - ay) * inv_dy1);
+        let xj = |y: f64| cx_ + (dx_ - cx_) * ((y - cy_) * inv_dyj);
+        let slack = tol * pair.inv_e_j_len;
         let (d_lo, d_hi) = (
-            (xj(lo) - x1(lo)) / pair.e_j_len,
-            (xj(hi) - x1(hi)) / pair.e_j_len,
+            (xj(lo) - x1(lo)) * pair.inv_e_j_len,
+            (xj(hi) - x1(hi)) * pair.inv_e_j_len,
         );
         let in_range = |d: f64| d >= self.d_min - slack && d <= self.d_max + slack;
         if !in_range(d_lo) || !in_range(d_hi) {
             return;
         }
         // Positions along S1 of the common part's ends, in S1's own order.
-        let t_at = |y: f64| s1.len * (y - ay) / (by - ay);
+        let t_at = |y: f64| s1.len * ((y - ay) * inv_dy1);
         let (mut t0, mut t1, mut d0, mut d1) = (t_at(lo), t_at(hi), d_lo, d_hi);
         if t0 > t1 {
             (t0, t1, d0, d1) = (t1, t0, d1, d0);

@@ -576,17 +576,22 @@ pub fn estimate_line_constrained(
     // Re-centre the line's point on the segment: moving the pivot by m along the line maps
     // the parameters (a, b) to (a + m·b, b), so the covariance follows without re-evaluating.
     let mid = 0.5 * (lo + hi);
+    // The ends as the fit's parameters see them, along the line from its pivot.
+    let ends_of_line = EndsOfLine {
+        basis: nalgebra::Matrix3x2::from_columns(&[e1, e2]),
+        along: if first_sign >= 0.0 {
+            [lo, hi]
+        } else {
+            [hi, lo]
+        },
+    };
     x0 += d * mid;
     let (lo, hi) = (lo - mid, hi - mid);
-    let mut shift = nalgebra::Matrix4::<f64>::identity();
-    shift[(0, 2)] = mid;
-    shift[(1, 3)] = mid;
     // A normal matrix too ill-conditioned for its inverse to come out positive definite
     // (a line lying nearly in an epipolar plane of a collinear rig, known to metres: found by
     // `ml_line_round_trips`) is a line the views do not determine.
     let h_inv = h.try_inverse()?;
     h_inv.cholesky()?;
-    let line_cov = shift * h_inv * shift.transpose();
     let (t_start, t_end) = if first_sign >= 0.0 {
         (lo, hi)
     } else {
@@ -602,15 +607,6 @@ pub fn estimate_line_constrained(
             }
         }
     }
-    let mut j = nalgebra::Matrix6x4::<f64>::zeros();
-    for (row, t) in [(0, t_start), (3, t_end)] {
-        for k in 0..3 {
-            j[(row + k, 0)] = e1[k];
-            j[(row + k, 1)] = e2[k];
-            j[(row + k, 2)] = t * e1[k];
-            j[(row + k, 3)] = t * e2[k];
-        }
-    }
     // With more observations than the line's 4 parameters, their scatter says whether the
     // stated noise was too small for this line: scale up (never down) by the χ² per degree
     // of freedom.
@@ -622,12 +618,11 @@ pub fn estimate_line_constrained(
     } else {
         1.0
     };
-    let mut covariance = j * line_cov * j.transpose() * posterior;
-    // Each view's shift moves the parameters by H⁻¹·sᵥ, re-centred and mapped onto the ends
-    // as the covariance's are (`shift`, then `j`).
+    let mut covariance = ends_of_line.covariance(&h_inv) * posterior;
+    // Each view's shift moves the parameters by H⁻¹·sᵥ, mapped onto the ends as the
+    // covariance is.
     let systematic_shifts = if systematic {
-        let to_ends = j * shift * h_inv;
-        shifted.map(|s| to_ends * s)
+        shifted.map(|s| ends_of_line.moved(&(h_inv * s)))
     } else {
         [Vector6::zeros(); 3]
     };
@@ -702,7 +697,87 @@ pub fn estimate_line_constrained(
     })
 }
 
+/// The two ends of a fitted line as functions of the fit's four parameters (the pivot moved
+/// by (a, b) along (e1, e2), the direction turned by (c, f)): an end `along` the line from the
+/// pivot moves by e1·(a + along·c) + e2·(b + along·f), so its Jacobian is the 3×2 `basis`
+/// [e1 e2] times [[1, 0, along, 0], [0, 1, 0, along]]. Every fit maps its parameters'
+/// covariance through it; spelled out, each 3×3 block of J·P·Jᵀ is `basis`·(2×2)·`basisᵀ`,
+/// a fraction of the dense 6×4 products (docs/PERFORMANCE.md).
+struct EndsOfLine {
+    basis: nalgebra::Matrix3x2<f64>,
+    /// Start and end, from the pivot.
+    along: [f64; 2],
+}
+
+impl EndsOfLine {
+    /// The 2×2 core of the (a, b) block of J·P·Jᵀ, a and b ends: T_a·P·T_bᵀ.
+    fn core(&self, p: &nalgebra::Matrix4<f64>, a: usize, b: usize) -> nalgebra::Matrix2<f64> {
+        let (ta, tb) = (self.along[a], self.along[b]);
+        nalgebra::Matrix2::from_fn(|i, j| {
+            p[(i, j)] + ta * p[(i + 2, j)] + tb * (p[(i, j + 2)] + ta * p[(i + 2, j + 2)])
+        })
+    }
+
+    /// J·P·Jᵀ: the ends' covariance (start, end stacked) of parameters of covariance `p`.
+    fn covariance(&self, p: &nalgebra::Matrix4<f64>) -> Matrix6<f64> {
+        let mut out = Matrix6::zeros();
+        for (a, b) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+            let block = self.basis * self.core(p, a, b) * self.basis.transpose();
+            out.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&block);
+        }
+        out
+    }
+
+    /// J·v: how the ends move when the parameters move by `v`.
+    fn moved(&self, v: &Vector4<f64>) -> Vector6<f64> {
+        let end = |t: f64| self.basis * nalgebra::Vector2::new(v[0] + t * v[2], v[1] + t * v[3]);
+        let (start, end) = (end(self.along[0]), end(self.along[1]));
+        Vector6::new(start.x, start.y, start.z, end.x, end.y, end.z)
+    }
+}
+
 /// The middle one of three numbers (the median of three views' ends, or of their noise).
 pub(crate) fn middle_of(a: f64, b: f64, c: f64) -> f64 {
     a.max(b).min(a.min(b).max(c))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The block form of J·P·Jᵀ and of J·v is the dense product's, to rounding.
+        #[test]
+        fn ends_of_line_is_the_dense_jacobian(
+            d in prop::array::uniform3(-1.0f64..1.0),
+            along in prop::array::uniform2(-5.0f64..5.0),
+            root in prop::array::uniform16(-1.0f64..1.0),
+            v in prop::array::uniform4(-1.0f64..1.0),
+        ) {
+            let d = Vector3::from(d);
+            prop_assume!(d.norm() > 0.1);
+            let (e1, e2) = across_basis(&d.normalize());
+            let ends = EndsOfLine {
+                basis: nalgebra::Matrix3x2::from_columns(&[e1, e2]),
+                along,
+            };
+            let r = nalgebra::Matrix4::from_row_slice(&root);
+            let p = r * r.transpose();
+            let mut j = nalgebra::Matrix6x4::<f64>::zeros();
+            for (row, t) in [(0, along[0]), (3, along[1])] {
+                for k in 0..3 {
+                    j[(row + k, 0)] = e1[k];
+                    j[(row + k, 1)] = e2[k];
+                    j[(row + k, 2)] = t * e1[k];
+                    j[(row + k, 3)] = t * e2[k];
+                }
+            }
+            let dense = j * p * j.transpose();
+            let scale = 1.0 + dense.amax();
+            prop_assert!((ends.covariance(&p) - dense).amax() <= 1e-12 * scale);
+            let v = Vector4::from(v);
+            prop_assert!((ends.moved(&v) - j * v).amax() <= 1e-12 * (1.0 + (j * v).amax()));
+        }
+    }
 }

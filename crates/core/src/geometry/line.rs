@@ -573,10 +573,10 @@ pub fn estimate_line_constrained(
     } else {
         [reach_hi, reach_lo]
     };
-    // Re-centre the line's point on the segment: moving the pivot by m along the line maps
-    // the parameters (a, b) to (a + m·b, b), so the covariance follows without re-evaluating.
+    // Re-centre the line's point on the segment. The ends' covariance needs no re-evaluation:
+    // it maps the fit's own parameters, through the ends placed along the line from the
+    // fit's pivot.
     let mid = 0.5 * (lo + hi);
-    // The ends as the fit's parameters see them, along the line from its pivot.
     let ends_of_line = EndsOfLine {
         basis: nalgebra::Matrix3x2::from_columns(&[e1, e2]),
         along: if first_sign >= 0.0 {

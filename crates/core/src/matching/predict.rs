@@ -427,6 +427,7 @@ impl Search<'_> {
         if (by - ay).abs() < MIN_OVERLAP_PX {
             return; // parallel to both epipolar directions: only a collinear rig gets here
         }
+        let inv_dy1 = 1.0 / (by - ay);
         let key1 = angle_key(s1.dir, self.period);
         let angle_tol = self.params.angle_tolerance_deg.to_radians();
         let (shift_min, shift_max) = (
@@ -466,7 +467,7 @@ impl Search<'_> {
             if out.len() >= MAX_VERIFIED_PER_SEGMENT {
                 break;
             }
-            self.verify_pair(i1, s1, (ax, ay, bx, by), pair, ij, scratch, out);
+            self.verify_pair(i1, s1, (ax, ay, bx, by), inv_dy1, pair, ij, scratch, out);
         }
         scratch.candidates = candidates;
     }
@@ -502,6 +503,7 @@ impl Search<'_> {
         i1: u32,
         s1: &RectSegment,
         (ax, ay, bx, by): (f64, f64, f64, f64),
+        inv_dy1: f64,
         pair: &Pair,
         ij: u32,
         scratch: &mut Scratch,
@@ -525,9 +527,8 @@ impl Search<'_> {
         if hi - lo < MIN_OVERLAP_PX {
             return;
         }
-        // In products by reciprocals: a division costs several products, and every
-        // candidate took nine of them.
-        let inv_dy1 = 1.0 / (by - ay);
+        // In products by reciprocals (1/Δy of S1 is its caller's, once per S1): a division
+        // costs several products, and every candidate took nine of them.
         let inv_dyj = 1.0 / (dy_ - cy_);
         let x1 = |y: f64| ax + (bx - ax) * ((y - ay) * inv_dy1);
         let xj = |y: f64| cx_ + (dx_ - cx_) * ((y - cy_) * inv_dyj);
